@@ -1,0 +1,944 @@
+"""OpenFOAM polyMesh (ASCII) reader, geometry and point location.
+
+Everything here works on arbitrary polyhedral meshes given as OpenFOAM's
+face-based description:
+
+* ``points``     (nPoints, 3) float
+* ``faces``      list of point-index loops (stored as CSR ``face_offsets`` /
+  ``face_points``); the right-hand-rule normal of a face points from its owner
+  to its neighbour (outwards for boundary faces)
+* ``owner``      (nFaces,)  cell on the normal's tail side
+* ``neighbour``  (nInternalFaces,) cell on the normal's head side; internal
+  faces come first, boundary faces afterwards, grouped by patch.
+
+Geometry follows OpenFOAM's ``primitiveMesh`` decomposition:
+
+* face centre / area vector: triangle fan around the face's point average;
+  the area vector is half the sum of the triangle cross products, the centre
+  is the triangle-centroid average weighted by each triangle's area projected
+  on the face normal (as ``primitiveMeshFaceCentresAndAreas`` does);
+* cell centre / volume: pyramids from an estimated centre (average of the
+  face centres) to every face; volume = sum of pyramid volumes, centre =
+  volume-weighted pyramid centroids (3/4 face centre + 1/4 apex).
+
+Point location (``PolyMesh.locate``) uses the face-plane inside test: x is in
+cell c when, for every face f of c, ``(x - C_f) . n_f <= tol`` with ``n_f`` the
+outward unit normal of f seen from c (``+S_f`` for the owner, ``-S_f`` for the
+neighbour).  The search is
+
+1. the hint cell (previous cell of the particle): one inside test;
+2. a face-to-face walk from the hint towards the point, always crossing the
+   face whose plane the point violates most;
+3. if there is no hint or the walk hits a boundary / does not converge: a
+   uniform bucket grid over the domain's bounding box, each bucket listing the
+   cells whose bounding box overlaps it; the candidates in the point's bucket
+   are inside-tested (nearest centre first is unnecessary: the test is exact),
+   so the result does not depend on the walk succeeding (non-convex domains).
+
+For a uniform axis-aligned grid (blockMesh with one block or several blocks of
+the same spacing) ``PolyMesh.uniform_grid`` detects the lattice and
+``locate`` uses a direct index computation.
+
+Binary polyMesh files are not supported (clear error): convert them with
+``foamFormatConvert`` after setting ``writeFormat ascii`` in controlDict.
+"""
+from __future__ import annotations
+
+import gzip
+import os
+import re
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from numba import njit, prange
+
+__all__ = [
+    "PolyMesh",
+    "read_polymesh",
+    "read_foam_list",
+    "read_boundary",
+    "write_polymesh",
+    "structured_hex_mesh",
+    "UniformGrid",
+]
+
+
+# --------------------------------------------------------------------------
+# ASCII reader
+# --------------------------------------------------------------------------
+_BLOCK_COMMENT = re.compile(r"/\*.*?\*/", re.S)
+_LINE_COMMENT = re.compile(r"//[^\n]*")
+
+
+def _read_text(path: str) -> str:
+    if not os.path.exists(path) and os.path.exists(path + ".gz"):
+        path = path + ".gz"
+    if path.endswith(".gz"):
+        with gzip.open(path, "rb") as fh:
+            raw = fh.read()
+    else:
+        with open(path, "rb") as fh:
+            raw = fh.read()
+    # Binary files contain arbitrary bytes after the header; decode leniently
+    # so that the header can still be read and a clear error raised.
+    return raw.decode("latin-1")
+
+
+def _split_header(text: str, path: str) -> tuple[dict, str]:
+    """Return (FoamFile header dict, body with comments removed)."""
+    header: dict = {}
+    m = re.search(r"\bFoamFile\s*\{", text)
+    if m:
+        end = text.index("}", m.end())
+        for key, val in re.findall(r"(\w+)\s+([^;]*);", text[m.end():end]):
+            header[key] = val.strip().strip('"')
+        if header.get("format", "ascii").lower() != "ascii":
+            raise NotImplementedError(
+                f"{path}: polyMesh file is in '{header.get('format')}' format; only "
+                "ASCII is supported. Convert with `foamFormatConvert` after setting "
+                "`writeFormat ascii;` in system/controlDict (or run `foamFormatConvert "
+                "-constant` for the mesh).")
+        body = text[:m.start()] + text[end + 1:]
+    else:
+        body = text
+    body = _BLOCK_COMMENT.sub(" ", body)
+    body = _LINE_COMMENT.sub(" ", body)
+    return header, body
+
+
+def _numbers(body: str, path: str) -> np.ndarray:
+    body = body.replace("(", " ").replace(")", " ")
+    toks = body.split()
+    try:
+        return np.array(toks, dtype=np.float64)
+    except ValueError as exc:  # pragma: no cover - malformed file
+        raise ValueError(f"{path}: unexpected token in list: {exc}") from None
+
+
+@njit(cache=True)
+def _unflatten_faces(flat, start, n_faces):
+    """flat = [..., n0, i.., n1, i.., ...] from position start -> CSR."""
+    offsets = np.empty(n_faces + 1, np.int64)
+    offsets[0] = 0
+    pos = start
+    for f in range(n_faces):
+        if pos >= flat.shape[0]:
+            return offsets, np.empty(0, np.int64), -1
+        n = np.int64(flat[pos])
+        offsets[f + 1] = offsets[f] + n
+        pos += 1 + n
+    pts = np.empty(offsets[n_faces], np.int64)
+    pos = start
+    k = 0
+    for f in range(n_faces):
+        n = np.int64(flat[pos])
+        pos += 1
+        for j in range(n):
+            pts[k] = np.int64(flat[pos + j])
+            k += 1
+        pos += n
+    return offsets, pts, pos
+
+
+def read_foam_list(path: str):
+    """Read one ASCII OpenFOAM list file of polyMesh.
+
+    Returns
+    -------
+    * ``vectorField`` (points): float array (n, 3)
+    * ``labelList`` (owner, neighbour): int64 array (n,)
+    * ``faceList`` / ``faceCompactList`` (faces): tuple (offsets, indices)
+      in CSR form, ``offsets`` of length nFaces + 1.
+
+    Both the multi-line layout (``N`` newline ``(`` one item per line ``)``)
+    and the compact one (``N(...)``, ``4(0 1 2 3)``) are handled, as is the
+    uniform ``N{value}`` form for label lists and gzip-compressed files.
+    """
+    text = _read_text(path)
+    header, body = _split_header(text, path)
+    cls = header.get("class", "")
+    name = os.path.basename(path).replace(".gz", "")
+    if not cls:
+        cls = {"points": "vectorField", "faces": "faceList"}.get(name, "labelList")
+
+    m = re.match(r"\s*(\d+)\s*\{\s*([^}]*)\}", body)
+    if m:  # uniform list N{value}
+        n = int(m.group(1))
+        if "vector" in cls:
+            v = np.array(m.group(2).replace("(", " ").replace(")", " ").split(),
+                         dtype=np.float64)
+            return np.tile(v, (n, 1))
+        return np.full(n, int(float(m.group(2))), dtype=np.int64)
+
+    flat = _numbers(body, path)
+    if flat.size == 0:
+        raise ValueError(f"{path}: empty list")
+
+    if "vector" in cls:
+        n = int(flat[0])
+        if flat.size - 1 != 3 * n:
+            raise ValueError(f"{path}: header says {n} points but found "
+                             f"{(flat.size - 1) / 3:g} vectors")
+        return flat[1:].reshape(n, 3).copy()
+
+    if cls == "faceCompactList":
+        n_off = int(flat[0])
+        offsets = flat[1:1 + n_off].astype(np.int64)
+        n_idx = int(flat[1 + n_off])
+        idx = flat[2 + n_off:2 + n_off + n_idx].astype(np.int64)
+        if idx.size != n_idx or offsets[-1] != n_idx:
+            raise ValueError(f"{path}: inconsistent faceCompactList")
+        return offsets, idx
+
+    if cls == "faceList":
+        n = int(flat[0])
+        offsets, pts, end = _unflatten_faces(flat, 1, n)
+        if end != flat.size:
+            raise ValueError(f"{path}: header says {n} faces but the list has "
+                             f"{'fewer' if end < 0 else 'more'} entries")
+        return offsets, pts
+
+    # labelList (owner / neighbour)
+    n = int(flat[0])
+    if flat.size - 1 != n:
+        raise ValueError(f"{path}: header says {n} labels but found {flat.size - 1}")
+    return flat[1:].astype(np.int64)
+
+
+def read_boundary(path: str) -> list[dict]:
+    """Parse constant/polyMesh/boundary -> list of dicts with at least
+    name, type, nFaces, startFace (ints converted)."""
+    text = _read_text(path)
+    _, body = _split_header(text, path)
+    patches = []
+    for name, content in re.findall(r"([^\s{}()]+)\s*\{([^}]*)\}", body):
+        d = {"name": name}
+        for key, val in re.findall(r"(\w+)\s+([^;]*);", content):
+            val = val.strip()
+            d[key] = int(val) if re.fullmatch(r"-?\d+", val) else val
+        patches.append(d)
+    return patches
+
+
+def read_polymesh(case_or_dir: str) -> "PolyMesh":
+    """Read an ASCII polyMesh from a case directory, its ``constant`` dir or
+    the ``polyMesh`` directory itself."""
+    d = case_or_dir
+    for cand in (os.path.join(d, "constant", "polyMesh"), os.path.join(d, "polyMesh"), d):
+        if os.path.exists(os.path.join(cand, "owner")) or \
+                os.path.exists(os.path.join(cand, "owner.gz")):
+            d = cand
+            break
+    else:
+        raise FileNotFoundError(f"no polyMesh (owner file) found under {case_or_dir}")
+    points = read_foam_list(os.path.join(d, "points"))
+    face_offsets, face_points = read_foam_list(os.path.join(d, "faces"))
+    owner = read_foam_list(os.path.join(d, "owner"))
+    neighbour = read_foam_list(os.path.join(d, "neighbour"))
+    bpath = os.path.join(d, "boundary")
+    boundary = read_boundary(bpath) if (os.path.exists(bpath) or os.path.exists(bpath + ".gz")) else []
+    return PolyMesh(points, face_offsets, face_points, owner, neighbour, boundary)
+
+
+# --------------------------------------------------------------------------
+# Writer (used by tests and small generated cases)
+# --------------------------------------------------------------------------
+def _header(cls: str, obj: str, note: str = "") -> str:
+    note_line = f'    note        "{note}";\n' if note else ""
+    return ("/*--------------------------------*- C++ -*----------------------------------*\\\n"
+            "  written by coupling.mesh\n"
+            "\\*---------------------------------------------------------------------------*/\n"
+            "FoamFile\n{\n    version     2.0;\n    format      ascii;\n"
+            f"    class       {cls};\n{note_line}    location    \"constant/polyMesh\";\n"
+            f"    object      {obj};\n}}\n"
+            "// * * * * * * * * * * * * * * * * * * * * * * * * * * * * * * * * * * * * * //\n\n")
+
+
+def write_polymesh(directory: str, points, face_offsets, face_points, owner, neighbour,
+                   boundary: list[dict], style: str = "multiline") -> None:
+    """Write an ASCII polyMesh.  ``style='multiline'`` writes faces and label
+    lists one item per line (blockMesh layout); ``style='compact'`` writes
+    each list in ``N(...)`` form and faces as multi-line ``n`` / ``(`` / ids
+    / ``)`` blocks, exercising the other layouts the reader accepts."""
+    os.makedirs(directory, exist_ok=True)
+    points = np.asarray(points, float)
+    owner = np.asarray(owner, np.int64)
+    neighbour = np.asarray(neighbour, np.int64)
+    n_cells = int(max(owner.max(), neighbour.max() if neighbour.size else -1)) + 1
+    note = f"nPoints:{len(points)} nCells:{n_cells} nFaces:{len(owner)} " \
+           f"nInternalFaces:{len(neighbour)}"
+    with open(os.path.join(directory, "points"), "w") as fh:
+        fh.write(_header("vectorField", "points"))
+        fh.write(f"{len(points)}\n(\n")
+        fh.write("\n".join(f"({p[0]:.17g} {p[1]:.17g} {p[2]:.17g})" for p in points))
+        fh.write("\n)\n")
+    with open(os.path.join(directory, "faces"), "w") as fh:
+        fh.write(_header("faceList", "faces"))
+        nf = len(face_offsets) - 1
+        fh.write(f"{nf}\n(\n")
+        lines = []
+        for f in range(nf):
+            ids = face_points[face_offsets[f]:face_offsets[f + 1]]
+            if style == "compact":
+                lines.append(f"{len(ids)}\n(\n" + "\n".join(str(i) for i in ids) + "\n)")
+            else:
+                lines.append(f"{len(ids)}(" + " ".join(str(i) for i in ids) + ")")
+        fh.write("\n".join(lines))
+        fh.write("\n)\n")
+    for name, arr in (("owner", owner), ("neighbour", neighbour)):
+        with open(os.path.join(directory, name), "w") as fh:
+            fh.write(_header("labelList", name, note))
+            if style == "compact":
+                fh.write(f"{len(arr)}(" + " ".join(str(i) for i in arr) + ")\n")
+            else:
+                fh.write(f"{len(arr)}\n(\n" + "\n".join(str(i) for i in arr) + "\n)\n")
+    with open(os.path.join(directory, "boundary"), "w") as fh:
+        fh.write(_header("polyBoundaryMesh", "boundary"))
+        fh.write(f"{len(boundary)}\n(\n")
+        for p in boundary:
+            fh.write(f"    {p['name']}\n    {{\n        type            {p.get('type', 'patch')};\n"
+                     f"        nFaces          {p['nFaces']};\n"
+                     f"        startFace       {p['startFace']};\n    }}\n")
+        fh.write(")\n")
+
+
+def structured_hex_mesh(X: np.ndarray):
+    """Hexahedral mesh from a structured point array ``X`` of shape
+    (nx+1, ny+1, nz+1, 3) (any, possibly distorted, positions).
+
+    Cell (i, j, k) gets index ``i + nx*(j + ny*k)`` (blockMesh order).
+    Internal faces are sorted by (owner, neighbour) (upper-triangular order as
+    OpenFOAM requires), boundary faces follow in six patches
+    xmin, xmax, ymin, ymax, zmin, zmax.
+
+    Returns (points, face_offsets, face_points, owner, neighbour, boundary).
+    """
+    X = np.asarray(X, float)
+    nx, ny, nz = X.shape[0] - 1, X.shape[1] - 1, X.shape[2] - 1
+    pid = np.arange((nx + 1) * (ny + 1) * (nz + 1)).reshape(nz + 1, ny + 1, nx + 1).transpose(2, 1, 0)
+    points = X.transpose(2, 1, 0, 3).reshape(-1, 3)
+
+    def cid(i, j, k):
+        return i + nx * (j + ny * k)
+
+    I, J, K = np.meshgrid(np.arange(nx + 1), np.arange(ny + 1), np.arange(nz + 1), indexing="ij")
+    faces_int, own_int, nei_int = [], [], []
+    bfaces = {n: ([], []) for n in ("xmin", "xmax", "ymin", "ymax", "zmin", "zmax")}
+
+    # x-faces: normal +x : (i,j,k) (i,j+1,k) (i,j+1,k+1) (i,j,k+1)
+    i, j, k = I[:, :ny, :nz].ravel(), J[:, :ny, :nz].ravel(), K[:, :ny, :nz].ravel()
+    q = np.stack([pid[i, j, k], pid[i, j + 1, k], pid[i, j + 1, k + 1], pid[i, j, k + 1]], 1)
+    _split_faces(q, i, nx, cid(i - 1, j, k), cid(i, j, k), faces_int, own_int, nei_int,
+                 bfaces["xmin"], bfaces["xmax"])
+    # y-faces: normal +y : (i,j,k) (i,j,k+1) (i+1,j,k+1) (i+1,j,k)
+    i, j, k = I[:nx, :, :nz].ravel(), J[:nx, :, :nz].ravel(), K[:nx, :, :nz].ravel()
+    q = np.stack([pid[i, j, k], pid[i, j, k + 1], pid[i + 1, j, k + 1], pid[i + 1, j, k]], 1)
+    _split_faces(q, j, ny, cid(i, j - 1, k), cid(i, j, k), faces_int, own_int, nei_int,
+                 bfaces["ymin"], bfaces["ymax"])
+    # z-faces: normal +z : (i,j,k) (i+1,j,k) (i+1,j+1,k) (i,j+1,k)
+    i, j, k = I[:nx, :ny, :].ravel(), J[:nx, :ny, :].ravel(), K[:nx, :ny, :].ravel()
+    q = np.stack([pid[i, j, k], pid[i + 1, j, k], pid[i + 1, j + 1, k], pid[i, j + 1, k]], 1)
+    _split_faces(q, k, nz, cid(i, j, k - 1), cid(i, j, k), faces_int, own_int, nei_int,
+                 bfaces["zmin"], bfaces["zmax"])
+
+    fi = np.concatenate(faces_int)
+    oi = np.concatenate(own_int)
+    ni = np.concatenate(nei_int)
+    order = np.lexsort((ni, oi))
+    faces = [fi[order]]
+    owner = [oi[order]]
+    boundary = []
+    start = len(order)
+    for name, (fl, ol) in bfaces.items():
+        f = np.concatenate(fl) if fl else np.zeros((0, 4), np.int64)
+        o = np.concatenate(ol) if ol else np.zeros(0, np.int64)
+        faces.append(f)
+        owner.append(o)
+        boundary.append({"name": name, "type": "wall", "nFaces": len(o), "startFace": start})
+        start += len(o)
+    faces = np.concatenate(faces).astype(np.int64)
+    owner = np.concatenate(owner).astype(np.int64)
+    face_offsets = np.arange(0, 4 * len(faces) + 1, 4, dtype=np.int64)
+    return points, face_offsets, faces.ravel(), owner, ni[order].astype(np.int64), boundary
+
+
+def _split_faces(q, idx, n, c_lo, c_hi, faces_int, own_int, nei_int, b_lo, b_hi):
+    inner = (idx > 0) & (idx < n)
+    faces_int.append(q[inner])
+    own_int.append(c_lo[inner])
+    nei_int.append(c_hi[inner])
+    lo = idx == 0
+    b_lo[0].append(q[lo][:, ::-1])  # reversed: outward normal -axis
+    b_lo[1].append(c_hi[lo])
+    hi = idx == n
+    b_hi[0].append(q[hi])
+    b_hi[1].append(c_lo[hi])
+
+
+# --------------------------------------------------------------------------
+# Geometry kernels (OpenFOAM primitiveMesh decomposition)
+# --------------------------------------------------------------------------
+@njit(cache=True)
+def _face_geometry(points, face_offsets, face_points):
+    nf = face_offsets.shape[0] - 1
+    fc = np.zeros((nf, 3))
+    fa = np.zeros((nf, 3))
+    for f in range(nf):
+        s = face_offsets[f]
+        n = face_offsets[f + 1] - s
+        if n == 3:
+            a = points[face_points[s]]
+            b = points[face_points[s + 1]]
+            c = points[face_points[s + 2]]
+            for d in range(3):
+                fc[f, d] = (a[d] + b[d] + c[d]) / 3.0
+            e1 = b - a
+            e2 = c - a
+            fa[f, 0] = 0.5 * (e1[1] * e2[2] - e1[2] * e2[1])
+            fa[f, 1] = 0.5 * (e1[2] * e2[0] - e1[0] * e2[2])
+            fa[f, 2] = 0.5 * (e1[0] * e2[1] - e1[1] * e2[0])
+            continue
+        pavg = np.zeros(3)
+        for j in range(n):
+            pavg += points[face_points[s + j]]
+        pavg /= n
+        sumN = np.zeros(3)
+        for j in range(n):
+            p = points[face_points[s + j]]
+            q = points[face_points[s + (j + 1) % n]]
+            e1 = q - p
+            e2 = pavg - p
+            sumN[0] += e1[1] * e2[2] - e1[2] * e2[1]
+            sumN[1] += e1[2] * e2[0] - e1[0] * e2[2]
+            sumN[2] += e1[0] * e2[1] - e1[1] * e2[0]
+        sumA = 0.0
+        sumAc = np.zeros(3)
+        for j in range(n):
+            p = points[face_points[s + j]]
+            q = points[face_points[s + (j + 1) % n]]
+            e1 = q - p
+            e2 = pavg - p
+            nx = e1[1] * e2[2] - e1[2] * e2[1]
+            ny = e1[2] * e2[0] - e1[0] * e2[2]
+            nz = e1[0] * e2[1] - e1[1] * e2[0]
+            a = nx * sumN[0] + ny * sumN[1] + nz * sumN[2]  # projected area (x |sumN|)
+            sumA += a
+            for d in range(3):
+                sumAc[d] += a * (p[d] + q[d] + pavg[d])
+        if sumA < 1e-300:
+            fc[f] = pavg
+        else:
+            fc[f] = sumAc / (3.0 * sumA)
+        fa[f] = 0.5 * sumN
+    return fc, fa
+
+
+@njit(cache=True)
+def _cell_geometry(fc, fa, owner, neighbour, n_cells):
+    n_int = neighbour.shape[0]
+    nf = owner.shape[0]
+    cest = np.zeros((n_cells, 3))
+    nfc = np.zeros(n_cells)
+    for f in range(nf):
+        cest[owner[f]] += fc[f]
+        nfc[owner[f]] += 1.0
+    for f in range(n_int):
+        cest[neighbour[f]] += fc[f]
+        nfc[neighbour[f]] += 1.0
+    for c in range(n_cells):
+        cest[c] /= max(nfc[c], 1.0)
+    cc = np.zeros((n_cells, 3))
+    cv = np.zeros(n_cells)
+    for f in range(nf):
+        o = owner[f]
+        v = 0.0
+        for d in range(3):
+            v += fa[f, d] * (fc[f, d] - cest[o, d])
+        for d in range(3):
+            cc[o, d] += v * (0.75 * fc[f, d] + 0.25 * cest[o, d])
+        cv[o] += v
+    for f in range(n_int):
+        nb = neighbour[f]
+        v = 0.0
+        for d in range(3):
+            v += fa[f, d] * (cest[nb, d] - fc[f, d])
+        for d in range(3):
+            cc[nb, d] += v * (0.75 * fc[f, d] + 0.25 * cest[nb, d])
+        cv[nb] += v
+    for c in range(n_cells):
+        if abs(cv[c]) > 1e-300:
+            cc[c] /= cv[c]
+        else:
+            cc[c] = cest[c]
+        cv[c] /= 3.0
+    return cc, cv
+
+
+@njit(cache=True)
+def _cell_bboxes(points, face_offsets, face_points, owner, neighbour, n_cells):
+    lo = np.full((n_cells, 3), np.inf)
+    hi = np.full((n_cells, 3), -np.inf)
+    n_int = neighbour.shape[0]
+    for f in range(owner.shape[0]):
+        o = owner[f]
+        nb = neighbour[f] if f < n_int else -1
+        for k in range(face_offsets[f], face_offsets[f + 1]):
+            p = points[face_points[k]]
+            for d in range(3):
+                if p[d] < lo[o, d]:
+                    lo[o, d] = p[d]
+                if p[d] > hi[o, d]:
+                    hi[o, d] = p[d]
+                if nb >= 0:
+                    if p[d] < lo[nb, d]:
+                        lo[nb, d] = p[d]
+                    if p[d] > hi[nb, d]:
+                        hi[nb, d] = p[d]
+    return lo, hi
+
+
+# --------------------------------------------------------------------------
+# Bucket grid
+# --------------------------------------------------------------------------
+@njit(cache=True)
+def _bucket_range(lo, hi, origin, h, dims, pad, c, i0, i1):
+    for d in range(3):
+        a = int(np.floor((lo[c, d] - pad - origin[d]) / h[d]))
+        b = int(np.floor((hi[c, d] + pad - origin[d]) / h[d]))
+        i0[d] = min(max(a, 0), dims[d] - 1)
+        i1[d] = min(max(b, 0), dims[d] - 1)
+
+
+@njit(cache=True)
+def _build_buckets(lo, hi, origin, h, dims, pad):
+    nb = dims[0] * dims[1] * dims[2]
+    counts = np.zeros(nb + 1, np.int64)
+    n_cells = lo.shape[0]
+    i0 = np.empty(3, np.int64)
+    i1 = np.empty(3, np.int64)
+    for c in range(n_cells):
+        _bucket_range(lo, hi, origin, h, dims, pad, c, i0, i1)
+        for k in range(i0[2], i1[2] + 1):
+            for j in range(i0[1], i1[1] + 1):
+                for i in range(i0[0], i1[0] + 1):
+                    counts[i + dims[0] * (j + dims[1] * k) + 1] += 1
+    for b in range(nb):
+        counts[b + 1] += counts[b]
+    fill = counts[:-1].copy()
+    cells = np.empty(counts[nb], np.int64)
+    for c in range(n_cells):
+        _bucket_range(lo, hi, origin, h, dims, pad, c, i0, i1)
+        for k in range(i0[2], i1[2] + 1):
+            for j in range(i0[1], i1[1] + 1):
+                for i in range(i0[0], i1[0] + 1):
+                    b = i + dims[0] * (j + dims[1] * k)
+                    cells[fill[b]] = c
+                    fill[b] += 1
+    return counts, cells
+
+
+# --------------------------------------------------------------------------
+# Location kernels
+# --------------------------------------------------------------------------
+@njit(cache=True, inline="always")
+def _max_violation(x0, x1, x2, c, cf_off, cf_centre, cf_normal):
+    """Largest signed distance of x to the (outward) face planes of cell c,
+    and the local face slot that attains it."""
+    dmax = -np.inf
+    kbest = -1
+    for k in range(cf_off[c], cf_off[c + 1]):
+        d = ((x0 - cf_centre[k, 0]) * cf_normal[k, 0]
+             + (x1 - cf_centre[k, 1]) * cf_normal[k, 1]
+             + (x2 - cf_centre[k, 2]) * cf_normal[k, 2])
+        if d > dmax:
+            dmax = d
+            kbest = k
+    return dmax, kbest
+
+
+@njit(cache=True)
+def _locate_one(x0, x1, x2, hint, cf_off, cf_centre, cf_normal, cf_nbr,
+                cell_lo, cell_hi, b_origin, b_h, b_dims, b_off, b_cells, tol, max_walk):
+    # 1. hint + walk
+    c = hint
+    if c >= 0:
+        for _ in range(max_walk):
+            dmax, kbest = _max_violation(x0, x1, x2, c, cf_off, cf_centre, cf_normal)
+            if dmax <= tol:
+                return c
+            nb = cf_nbr[kbest]
+            if nb < 0:
+                break
+            c = nb
+    # 2. bucket search (exact among the cells whose bbox overlaps the bucket)
+    i = int(np.floor((x0 - b_origin[0]) / b_h[0]))
+    j = int(np.floor((x1 - b_origin[1]) / b_h[1]))
+    k = int(np.floor((x2 - b_origin[2]) / b_h[2]))
+    # points on the far boundary of the bounding box belong to the last bucket
+    if i == b_dims[0] and x0 <= b_origin[0] + b_dims[0] * b_h[0] + tol:
+        i -= 1
+    if j == b_dims[1] and x1 <= b_origin[1] + b_dims[1] * b_h[1] + tol:
+        j -= 1
+    if k == b_dims[2] and x2 <= b_origin[2] + b_dims[2] * b_h[2] + tol:
+        k -= 1
+    if i < 0 or j < 0 or k < 0 or i >= b_dims[0] or j >= b_dims[1] or k >= b_dims[2]:
+        return -1
+    b = i + b_dims[0] * (j + b_dims[1] * k)
+    for s in range(b_off[b], b_off[b + 1]):
+        c = b_cells[s]
+        if (x0 < cell_lo[c, 0] - tol or x0 > cell_hi[c, 0] + tol or
+                x1 < cell_lo[c, 1] - tol or x1 > cell_hi[c, 1] + tol or
+                x2 < cell_lo[c, 2] - tol or x2 > cell_hi[c, 2] + tol):
+            continue
+        dmax, kbest = _max_violation(x0, x1, x2, c, cf_off, cf_centre, cf_normal)
+        if dmax <= tol:
+            return c
+    return -1
+
+
+@njit(cache=True, parallel=True)
+def _locate_many(pts, hint, cf_off, cf_centre, cf_normal, cf_nbr, cell_lo, cell_hi,
+                 b_origin, b_h, b_dims, b_off, b_cells, tol, max_walk):
+    n = pts.shape[0]
+    out = np.empty(n, np.int64)
+    for p in prange(n):
+        out[p] = _locate_one(pts[p, 0], pts[p, 1], pts[p, 2], hint[p], cf_off, cf_centre,
+                             cf_normal, cf_nbr, cell_lo, cell_hi, b_origin, b_h, b_dims,
+                             b_off, b_cells, tol, max_walk)
+    return out
+
+
+@njit(cache=True, parallel=True)
+def _locate_uniform(pts, origin, h, dims, lattice, tol):
+    n = pts.shape[0]
+    out = np.empty(n, np.int64)
+    for p in prange(n):
+        idx = np.empty(3, np.int64)
+        ok = True
+        for d in range(3):
+            t = (pts[p, d] - origin[d]) / h[d]
+            i = int(np.floor(t))
+            if i == dims[d] and pts[p, d] <= origin[d] + dims[d] * h[d] + tol:
+                i = dims[d] - 1
+            if i == -1 and pts[p, d] >= origin[d] - tol:
+                i = 0
+            if i < 0 or i >= dims[d]:
+                ok = False
+            idx[d] = i
+        if ok:
+            out[p] = lattice[idx[0] + dims[0] * (idx[1] + dims[1] * idx[2])]
+        else:
+            out[p] = -1
+    return out
+
+
+@njit(cache=True)
+def _brute_force_locate(pts, cf_off, cf_centre, cf_normal, tol):
+    """Reference implementation: first cell whose inside test passes."""
+    n = pts.shape[0]
+    n_cells = cf_off.shape[0] - 1
+    out = np.full(n, -1, np.int64)
+    cnt = np.zeros(n, np.int64)
+    for p in range(n):
+        for c in range(n_cells):
+            dmax, kb = _max_violation(pts[p, 0], pts[p, 1], pts[p, 2], c, cf_off,
+                                      cf_centre, cf_normal)
+            if dmax <= tol:
+                if out[p] < 0:
+                    out[p] = c
+                cnt[p] += 1
+    return out, cnt
+
+
+@dataclass
+class UniformGrid:
+    """Axis-aligned uniform lattice description of a mesh."""
+    origin: np.ndarray   # (3,) lower corner
+    h: np.ndarray        # (3,) spacing
+    dims: np.ndarray     # (3,) int64 cells per direction
+    lattice: np.ndarray  # (nx*ny*nz,) cell index of lattice (i + nx*(j + ny*k))
+
+
+# --------------------------------------------------------------------------
+# Mesh class
+# --------------------------------------------------------------------------
+class PolyMesh:
+    """Face-based polyhedral mesh with OpenFOAM geometry and point location.
+
+    Attributes (all numpy): ``points``, ``face_offsets``, ``face_points``,
+    ``owner``, ``neighbour``, ``face_centres``, ``face_areas`` (area vectors),
+    ``cell_centres``, ``cell_volumes``, ``cell_lo``/``cell_hi`` (bounding
+    boxes), and the per-cell face table ``cf_off`` (CSR offsets),
+    ``cf_face``, ``cf_centre``, ``cf_normal`` (outward unit normals),
+    ``cf_nbr`` (cell across the face, -1 on the boundary).
+    """
+
+    def __init__(self, points, face_offsets, face_points, owner, neighbour, boundary=None):
+        self.points = np.ascontiguousarray(points, dtype=np.float64)
+        self.face_offsets = np.ascontiguousarray(face_offsets, dtype=np.int64)
+        self.face_points = np.ascontiguousarray(face_points, dtype=np.int64)
+        self.owner = np.ascontiguousarray(owner, dtype=np.int64)
+        self.neighbour = np.ascontiguousarray(neighbour, dtype=np.int64)
+        self.boundary = list(boundary or [])
+        self.n_faces = len(self.owner)
+        self.n_internal_faces = len(self.neighbour)
+        if len(self.face_offsets) - 1 != self.n_faces:
+            raise ValueError(f"faces ({len(self.face_offsets) - 1}) and owner "
+                             f"({self.n_faces}) sizes differ")
+        self.n_cells = int(max(self.owner.max(initial=-1),
+                               self.neighbour.max(initial=-1))) + 1
+        fc, fa = _face_geometry(self.points, self.face_offsets, self.face_points)
+        self.face_centres, self.face_areas = fc, fa
+        cc, cv = _cell_geometry(fc, fa, self.owner, self.neighbour, self.n_cells)
+        self.cell_centres, self.cell_volumes = cc, cv
+        if np.any(cv <= 0):
+            raise ValueError(f"{int(np.sum(cv <= 0))} cells with non-positive volume "
+                             "(inverted faces / wrong owner-neighbour orientation?)")
+        self.cell_lo, self.cell_hi = _cell_bboxes(self.points, self.face_offsets,
+                                                  self.face_points, self.owner,
+                                                  self.neighbour, self.n_cells)
+        self._build_cell_faces()
+        self.bbox_lo = self.cell_lo.min(axis=0)
+        self.bbox_hi = self.cell_hi.max(axis=0)
+        L = float(np.max(self.bbox_hi - self.bbox_lo))
+        #: absolute tolerance of the inside test (points on a face belong to
+        #: both cells; the first one found is returned)
+        self.tol = 1e-12 * L
+        self._buckets = None
+        self._uniform = "unset"
+        self._point_nbrs = None
+        self._face_nbrs = None
+
+    # ---- connectivity --------------------------------------------------
+    def _build_cell_faces(self):
+        nf, ni = self.n_faces, self.n_internal_faces
+        cells = np.concatenate([self.owner, self.neighbour])
+        faces = np.concatenate([np.arange(nf), np.arange(ni)])
+        sign = np.concatenate([np.ones(nf), -np.ones(ni)])
+        other = np.concatenate([np.concatenate([self.neighbour, -np.ones(nf - ni, np.int64)]),
+                                self.owner[:ni]])
+        order = np.argsort(cells, kind="stable")
+        self.cf_off = np.zeros(self.n_cells + 1, np.int64)
+        np.cumsum(np.bincount(cells, minlength=self.n_cells), out=self.cf_off[1:])
+        self.cf_face = faces[order].astype(np.int64)
+        s = sign[order]
+        mag = np.linalg.norm(self.face_areas, axis=1)
+        self.face_mag = mag
+        self.cf_centre = np.ascontiguousarray(self.face_centres[self.cf_face])
+        self.cf_normal = np.ascontiguousarray(self.face_areas[self.cf_face]
+                                              * (s / mag[self.cf_face])[:, None])
+        self.cf_nbr = np.ascontiguousarray(other[order].astype(np.int64))
+
+    def face_neighbours(self):
+        """CSR (offsets, cells) of the face neighbours of each cell."""
+        if self._face_nbrs is None:
+            keep = self.cf_nbr >= 0
+            cell_of = np.repeat(np.arange(self.n_cells), np.diff(self.cf_off))
+            off = np.zeros(self.n_cells + 1, np.int64)
+            np.cumsum(np.bincount(cell_of[keep], minlength=self.n_cells), out=off[1:])
+            self._face_nbrs = (off, self.cf_nbr[keep].copy())
+        return self._face_nbrs
+
+    def point_neighbours(self):
+        """CSR (offsets, cells) of all cells sharing at least one point with
+        each cell, the cell itself first (27 cells inside a hex grid)."""
+        if self._point_nbrs is None:
+            self._point_nbrs = _point_neighbour_csr(
+                self.face_offsets, self.face_points, self.owner, self.neighbour,
+                self.n_cells, len(self.points))
+        return self._point_nbrs
+
+    @property
+    def cell_size(self) -> np.ndarray:
+        """Cube-root of the cell volume (length scale of each cell)."""
+        return np.cbrt(self.cell_volumes)
+
+    # ---- uniform-grid detection ------------------------------------------
+    @property
+    def uniform_grid(self):
+        """``UniformGrid`` if the mesh is an axis-aligned uniform lattice of
+        boxes (each cell's volume equals its bounding-box volume, all boxes
+        equal, corners on a common lattice, lattice fully covered), else None."""
+        if isinstance(self._uniform, str):
+            self._uniform = self._detect_uniform()
+        return self._uniform
+
+    def _detect_uniform(self, rtol=1e-9):
+        ext = self.cell_hi - self.cell_lo
+        h = ext[0]
+        if np.any(h <= 0):
+            return None
+        if not np.allclose(ext, h[None, :], rtol=rtol, atol=0):
+            return None
+        if not np.allclose(self.cell_volumes, np.prod(ext, axis=1), rtol=1e-8, atol=0):
+            return None
+        origin = self.cell_lo.min(axis=0)
+        t = (self.cell_lo - origin) / h
+        idx = np.rint(t).astype(np.int64)
+        if np.max(np.abs(t - idx)) > 1e-6:
+            return None
+        dims = idx.max(axis=0) + 1
+        if int(np.prod(dims)) != self.n_cells:
+            return None
+        lin = idx[:, 0] + dims[0] * (idx[:, 1] + dims[1] * idx[:, 2])
+        lattice = np.full(self.n_cells, -1, np.int64)
+        lattice[lin] = np.arange(self.n_cells)
+        if np.any(lattice < 0):
+            return None
+        # use the exact extent to avoid drift over many cells
+        h = (self.cell_hi.max(axis=0) - origin) / dims
+        return UniformGrid(origin, h, dims.astype(np.int64), lattice)
+
+    # ---- locate --------------------------------------------------------------
+    def _ensure_buckets(self):
+        if self._buckets is None:
+            lo, hi = self.bbox_lo, self.bbox_hi
+            ext = np.maximum(hi - lo, 1e-300)
+            mean_size = float(np.mean(np.cbrt(self.cell_volumes)))
+            target = np.maximum(np.ceil(ext / mean_size), 1).astype(np.int64)
+            while np.prod(target) > max(8 * self.n_cells, 1000) or np.prod(target) > 2e7:
+                target = np.maximum((target + 1) // 2, 1)
+            h = ext / target
+            pad = self.tol
+            off, cells = _build_buckets(self.cell_lo, self.cell_hi, lo, h, target, pad)
+            self._buckets = (lo.copy(), h, target, off, cells)
+        return self._buckets
+
+    def locate(self, points, hint=None, method="auto", max_walk=64):
+        """Cell index of each point (-1 outside the mesh).
+
+        Parameters
+        ----------
+        points : (n, 3) array
+        hint : (n,) int array, optional
+            previous cell of each point (-1 = unknown).  A point still in its
+            hint cell costs a single inside test.
+        method : 'auto' (uniform fast path when the mesh is a uniform
+            axis-aligned grid, general path otherwise), 'general' or 'uniform'.
+        """
+        pts = np.ascontiguousarray(np.asarray(points, dtype=np.float64).reshape(-1, 3))
+        n = len(pts)
+        if method not in ("auto", "general", "uniform"):
+            raise ValueError("method must be 'auto', 'general' or 'uniform'")
+        if method in ("auto", "uniform"):
+            ug = self.uniform_grid
+            if ug is not None:
+                return _locate_uniform(pts, ug.origin, ug.h, ug.dims, ug.lattice, self.tol)
+            if method == "uniform":
+                raise ValueError("mesh is not a uniform axis-aligned grid")
+        if hint is None:
+            hint = np.full(n, -1, np.int64)
+        else:
+            hint = np.ascontiguousarray(hint, dtype=np.int64)
+            if hint.shape != (n,):
+                raise ValueError("hint must have one entry per point")
+            hint = np.where(hint < self.n_cells, hint, -1)
+        o, h, d, boff, bcells = self._ensure_buckets()
+        return _locate_many(pts, hint, self.cf_off, self.cf_centre, self.cf_normal,
+                            self.cf_nbr, self.cell_lo, self.cell_hi, o, h, d, boff,
+                            bcells, self.tol, max_walk)
+
+    def locate_brute_force(self, points):
+        """(cell, number_of_cells_containing) by testing every cell (tests)."""
+        pts = np.ascontiguousarray(np.asarray(points, dtype=np.float64).reshape(-1, 3))
+        return _brute_force_locate(pts, self.cf_off, self.cf_centre, self.cf_normal, self.tol)
+
+    def summary(self) -> str:
+        ug = self.uniform_grid
+        return (f"PolyMesh: {len(self.points)} points, {self.n_faces} faces "
+                f"({self.n_internal_faces} internal), {self.n_cells} cells, "
+                f"volume {self.cell_volumes.sum():.6g}, "
+                f"{'uniform grid ' + str(tuple(ug.dims)) if ug is not None else 'general'}")
+
+
+@njit(cache=True)
+def _point_neighbour_csr(face_offsets, face_points, owner, neighbour, n_cells, n_points):
+    n_int = neighbour.shape[0]
+    # point -> cells (with duplicates), then dedupe per cell row with a marker
+    pc_cnt = np.zeros(n_points + 1, np.int64)
+    for f in range(owner.shape[0]):
+        m = 2 if f < n_int else 1
+        for k in range(face_offsets[f], face_offsets[f + 1]):
+            pc_cnt[face_points[k] + 1] += m
+    for p in range(n_points):
+        pc_cnt[p + 1] += pc_cnt[p]
+    pc = np.empty(pc_cnt[n_points], np.int64)
+    fill = pc_cnt[:-1].copy()
+    for f in range(owner.shape[0]):
+        for k in range(face_offsets[f], face_offsets[f + 1]):
+            p = face_points[k]
+            pc[fill[p]] = owner[f]
+            fill[p] += 1
+            if f < n_int:
+                pc[fill[p]] = neighbour[f]
+                fill[p] += 1
+    # cell -> points via faces
+    cp_cnt = np.zeros(n_cells + 1, np.int64)
+    for f in range(owner.shape[0]):
+        nn = face_offsets[f + 1] - face_offsets[f]
+        cp_cnt[owner[f] + 1] += nn
+        if f < n_int:
+            cp_cnt[neighbour[f] + 1] += nn
+    for c in range(n_cells):
+        cp_cnt[c + 1] += cp_cnt[c]
+    cp = np.empty(cp_cnt[n_cells], np.int64)
+    fill2 = cp_cnt[:-1].copy()
+    for f in range(owner.shape[0]):
+        for k in range(face_offsets[f], face_offsets[f + 1]):
+            cp[fill2[owner[f]]] = face_points[k]
+            fill2[owner[f]] += 1
+            if f < n_int:
+                cp[fill2[neighbour[f]]] = face_points[k]
+                fill2[neighbour[f]] += 1
+    mark = np.full(n_cells, -1, np.int64)
+    off = np.zeros(n_cells + 1, np.int64)
+    for c in range(n_cells):
+        mark[c] = c
+        k = 1
+        for s in range(cp_cnt[c], cp_cnt[c + 1]):
+            p = cp[s]
+            for t in range(pc_cnt[p], pc_cnt[p + 1]):
+                o = pc[t]
+                if mark[o] != c:
+                    mark[o] = c
+                    k += 1
+        off[c + 1] = off[c] + k
+    out = np.empty(off[n_cells], np.int64)
+    mark[:] = -1
+    for c in range(n_cells):
+        out[off[c]] = c
+        mark[c] = c
+        k = 1
+        for s in range(cp_cnt[c], cp_cnt[c + 1]):
+            p = cp[s]
+            for t in range(pc_cnt[p], pc_cnt[p + 1]):
+                o = pc[t]
+                if mark[o] != c:
+                    mark[o] = c
+                    out[off[c] + k] = o
+                    k += 1
+    return off, out
+
+
+def benchmark_locate(mesh: PolyMesh, n: int = 100_000, seed: int = 0) -> dict:
+    """Time locate for n random points (cold = no hint, warm = hint = answer,
+    moved = small random displacement with hint)."""
+    rng = np.random.default_rng(seed)
+    lo, hi = mesh.bbox_lo, mesh.bbox_hi
+    pts = lo + (hi - lo) * rng.random((n, 3))
+    mesh.locate(pts[:10], method="general")  # compile
+    t0 = time.perf_counter()
+    cells = mesh.locate(pts, method="general")
+    t1 = time.perf_counter()
+    mesh.locate(pts, hint=cells, method="general")
+    t2 = time.perf_counter()
+    moved = pts + 0.2 * float(np.mean(mesh.cell_size)) * (rng.random((n, 3)) - 0.5)
+    mesh.locate(moved, hint=cells, method="general")
+    t3 = time.perf_counter()
+    res = {"cold": t1 - t0, "hint_same": t2 - t1, "hint_moved": t3 - t2}
+    if mesh.uniform_grid is not None:
+        t4 = time.perf_counter()
+        mesh.locate(pts, method="uniform")
+        res["uniform"] = time.perf_counter() - t4
+    return res

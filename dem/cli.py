@@ -1,0 +1,95 @@
+"""Command line: ``dem run``, ``dem check``, ``dem render``."""
+import argparse
+import os
+import sys
+import time
+
+
+def _load(path):
+    from .simulation import Simulation
+    return Simulation.from_file(path)
+
+
+def cmd_check(args):
+    sim = _load(args.scene)
+    rep = sim.check()
+    p = print
+    p(f"scene: {args.scene}")
+    p(f"particles: {rep['particles']}  walls: {rep['walls']}  materials: {rep['materials']}")
+    p(f"radius: {rep['radius_min']:.4g} .. {rep['radius_max']:.4g} m   mass: {rep['mass_min']:.4g} .. "
+      f"{rep['mass_max']:.4g} kg (total {rep['mass_total']:.4g} kg)")
+    p(f"time step: {rep['dt']:.4g} s   steps: {rep['steps']}")
+    p(f"Rayleigh time: {rep['rayleigh_time']:.4g} s  (dt / t_R = {rep['dt_over_rayleigh']:.3g}, "
+      f"allowed <= 0.3)")
+    p(f"Hertz collision time at {rep['characteristic_velocity']:.3g} m/s: {rep['hertz_time']:.4g} s  "
+      f"(dt / t_H = {rep['dt_over_hertz']:.3g}, allowed <= 0.1)")
+    for k in ("thermal_critical_step", "thermal_step", "thermal_step_ratio", "biot_max"):
+        if k in rep:
+            p(f"{k.replace('_', ' ')}: {rep[k]:.4g}")
+    for w in rep.get("warnings", []):
+        p(f"warning: {w}")
+    p(f"memory: {rep['memory_bytes'] / 2**20:.2f} MiB ({rep['memory_per_particle']:.0f} B per particle)")
+    p("runs:")
+    for r in rep["runs"]:
+        p(f"  + {r}")
+    p("skipped:")
+    for r in rep["skipped"]:
+        p(f"  - {r}")
+    for pr in rep["problems"]:
+        p(f"note: {pr} (accepted: simulation.force = true)")
+    return 0
+
+
+def cmd_run(args):
+    from .simulation import SimulationError  # noqa: F401
+    sim = _load(args.scene)
+    sim.check()
+    out = args.out or os.path.join("out", os.path.splitext(os.path.basename(args.scene))[0])
+    t0 = time.perf_counter()
+    c = sim.warmup()
+    sim.run(end_time=args.end_time, out_dir=out, restart=args.restart, progress=not args.quiet)
+    wall = time.perf_counter() - t0
+    steps = sim.step_count
+    print(f"done: t = {sim.time:.6g} s, {steps} steps, {sim.state.n} particles, wall {wall:.2f} s "
+          f"(kernels compile/load {c:.2f} s), {sim.state.n * max(steps, 1) / max(sim.wall_seconds, 1e-9):.3g} "
+          f"particle-steps/s; output in {out}")
+    return 0
+
+
+def cmd_render(args):
+    from .render import render
+    path = render(args.out_dir, args.png, color=args.color)
+    print(f"wrote {path}")
+    return 0
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(prog="dem", description="Thermal DEM solver")
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    r = sub.add_parser("run", help="run a scene")
+    r.add_argument("scene")
+    r.add_argument("--out", help="output folder (default out/<scene name>)")
+    r.add_argument("--restart", help="checkpoint to continue from")
+    r.add_argument("--end-time", type=float, help="override simulation.end_time")
+    r.add_argument("--quiet", action="store_true", help="no progress display")
+    c = sub.add_parser("check", help="validate a scene and print derived quantities")
+    c.add_argument("scene")
+    d = sub.add_parser("render", help="render the last output of a run to PNG")
+    d.add_argument("out_dir")
+    d.add_argument("--png", default=None)
+    d.add_argument("--color", default=None, help="field to colour by (default temperature or velocity)")
+    args = ap.parse_args(argv)
+    from .scene import SceneError
+    from .simulation import SimulationError
+    try:
+        return {"run": cmd_run, "check": cmd_check, "render": cmd_render}[args.cmd](args)
+    except SceneError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except SimulationError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 3
+
+
+if __name__ == "__main__":
+    sys.exit(main())

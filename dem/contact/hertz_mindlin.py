@@ -1,0 +1,61 @@
+"""Hertz-Mindlin no-slip contact with tangential history.
+
+References
+----------
+* Hertz (1882), Mindlin (1949) no-slip tangential stiffness; the form used by
+  Di Renzo & Di Maio, Chem. Eng. Sci. 59 (2004) 525 and by LIGGGHTS
+  ``gran model hertz tangential history``:
+    k_n = 4/3 E* sqrt(R* delta)         (F_n,el = k_n delta)
+    S_t = 8 G* sqrt(R* delta)           (tangential stiffness, F_t,el = -S_t xi)
+    F_n damping = c_n delta^(1/4) v_n   c_n = A(e) sqrt(m* E* sqrt(R*))
+    F_t damping = c_t v_t,              c_t = c_n delta^(1/4) sqrt(S_t / S_n), S_n = 2 E* sqrt(R* delta)
+* ``A(e)`` is either the exact value that reproduces the restitution coefficient e
+  for the damped Hertz oscillator with no attraction (solved once per material pair,
+  see :mod:`dem.contact.damping`), or LIGGGHTS' approximation
+  A = -2 sqrt(5/6) beta sqrt(2), beta = ln e / sqrt(ln^2 e + pi^2) (Tsuji et al. 1992 form).
+* Coulomb cap: |F_t| <= mu F_n; when exceeded F_t is rescaled and the history is
+  set back to the spring length that gives the capped force (Luding 2008).
+"""
+import math
+from numba import njit
+
+
+@njit(cache=True)
+def hertz_mindlin(delta, vn, vtx, vty, vtz, hx, hy, hz,
+                  rstar, mstar, estar, gstar, damp_a, mu, dt):
+    """Hertz-Mindlin pair force.
+
+    delta: overlap (m, > 0); vn: normal approach speed (m/s, > 0 approaching);
+    vt*: tangential relative velocity of the contact point; h*: tangential
+    spring history (m) already in the tangent plane.
+    Returns (F_n >= 0, Ft_x, Ft_y, Ft_z, new history x, y, z, k_n).
+    """
+    sq = math.sqrt(rstar * delta)
+    kn = 4.0 / 3.0 * estar * sq
+    qd = math.sqrt(math.sqrt(delta))
+    cn = damp_a * math.sqrt(mstar * estar * math.sqrt(rstar)) * qd
+    fn = kn * delta + cn * vn
+    if fn < 0.0:
+        fn = 0.0
+    st = 8.0 * gstar * sq
+    # c_t = c_n sqrt(S_t / S_n), S_n = 2 E* sqrt(R* delta)
+    ct = cn * math.sqrt(st / (2.0 * estar * sq)) if sq > 0.0 else 0.0
+    hx += vtx * dt
+    hy += vty * dt
+    hz += vtz * dt
+    fx = -st * hx - ct * vtx
+    fy = -st * hy - ct * vty
+    fz = -st * hz - ct * vtz
+    ft2 = fx * fx + fy * fy + fz * fz
+    fmax = mu * fn
+    if ft2 > fmax * fmax:
+        ft = math.sqrt(ft2)
+        s = fmax / ft
+        fx *= s
+        fy *= s
+        fz *= s
+        if st > 0.0:
+            hx = -(fx + ct * vtx) / st
+            hy = -(fy + ct * vty) / st
+            hz = -(fz + ct * vtz) / st
+    return fn, fx, fy, fz, hx, hy, hz, 2.0 * estar * sq

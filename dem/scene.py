@@ -1,0 +1,535 @@
+"""Scene files (TOML) -> a validated, typed scene.
+
+Everything is checked before any computation; each problem raises :class:`SceneError`
+naming the file, the key path (``particles[1].radius``) and what is allowed.
+"""
+import math
+import os
+import tomllib
+
+import numpy as np
+
+from .contact.registry import CONTACT_MODELS, ROLLING_MODELS, DAMPING_MODELS
+
+
+class SceneError(ValueError):
+    """Invalid scene: ``file: key.path: message``."""
+
+    def __init__(self, file, path, message):
+        self.file, self.path, self.message = file, path, message
+        super().__init__(f"{file}: {path}: {message}" if path else f"{file}: {message}")
+
+
+_NUM = (int, float)
+
+
+class _V:
+    """Small validation helper bound to a file name."""
+
+    def __init__(self, file):
+        self.file = file
+
+    def err(self, path, msg):
+        raise SceneError(self.file, path, msg)
+
+    def table(self, d, path, allowed, required=()):
+        if not isinstance(d, dict):
+            self.err(path, f"must be a table, got {type(d).__name__}")
+        for k in d:
+            if k not in allowed:
+                self.err(f"{path}.{k}" if path else k,
+                         f"unknown key; allowed keys: {', '.join(sorted(allowed))}")
+        for k in required:
+            if k not in d:
+                self.err(f"{path}.{k}" if path else k, "missing required key")
+        return d
+
+    def num(self, d, key, path, default=None, lo=None, hi=None, lo_open=False, hi_open=False,
+            required=False):
+        p = f"{path}.{key}" if path else key
+        if key not in d:
+            if required:
+                self.err(p, "missing required key")
+            return default
+        x = d[key]
+        if isinstance(x, bool) or not isinstance(x, _NUM):
+            self.err(p, f"must be a number, got {x!r}")
+        x = float(x)
+        if not math.isfinite(x):
+            self.err(p, f"must be finite, got {x}")
+        rng = f"{'(' if lo_open else '['}{'-inf' if lo is None else lo}, " \
+              f"{'inf' if hi is None else hi}{')' if hi_open else ']'}"
+        if lo is not None and (x < lo or (lo_open and x == lo)):
+            self.err(p, f"must be in {rng}, got {x}")
+        if hi is not None and (x > hi or (hi_open and x == hi)):
+            self.err(p, f"must be in {rng}, got {x}")
+        return x
+
+    def integer(self, d, key, path, default=None, lo=None, required=False):
+        p = f"{path}.{key}" if path else key
+        if key not in d:
+            if required:
+                self.err(p, "missing required key")
+            return default
+        x = d[key]
+        if isinstance(x, bool) or not isinstance(x, int):
+            self.err(p, f"must be an integer, got {x!r}")
+        if lo is not None and x < lo:
+            self.err(p, f"must be >= {lo}, got {x}")
+        return x
+
+    def boolean(self, d, key, path, default=False):
+        if key not in d:
+            return default
+        x = d[key]
+        if not isinstance(x, bool):
+            self.err(f"{path}.{key}" if path else key, f"must be true or false, got {x!r}")
+        return x
+
+    def string(self, d, key, path, default=None, choices=None, required=False):
+        p = f"{path}.{key}" if path else key
+        if key not in d:
+            if required:
+                self.err(p, "missing required key" + (f"; one of: {', '.join(choices)}" if choices else ""))
+            return default
+        x = d[key]
+        if not isinstance(x, str):
+            self.err(p, f"must be a string, got {x!r}")
+        if choices is not None and x not in choices:
+            self.err(p, f"unknown value {x!r}; valid: {', '.join(choices)}")
+        return x
+
+    def vec(self, d, key, path, n=3, default=None, required=False, kind="number"):
+        p = f"{path}.{key}" if path else key
+        if key not in d:
+            if required:
+                self.err(p, "missing required key")
+            return default
+        x = d[key]
+        ok = isinstance(x, list) and len(x) == n and all(
+            (isinstance(e, bool) if kind == "bool" else (isinstance(e, _NUM) and not isinstance(e, bool)))
+            for e in x)
+        if not ok:
+            self.err(p, f"must be a list of {n} {'booleans' if kind == 'bool' else 'numbers'}, got {x!r}")
+        if kind == "bool":
+            return [bool(e) for e in x]
+        arr = np.array(x, float)
+        if not np.all(np.isfinite(arr)):
+            self.err(p, "must be finite")
+        return arr
+
+    def unit(self, d, key, path, required=True, default=None):
+        a = self.vec(d, key, path, required=required, default=default)
+        if a is None:
+            return None
+        nrm = np.linalg.norm(a)
+        if nrm == 0:
+            self.err(f"{path}.{key}", "must be a non-zero vector")
+        return a / nrm
+
+
+SIM_KEYS = {"time_step", "end_time", "gravity", "output_interval", "checkpoint_interval", "seed",
+            "force", "max_overlap_ratio", "mechanics", "neighbor_skin", "initial_overlap_ratio",
+            "critical_fraction", "sort_interval"}
+MAT_KEYS_MECH = {"name", "density", "youngs_modulus", "poisson_ratio", "restitution", "friction",
+                 "rolling_friction"}
+PART_KEYS = {"material", "positions", "radii", "radius", "velocities", "velocity", "file", "count",
+             "region", "temperature", "angular_velocities"}
+WALL_KEYS = {"type", "material", "point", "normal", "extent", "u_axis", "axis", "radius", "inside",
+             "length", "velocity", "angular_velocity", "rotation_center", "name", "thermal"}
+CONTACT_KEYS = {"model", "rolling", "damping", "normal_stiffness", "tangential_stiffness_ratio",
+                "characteristic_velocity", "rolling_damping"}
+OUTPUT_KEYS = {"vtk", "history"}
+TOP_KEYS = {"simulation", "domain", "materials", "particles", "walls", "contact", "output",
+            "thermal", "gas"}
+
+# Time-step limits (documented in docs/models.md): dt <= 0.3 t_Rayleigh and
+# dt <= t_Hertz / 10 at the characteristic impact velocity, unless [simulation] force = true.
+RAYLEIGH_FRACTION = 0.3
+HERTZ_FRACTION = 0.1
+
+
+def load(path):
+    """Read and validate a scene file; returns a :class:`Scene`."""
+    path = os.fspath(path)
+    try:
+        with open(path, "rb") as fh:
+            data = tomllib.load(fh)
+    except FileNotFoundError:
+        raise SceneError(path, "", "file not found") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise SceneError(path, "", f"not valid TOML: {exc}") from None
+    return parse(data, path, base_dir=os.path.dirname(os.path.abspath(path)))
+
+
+class Scene:
+    """Validated scene: plain dicts plus particle arrays."""
+
+    def __init__(self, **kw):
+        self.__dict__.update(kw)
+
+
+def _read_particle_file(v, fname, path, base_dir):
+    full = fname if os.path.isabs(fname) else os.path.join(base_dir, fname)
+    if not os.path.exists(full):
+        v.err(path + ".file", f"file not found: {full}")
+    cols = {}
+    try:
+        if full.endswith(".npz"):
+            with np.load(full) as z:
+                for k in z.files:
+                    cols[k] = np.asarray(z[k], float)
+            if "position" in cols:
+                p = cols.pop("position")
+                cols.update(x=p[:, 0], y=p[:, 1], z=p[:, 2])
+            if "velocity" in cols:
+                p = cols.pop("velocity")
+                cols.update(vx=p[:, 0], vy=p[:, 1], vz=p[:, 2])
+            if "angular_velocity" in cols:
+                p = cols.pop("angular_velocity")
+                cols.update(wx=p[:, 0], wy=p[:, 1], wz=p[:, 2])
+        else:
+            arr = np.genfromtxt(full, delimiter=",", names=True, dtype=float)
+            for k in arr.dtype.names:
+                cols[k.strip().lower()] = np.atleast_1d(arr[k])
+    except Exception as exc:  # noqa: BLE001
+        v.err(path + ".file", f"cannot read {full}: {exc}")
+    for need in ("x", "y", "z", "radius"):
+        if need not in cols:
+            v.err(path + ".file", f"{full}: missing column {need!r} (need x, y, z, radius; "
+                                  f"optional vx, vy, vz, wx, wy, wz, id)")
+    n = cols["x"].size
+    pos = np.stack([cols["x"], cols["y"], cols["z"]], 1)
+    vel = np.stack([cols.get("vx", np.zeros(n)), cols.get("vy", np.zeros(n)), cols.get("vz", np.zeros(n))], 1)
+    om = np.stack([cols.get("wx", np.zeros(n)), cols.get("wy", np.zeros(n)), cols.get("wz", np.zeros(n))], 1)
+    ids = cols.get("id")
+    temp = cols.get("temperature")
+    return pos, cols["radius"].copy(), vel, om, ids, temp
+
+
+def parse(data, file="<dict>", base_dir="."):
+    v = _V(file)
+    v.table(data, "", TOP_KEYS, required=("simulation", "domain", "materials", "particles"))
+    # --- simulation
+    s = v.table(data["simulation"], "simulation", SIM_KEYS, required=("time_step", "end_time"))
+    sim = dict(
+        time_step=v.num(s, "time_step", "simulation", lo=0, lo_open=True, required=True),
+        end_time=v.num(s, "end_time", "simulation", lo=0, required=True),
+        gravity=v.vec(s, "gravity", "simulation", default=np.array([0.0, 0.0, -9.81])),
+        seed=v.integer(s, "seed", "simulation", default=0, lo=0),
+        force=v.boolean(s, "force", "simulation"),
+        mechanics=v.boolean(s, "mechanics", "simulation", default=True),
+        max_overlap_ratio=v.num(s, "max_overlap_ratio", "simulation", default=0.1, lo=0, lo_open=True, hi=1),
+        initial_overlap_ratio=v.num(s, "initial_overlap_ratio", "simulation", default=0.05, lo=0, hi=1),
+        neighbor_skin=v.num(s, "neighbor_skin", "simulation", default=None, lo=0, lo_open=True),
+        sort_interval=v.integer(s, "sort_interval", "simulation", default=50, lo=0),
+    )
+    sim["output_interval"] = v.num(s, "output_interval", "simulation", default=sim["end_time"] / 10 or 1.0,
+                                   lo=0, lo_open=True)
+    sim["checkpoint_interval"] = v.num(s, "checkpoint_interval", "simulation", default=0.0, lo=0)
+    if sim["output_interval"] < sim["time_step"]:
+        v.err("simulation.output_interval", f"must be >= time_step ({sim['time_step']}), got {sim['output_interval']}")
+    # --- domain
+    d = v.table(data["domain"], "domain", {"min", "max", "periodic"}, required=("min", "max"))
+    lo = v.vec(d, "min", "domain", required=True)
+    hi = v.vec(d, "max", "domain", required=True)
+    if np.any(hi <= lo):
+        v.err("domain.max", f"must be larger than domain.min on every axis, got min {lo.tolist()} max {hi.tolist()}")
+    periodic = v.vec(d, "periodic", "domain", kind="bool", default=[False, False, False])
+    # --- materials
+    mats = data["materials"]
+    if not isinstance(mats, list) or not mats:
+        v.err("materials", "must be a non-empty array of tables [[materials]]")
+    thermal_keys = set()
+    try:
+        from .thermal.registry import MATERIAL_KEYS as _TK  # thermal issue: optional keys
+        thermal_keys = set(_TK)
+    except Exception:  # noqa: BLE001
+        thermal_keys = set()
+    materials, names = [], {}
+    for k, m in enumerate(mats):
+        p = f"materials[{k}]"
+        v.table(m, p, MAT_KEYS_MECH | thermal_keys, required=("name", "density"))
+        name = v.string(m, "name", p, required=True)
+        if name in names:
+            v.err(p + ".name", f"duplicate material name {name!r}")
+        names[name] = k
+        mm = dict(name=name,
+                  density=v.num(m, "density", p, lo=0, lo_open=True, required=True),
+                  youngs_modulus=v.num(m, "youngs_modulus", p, lo=0, lo_open=True, required=True),
+                  poisson_ratio=v.num(m, "poisson_ratio", p, lo=-1, hi=0.5, lo_open=True, hi_open=True, required=True),
+                  restitution=v.num(m, "restitution", p, lo=0, hi=1, lo_open=True, required=True),
+                  friction=v.num(m, "friction", p, lo=0, default=0.0),
+                  rolling_friction=v.num(m, "rolling_friction", p, lo=0, default=0.0))
+        for tk in thermal_keys:
+            if tk in m:
+                mm[tk] = m[tk]
+        materials.append(mm)
+
+    def mat_ref(tbl, p):
+        nm = v.string(tbl, "material", p, required=True)
+        if nm not in names:
+            v.err(p + ".material", f"unknown material {nm!r}; defined: {', '.join(names)}")
+        return names[nm]
+
+    # --- contact
+    c = v.table(data.get("contact", {}), "contact", CONTACT_KEYS)
+    contact = dict(
+        model=v.string(c, "model", "contact", default="hertz_mindlin", choices=list(CONTACT_MODELS)),
+        rolling=v.string(c, "rolling", "contact", default="none", choices=list(ROLLING_MODELS)),
+        damping=v.string(c, "damping", "contact", default="exact", choices=list(DAMPING_MODELS)),
+        normal_stiffness=v.num(c, "normal_stiffness", "contact", default=0.0, lo=0),
+        tangential_stiffness_ratio=v.num(c, "tangential_stiffness_ratio", "contact", default=2.0 / 7.0, lo=0, lo_open=True),
+        characteristic_velocity=v.num(c, "characteristic_velocity", "contact", default=None, lo=0, lo_open=True),
+        rolling_damping=v.num(c, "rolling_damping", "contact", default=0.3, lo=0),
+    )
+    if contact["rolling"] != "none" and all(m["rolling_friction"] == 0 for m in materials):
+        v.err("contact.rolling", f"rolling model {contact['rolling']!r} needs rolling_friction > 0 in at least one material")
+    # --- particles
+    parts = data["particles"]
+    if not isinstance(parts, list) or not parts:
+        v.err("particles", "must be a non-empty array of tables [[particles]]")
+    rng = np.random.default_rng(sim["seed"])
+    P = dict(x=[], r=[], v=[], w=[], mat=[], id=[], T=[], group=[])
+    from .insertion import insert, sample_radii
+    for k, g in enumerate(parts):
+        p = f"particles[{k}]"
+        v.table(g, p, PART_KEYS, required=("material",))
+        mi = mat_ref(g, p)
+        modes = [m for m in ("positions", "file", "count") if m in g]
+        if len(modes) != 1:
+            v.err(p, "give exactly one of 'positions' (explicit list), 'file' (CSV/NPZ) or 'count' (insertion)"
+                  + (f"; got {', '.join(modes)}" if modes else ""))
+        mode = modes[0]
+        ids = None
+        temp_col = None
+        om = None
+        if mode == "positions":
+            pos = g["positions"]
+            if not isinstance(pos, list) or not pos or not all(
+                    isinstance(q, list) and len(q) == 3 and all(isinstance(e, _NUM) and not isinstance(e, bool) for e in q)
+                    for q in pos):
+                v.err(p + ".positions", "must be a non-empty list of [x, y, z] number triples")
+            pos = np.array(pos, float)
+            n = len(pos)
+            if "radii" in g:
+                rr = g["radii"]
+                if not isinstance(rr, list) or len(rr) != n or not all(isinstance(e, _NUM) and not isinstance(e, bool) for e in rr):
+                    v.err(p + ".radii", f"must be a list of {n} numbers (one per position)")
+                rad = np.array(rr, float)
+                bad = np.nonzero(~(rad > 0))[0]
+                if bad.size:
+                    v.err(f"{p}.radii[{bad[0]}]", f"radius must be > 0, got {rad[bad[0]]}")
+            else:
+                rad = np.full(n, v.num(g, "radius", p, lo=0, lo_open=True, required=True))
+            vel = np.zeros((n, 3))
+            if "velocities" in g:
+                vv = g["velocities"]
+                if not isinstance(vv, list) or len(vv) != n or not all(
+                        isinstance(q, list) and len(q) == 3 and all(isinstance(e, _NUM) and not isinstance(e, bool) for e in q) for q in vv):
+                    v.err(p + ".velocities", f"must be a list of {n} [vx, vy, vz] triples")
+                vel = np.array(vv, float)
+            if "angular_velocities" in g:
+                vv = g["angular_velocities"]
+                if not isinstance(vv, list) or len(vv) != n:
+                    v.err(p + ".angular_velocities", f"must be a list of {n} [wx, wy, wz] triples")
+                om = np.array(vv, float)
+        elif mode == "file":
+            fname = v.string(g, "file", p, required=True)
+            pos, rad, vel, om, ids, temp_col = _read_particle_file(v, fname, p, base_dir)
+            n = len(pos)
+            bad = np.nonzero(~(rad > 0))[0]
+            if bad.size:
+                v.err(f"{p}.file", f"row {bad[0]}: radius must be > 0, got {rad[bad[0]]}")
+        else:
+            n = v.integer(g, "count", p, lo=1, required=True)
+            rs = g.get("radius")
+            if rs is None:
+                v.err(p + ".radius", "missing required key (a number, or a table with distribution = "
+                                     "constant|uniform|normal|lognormal)")
+            if isinstance(rs, dict):
+                v.table(rs, p + ".radius", {"distribution", "value", "min", "max", "mean", "std"},
+                        required=("distribution",))
+                dist = v.string(rs, "distribution", p + ".radius",
+                                choices=["constant", "uniform", "normal", "lognormal"], required=True)
+                if dist == "constant":
+                    v.num(rs, "value", p + ".radius", lo=0, lo_open=True, required=True)
+                else:
+                    a = v.num(rs, "min", p + ".radius", lo=0, lo_open=True, required=True)
+                    b = v.num(rs, "max", p + ".radius", lo=0, lo_open=True, required=True)
+                    if b < a:
+                        v.err(p + ".radius.max", f"must be >= min ({a}), got {b}")
+                    if dist in ("normal", "lognormal"):
+                        mean = v.num(rs, "mean", p + ".radius", lo=0, lo_open=True, required=True)
+                        v.num(rs, "std", p + ".radius", lo=0, lo_open=True, required=True)
+                        if not a <= mean <= b:
+                            v.err(p + ".radius.mean", f"must lie in [min, max] = [{a}, {b}], got {mean}")
+                spec = rs
+            else:
+                spec = dict(distribution="constant", value=v.num(g, "radius", p, lo=0, lo_open=True, required=True))
+            reg = g.get("region")
+            if reg is None:
+                v.err(p + ".region", "missing required key (a table with type = box|cylinder)")
+            v.table(reg, p + ".region", {"type", "min", "max", "center", "axis", "radius", "length"}, required=("type",))
+            rt = v.string(reg, "type", p + ".region", choices=["box", "cylinder"], required=True)
+            if rt == "box":
+                a = v.vec(reg, "min", p + ".region", required=True)
+                b = v.vec(reg, "max", p + ".region", required=True)
+                if np.any(b <= a):
+                    v.err(p + ".region.max", "must be larger than region.min on every axis")
+            else:
+                v.vec(reg, "center", p + ".region", required=True)
+                v.unit(reg, "axis", p + ".region")
+                v.num(reg, "radius", p + ".region", lo=0, lo_open=True, required=True)
+                v.num(reg, "length", p + ".region", lo=0, lo_open=True, required=True)
+            rad = sample_radii(spec, n, rng)
+            ex_x = np.concatenate(P["x"]) if P["x"] else np.zeros((0, 3))
+            ex_r = np.concatenate(P["r"]) if P["r"] else np.zeros(0)
+            pos, keep, placed = insert(reg, rad, rng, ex_x, ex_r)
+            if placed < n:
+                v.err(p + ".count", f"could place only {placed} of {n} particles without overlap in the region; "
+                                    "enlarge the region or lower the count")
+            vel = np.zeros((n, 3))
+        if "velocity" in g:
+            vel = np.tile(v.vec(g, "velocity", p, required=True), (n, 1))
+        if om is None:
+            om = np.zeros((n, 3))
+        T = None
+        if "temperature" in g:
+            T = np.full(n, v.num(g, "temperature", p, lo=0, lo_open=True))
+        elif temp_col is not None:
+            T = temp_col
+        P["x"].append(pos)
+        P["r"].append(rad)
+        P["v"].append(vel)
+        P["w"].append(om)
+        P["mat"].append(np.full(n, mi, np.int32))
+        P["id"].append(ids)
+        P["T"].append(T)
+        P["group"].append(np.full(n, k, np.int32))
+    x = np.ascontiguousarray(np.concatenate(P["x"]))
+    r = np.ascontiguousarray(np.concatenate(P["r"]))
+    n = r.size
+    if any(i is not None for i in P["id"]):
+        ids, nxt = [], 1
+        for i, xx in zip(P["id"], P["x"]):
+            ids.append(i.astype(np.int64) if i is not None else np.arange(nxt, nxt + len(xx)))
+            nxt = max(nxt, int(ids[-1].max()) + 1)
+        ids = np.concatenate(ids)
+        if np.unique(ids).size != n:
+            v.err("particles", "particle ids are not unique across groups")
+    else:
+        ids = np.arange(1, n + 1, dtype=np.int64)
+    group = np.concatenate(P["group"])
+    # inside the domain (non-periodic axes: the centre inside; periodic: wrapped later)
+    for ax in range(3):
+        if periodic[ax]:
+            continue
+        out = np.nonzero((x[:, ax] < lo[ax]) | (x[:, ax] > hi[ax]))[0]
+        if out.size:
+            q = out[0]
+            v.err(f"particles[{group[q]}]", f"particle id {ids[q]} at {x[q].tolist()} lies outside the domain "
+                                            f"[{lo.tolist()}, {hi.tolist()}] on axis {'xyz'[ax]}")
+    # --- walls
+    walls = []
+    for k, wl in enumerate(data.get("walls", [])):
+        p = f"walls[{k}]"
+        v.table(wl, p, WALL_KEYS, required=("type", "material"))
+        wt = v.string(wl, "type", p, choices=["plane", "cylinder"], required=True)
+        W = dict(type=wt, material=mat_ref(wl, p), name=v.string(wl, "name", p, default=f"wall{k}"),
+                 velocity=v.vec(wl, "velocity", p, default=np.zeros(3)),
+                 angular_velocity=v.vec(wl, "angular_velocity", p, default=np.zeros(3)),
+                 thermal=wl.get("thermal"))
+        if wt == "plane":
+            v.table(wl, p, WALL_KEYS - {"axis", "radius", "inside", "length"})
+            W["point"] = v.vec(wl, "point", p, required=True)
+            W["normal"] = v.unit(wl, "normal", p)
+            ext = v.vec(wl, "extent", p, n=2, default=None)
+            if ext is not None and np.any(ext <= 0):
+                v.err(p + ".extent", "half sizes must be > 0")
+            W["extent"] = ext
+            ua = v.unit(wl, "u_axis", p, required=False)
+            if ua is None:
+                nn = W["normal"]
+                ua = np.cross(nn, [1.0, 0, 0] if abs(nn[0]) < 0.9 else [0, 1.0, 0])
+            ua = ua - ua.dot(W["normal"]) * W["normal"]
+            if np.linalg.norm(ua) < 1e-9:
+                v.err(p + ".u_axis", "must not be parallel to the normal")
+            W["u_axis"] = ua / np.linalg.norm(ua)
+            W["rotation_center"] = v.vec(wl, "rotation_center", p, default=W["point"])
+            om = W["angular_velocity"]
+            if np.linalg.norm(np.cross(om, W["normal"])) > 1e-12 * max(1.0, np.linalg.norm(om)):
+                v.err(p + ".angular_velocity", "a plane may only turn about its normal (its surface must stay in place)")
+        else:
+            v.table(wl, p, WALL_KEYS - {"normal", "extent", "u_axis"})
+            W["point"] = v.vec(wl, "point", p, required=True)
+            W["axis"] = v.unit(wl, "axis", p)
+            W["radius"] = v.num(wl, "radius", p, lo=0, lo_open=True, required=True)
+            W["inside"] = v.boolean(wl, "inside", p, default=True)
+            W["length"] = v.num(wl, "length", p, default=math.inf, lo=0, lo_open=True)
+            W["rotation_center"] = v.vec(wl, "rotation_center", p, default=W["point"])
+            om = W["angular_velocity"]
+            if np.linalg.norm(np.cross(om, W["axis"])) > 1e-12 * max(1.0, np.linalg.norm(om)):
+                v.err(p + ".angular_velocity", "a cylinder may only turn about its own axis")
+            if np.linalg.norm(np.cross(W["rotation_center"] - W["point"], W["axis"])) > 1e-12:
+                v.err(p + ".rotation_center", "must lie on the cylinder axis")
+        walls.append(W)
+    o = v.table(data.get("output", {}), "output", OUTPUT_KEYS)
+    output = dict(vtk=v.boolean(o, "vtk", "output", default=True))
+    if sim["neighbor_skin"] is None:
+        sim["neighbor_skin"] = 0.2 * float(r.max())
+    sc = Scene(file=file, base_dir=base_dir, simulation=sim, domain=dict(min=lo, max=hi, periodic=periodic),
+               materials=materials, material_index=names, contact=contact, walls=walls, output=output,
+               id=ids, position=x, radius=r, velocity=np.ascontiguousarray(np.concatenate(P["v"])),
+               angular_velocity=np.ascontiguousarray(np.concatenate(P["w"])),
+               material=np.concatenate(P["mat"]), group=group,
+               temperature=P["T"], raw=data, thermal=None)
+    _check_overlaps(v, sc)
+    _thermal_hook(v, sc, data)
+    return sc
+
+
+def _check_overlaps(v, sc):
+    """Initial overlaps beyond [simulation] initial_overlap_ratio (of the smaller radius)."""
+    from scipy.spatial import cKDTree
+    x, r = sc.position, sc.radius
+    if x.shape[0] < 2:
+        return
+    per = sc.domain["periodic"]
+    box = None
+    xx = x
+    if any(per):
+        L = sc.domain["max"] - sc.domain["min"]
+        box = np.where(per, L, 0.0)
+        xx = x - sc.domain["min"]
+        xx = np.where(per, np.mod(xx, np.where(per, L, 1.0)), xx)
+        # cKDTree needs finite box on non-periodic axes too: use a large size there
+        span = xx.max(0) - xx.min(0) + 10 * r.max()
+        box = np.where(per, L, span + 1.0)
+        xx = xx - np.where(per, 0.0, xx.min(0) - 1e-9)
+    tree = cKDTree(xx, boxsize=box)
+    pairs = tree.query_pairs(2 * r.max(), output_type="ndarray")
+    if pairs.size == 0:
+        return
+    d = np.linalg.norm(xx[pairs[:, 0]] - xx[pairs[:, 1]], axis=1)
+    if box is not None:
+        dv = xx[pairs[:, 0]] - xx[pairs[:, 1]]
+        dv -= box * np.round(dv / box)
+        d = np.linalg.norm(dv, axis=1)
+    ov = (r[pairs[:, 0]] + r[pairs[:, 1]] - d) / np.minimum(r[pairs[:, 0]], r[pairs[:, 1]])
+    k = int(np.argmax(ov))
+    if ov[k] > sc.simulation["initial_overlap_ratio"]:
+        i, j = pairs[k]
+        v.err(f"particles[{sc.group[i]}]",
+              f"particles id {sc.id[i]} and id {sc.id[j]} overlap by {ov[k]:.3g} of the smaller radius "
+              f"initially (allowed: simulation.initial_overlap_ratio = {sc.simulation['initial_overlap_ratio']})")
+
+
+def _thermal_hook(v, sc, data):
+    """Parse [thermal] / [gas] when present (dem.thermal.scene)."""
+    if "thermal" not in data and "gas" not in data:
+        if any(t is not None for t in sc.temperature):
+            pass
+        return
+    from .thermal.scene import parse_thermal
+    sc.thermal = parse_thermal(v, sc, data)
