@@ -26,7 +26,7 @@ def sample_radii(spec, count, rng):
     return out[:count]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _place(cand, radii, existing_x, existing_r, lo, hi, cell):
     """Accept candidates in order; cand[k] holds the random attempts of sphere k."""
     n_ex = existing_x.shape[0]

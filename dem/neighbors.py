@@ -13,14 +13,14 @@ import numpy as np
 from numba import njit
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _min_image(d, length, periodic):
     if periodic:
         d -= length * math.floor(d / length + 0.5)
     return d
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def cell_index(x, lo, inv_cell, ncell, n):
     """Cell of each particle (clamped into the grid) and the flat index."""
     out = np.empty(n, np.int64)
@@ -37,7 +37,7 @@ def cell_index(x, lo, inv_cell, ncell, n):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def build_half_list(x, r, n, lo, hi, periodic, reach, skin, slots,
                     nb_old, nnb_old, hist_old, rhist_old, age_old):
     """Build the half list and carry the history over.

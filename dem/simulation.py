@@ -113,6 +113,9 @@ class Simulation:
         self.whist = np.zeros((n, max(nw, 1), 3))
         rolling = ROLLING_MODELS[self.scene.contact["rolling"]]
         self.wrhist = np.zeros((n, max(nw, 1), 3)) if rolling == 2 else np.zeros((0, 1, 3))
+        self.wnb = np.zeros((n, max(nw, 1)), np.int32)
+        self.wnn = np.zeros(n, np.int32)
+        self.wall_speed = max([float(np.linalg.norm(w["velocity"])) for w in walls], default=0.0)
 
     def _build_params(self):
         sc = self.scene
@@ -130,6 +133,7 @@ class Simulation:
         fp[K.F_LINKN] = sc.contact["normal_stiffness"]
         fp[K.F_ETAR] = sc.contact["rolling_damping"]
         fp[K.F_MAXOV] = sc.simulation["max_overlap_ratio"]
+        fp[K.F_VWALL] = self.wall_speed
         self.ip, self.fp = ip, fp
 
     def characteristic_velocity(self):
@@ -156,15 +160,24 @@ class Simulation:
         rolling = self.ip[K.I_ROLLING] == 2
         age = self.thermal.needs_age if self.thermal is not None else False
         nb0 = np.zeros((0, 1), np.int32)
-        self.nb, self.nnb, self.hist, self.rhist, self.age, _ = build_half_list(
-            st.position, st.radius, n, self.lo, self.hi, self.periodic, self.reach,
-            self.fp[K.F_SKIN], 12, nb0, np.zeros(0, np.int32), np.zeros((0, 1, 3)),
-            np.zeros((0, 1, 3)), np.zeros((0, 1)))
+        slots = 12
+        for _ in range(2):  # second pass sizes the slots tightly (max count + 2)
+            self.nb, self.nnb, self.hist, self.rhist, self.age, maxc = build_half_list(
+                st.position, st.radius, n, self.lo, self.hi, self.periodic, self.reach,
+                self.fp[K.F_SKIN], slots, nb0, np.zeros(0, np.int32), np.zeros((0, 1, 3)),
+                np.zeros((0, 1, 3)), np.zeros((0, 1)))
+            if maxc + 2 >= slots:
+                break
+            slots = maxc + 2
         if rolling:
             self.rhist = np.zeros(self.hist.shape)
         if age:
             self.age = np.zeros(self.nb.shape)
         st.x_build[:] = st.position
+        K.build_wall_list(st.position, st.radius, n, self.wf, self.wi, self.nwalls,
+                          self.reach + self.fp[K.F_SKIN], self.time, self.wnb, self.wnn,
+                          self.whist, self.wrhist)
+        self.fp[K.F_TBUILD] = self.time
 
     # ------------------------------------------------------------------ checks
     def check(self):
@@ -250,7 +263,7 @@ class Simulation:
         maxov, i, j, nc = K.compute_forces(
             st.n, st.position, st.velocity, st.angular_velocity, st.radius, st.mass, st.material,
             st.force, st.torque, self._fext(), self.nb, self.nnb, self.hist, self.rhist,
-            self.wf, self.wi, self.whist, self.wrhist, self.tab, self.ip, self.fp,
+            self.wf, self.wi, self.wnb, self.wnn, self.whist, self.wrhist, self.tab, self.ip, self.fp,
             self.lo, self.hi, self.periodic, self.time)
         self.last_contacts = nc
         return maxov
@@ -271,7 +284,7 @@ class Simulation:
                             st.angular_velocity, st.radius, st.mass, st.inv_mass, st.inv_inertia,
                             st.material, st.force, st.torque, self._fext(), st.x_build,
                             self.nb, self.nnb, self.hist, self.rhist, self.age, self.wf, self.wi,
-                            self.whist, self.wrhist, self.tab, self.ip, self.fp, self.lo, self.hi,
+                            self.wnb, self.wnn, self.whist, self.wrhist, self.tab, self.ip, self.fp, self.lo, self.hi,
                             self.periodic)
         done, status, who, other, value, nc, nreb = res[:7]
         self.nb, self.nnb, self.hist, self.rhist, self.age = res[7:12]
@@ -320,6 +333,8 @@ class Simulation:
         if self.age.shape[0]:
             self.age = np.ascontiguousarray(self.age[perm])
         self.whist = np.ascontiguousarray(self.whist[perm])
+        self.wnb = np.ascontiguousarray(self.wnb[perm])
+        self.wnn = np.ascontiguousarray(self.wnn[perm])
         if self.wrhist.shape[0]:
             self.wrhist = np.ascontiguousarray(self.wrhist[perm])
         if self.thermal is not None:
@@ -388,7 +403,8 @@ class Simulation:
         st = self.state
         arr = {f"state_{k}": getattr(st, k) for k in st.fields()}
         arr.update(nb=self.nb, nnb=self.nnb, hist=self.hist, rhist=self.rhist, age=self.age,
-                   whist=self.whist, wrhist=self.wrhist, step_count=np.int64(self.step_count),
+                   whist=self.whist, wrhist=self.wrhist, wnb=self.wnb, wnn=self.wnn,
+                   fp_tbuild=np.float64(self.fp[K.F_TBUILD]), step_count=np.int64(self.step_count),
                    dt=np.float64(self.dt), forces_ready=np.bool_(self._forces_ready),
                    scene_file=np.str_(os.path.abspath(self.scene.file)))
         if self.thermal is not None:
@@ -416,8 +432,9 @@ class Simulation:
                 if key not in z.files:
                     raise SimulationError(f"{path}: checkpoint lacks {k!r} (thermal settings changed?)")
                 setattr(st, k, np.ascontiguousarray(z[key]))
-            for k in ("nb", "nnb", "hist", "rhist", "age", "whist", "wrhist"):
+            for k in ("nb", "nnb", "hist", "rhist", "age", "whist", "wrhist", "wnb", "wnn"):
                 setattr(self, k, np.ascontiguousarray(z[k]))
+            self.fp[K.F_TBUILD] = float(z["fp_tbuild"])
             self.step_count = int(z["step_count"])
             self.time = self.step_count * self.dt
             self._forces_ready = bool(z["forces_ready"])

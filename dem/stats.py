@@ -4,7 +4,7 @@ from numba import njit
 from .contact.walls import wall_distance
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def max_overlap_ratio(n, x, r, nb, nnb, lo, hi, periodic, wf, wi, nwalls, t):
     """Largest overlap / smaller radius over particle pairs and walls."""
     best = 0.0

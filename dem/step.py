@@ -24,7 +24,7 @@ from .neighbors import build_half_list
 I_CONTACT, I_ROLLING, I_NWALLS, I_MECH = 0, 1, 2, 3
 NIP = 8
 # float parameters
-F_DT, F_GX, F_GY, F_GZ, F_SKIN, F_REACH, F_VCHAR, F_KTRATIO, F_LINKN, F_ETAR, F_MAXOV = range(11)
+F_DT, F_GX, F_GY, F_GZ, F_SKIN, F_REACH, F_VCHAR, F_KTRATIO, F_LINKN, F_ETAR, F_MAXOV, F_VWALL, F_TBUILD = range(13)
 NFP = 16
 # pair tables
 T_ESTAR, T_GSTAR, T_DAMP, T_MU, T_MUR = range(5)
@@ -33,7 +33,7 @@ NTAB = 5
 OK, OVERLAP, NONFINITE, LEFT_DOMAIN = 0, 1, 2, 3
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _pair_law(model, delta, vn, vtx, vty, vtz, hx, hy, hz, rstar, mstar, estar, gstar,
               damp, mu, dt, lin_kn, vchar, kt_ratio):
     if model == 0:
@@ -47,7 +47,7 @@ def _pair_law(model, delta, vn, vtx, vty, vtz, hx, hy, hz, rstar, mstar, estar, 
                                  mstar, kn, kt_ratio, damp, mu, dt)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _rotate_history(h, i, s, nx, ny, nz):
     """Project a stored spring onto the current tangent plane, keeping its length."""
     hx = h[i, s, 0]
@@ -67,9 +67,9 @@ def _rotate_history(h, i, s, nx, ny, nz):
     return 0.0, 0.0, 0.0
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def compute_forces(n, x, v, w, r, m, mat, f, tq, fext, nb, nnb, hist, rhist,
-                   wf, wi, whist, wrhist, tab, ip, fp, lo, hi, periodic, t):
+                   wf, wi, wnb, wnn, whist, wrhist, tab, ip, fp, lo, hi, periodic, t):
     """Contact + wall + body forces. Returns (max overlap ratio, i, j (-1-wall), contacts)."""
     dt = fp[F_DT]
     model = ip[I_CONTACT]
@@ -212,11 +212,12 @@ def compute_forces(n, x, v, w, r, m, mat, f, tq, fext, nb, nnb, hist, rhist,
                 tq[j, 0] -= mx
                 tq[j, 1] -= my
                 tq[j, 2] -= mz
-    # walls
+    # walls (candidates from the wall list built with the neighbour list)
     for i in range(n):
         ri = r[i]
         mi = mat[i]
-        for wl in range(nwalls):
+        for q in range(wnn[i]):
+            wl = wnb[i, q]
             dist, nx, ny, nz = wall_distance(wf, wi, wl, x[i, 0], x[i, 1], x[i, 2], t)
             if not (dist < ri) or dist < -ri:
                 whist[i, wl, 0] = 0.0
@@ -288,9 +289,28 @@ def compute_forces(n, x, v, w, r, m, mat, f, tq, fext, nb, nnb, hist, rhist,
     return maxov, who_i, who_j, ncont
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
+def build_wall_list(x, r, n, wf, wi, nwalls, reach, t, wnb, wnn, whist, wrhist):
+    """Walls within reach of each particle; histories of the others are cleared."""
+    rolling = wrhist.shape[0] == n
+    for i in range(n):
+        c = 0
+        for wl in range(nwalls):
+            dist, nx, ny, nz = wall_distance(wf, wi, wl, x[i, 0], x[i, 1], x[i, 2], t)
+            if dist < r[i] + reach and dist > -r[i]:
+                wnb[i, c] = wl
+                c += 1
+            else:
+                for k in range(3):
+                    whist[i, wl, k] = 0.0
+                    if rolling:
+                        wrhist[i, wl, k] = 0.0
+        wnn[i] = c
+
+
+@njit(cache=True, error_model="numpy")
 def advance(nsteps, t0, n, x, v, w, r, m, inv_m, inv_i, mat, f, tq, fext, xb,
-            nb, nnb, hist, rhist, age, wf, wi, whist, wrhist, tab, ip, fp, lo, hi, periodic):
+            nb, nnb, hist, rhist, age, wf, wi, wnb, wnn, whist, wrhist, tab, ip, fp, lo, hi, periodic):
     """Advance ``nsteps`` velocity-Verlet steps from time t0 (f, tq hold the forces at t0).
 
     Returns (steps done, status, particle, other (j, or -1-wall), value, contacts,
@@ -306,6 +326,7 @@ def advance(nsteps, t0, n, x, v, w, r, m, inv_m, inv_i, mat, f, tq, fext, xb,
     L2 = hi[2] - lo[2]
     nreb = 0
     ncont = 0
+    nwalls = ip[I_NWALLS]
     for step in range(nsteps):
         t = t0 + (step + 1) * dt
         maxd2 = 0.0
@@ -332,7 +353,7 @@ def advance(nsteps, t0, n, x, v, w, r, m, inv_m, inv_i, mat, f, tq, fext, xb,
             d2 = ddx * ddx + ddy * ddy + ddz * ddz
             if d2 > maxd2:
                 maxd2 = d2
-        if maxd2 > lim2:
+        if math.sqrt(maxd2) + fp[F_VWALL] * (t - fp[F_TBUILD]) > 0.5 * skin:
             for i in range(n):
                 for k in range(3):
                     if not periodic[k] and (x[i, k] < lo[k] or x[i, k] > hi[k]):
@@ -341,11 +362,13 @@ def advance(nsteps, t0, n, x, v, w, r, m, inv_m, inv_i, mat, f, tq, fext, xb,
             nb, nnb, hist, rhist, age, _ = build_half_list(
                 x, r, n, lo, hi, periodic, fp[F_REACH], skin, nb.shape[1],
                 nb, nnb, hist, rhist, age)
+            build_wall_list(x, r, n, wf, wi, nwalls, fp[F_REACH] + skin, t, wnb, wnn, whist, wrhist)
             xb[:n] = x[:n]
+            fp[F_TBUILD] = t
             nreb += 1
         maxov, wi_, wj_, ncont = compute_forces(
             n, x, v, w, r, m, mat, f, tq, fext, nb, nnb, hist, rhist,
-            wf, wi, whist, wrhist, tab, ip, fp, lo, hi, periodic, t)
+            wf, wi, wnb, wnn, whist, wrhist, tab, ip, fp, lo, hi, periodic, t)
         bad = -1
         for i in range(n):
             for k in range(3):

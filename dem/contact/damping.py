@@ -18,7 +18,7 @@ import numpy as np
 from numba import njit
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _accel(x, u, g, hertz):
     if x <= 0.0:
         return 0.0
@@ -29,7 +29,7 @@ def _accel(x, u, g, hertz):
     return -f if f > 0.0 else 0.0
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def collision_restitution(g, hertz):
     """Restitution of the dimensionless damped collision with damping g."""
     h = 2e-5
@@ -55,7 +55,7 @@ def collision_restitution(g, hertz):
     return -u
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _solve_g(e, hertz):
     if e >= 1.0:
         return 0.0

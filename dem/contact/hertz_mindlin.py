@@ -20,7 +20,7 @@ import math
 from numba import njit
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def hertz_mindlin(delta, vn, vtx, vty, vtz, hx, hy, hz,
                   rstar, mstar, estar, gstar, damp_a, mu, dt):
     """Hertz-Mindlin pair force.
@@ -32,14 +32,14 @@ def hertz_mindlin(delta, vn, vtx, vty, vtz, hx, hy, hz,
     """
     sq = math.sqrt(rstar * delta)
     kn = 4.0 / 3.0 * estar * sq
-    qd = math.sqrt(math.sqrt(delta))
-    cn = damp_a * math.sqrt(mstar * estar * math.sqrt(rstar)) * qd
+    # c_n = A sqrt(m* E* sqrt(R*)) delta^(1/4) = A sqrt(m* E* sqrt(R* delta)): one root
+    cn = damp_a * math.sqrt(mstar * estar * sq)
     fn = kn * delta + cn * vn
     if fn < 0.0:
         fn = 0.0
     st = 8.0 * gstar * sq
-    # c_t = c_n sqrt(S_t / S_n), S_n = 2 E* sqrt(R* delta)
-    ct = cn * math.sqrt(st / (2.0 * estar * sq)) if sq > 0.0 else 0.0
+    # c_t = c_n sqrt(S_t / S_n) = c_n sqrt(4 G* / E*)  (S_n = 2 E* sqrt(R* delta))
+    ct = cn * math.sqrt(4.0 * gstar / estar)
     hx += vtx * dt
     hy += vty * dt
     hz += vtz * dt

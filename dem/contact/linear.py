@@ -12,7 +12,7 @@ import math
 from numba import njit
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def linear_spring_dashpot(delta, vn, vtx, vty, vtz, hx, hy, hz,
                           mstar, kn, kt_ratio, damp_a, mu, dt):
     """Returns (F_n >= 0, Ft_x, Ft_y, Ft_z, new history x, y, z, k_n)."""

@@ -12,7 +12,7 @@ import math
 from numba import njit
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def constant_torque(wx, wy, wz, rstar, fn, mur):
     """Model A: torque on particle i (the opposite on j)."""
     w = math.sqrt(wx * wx + wy * wy + wz * wz)
@@ -22,7 +22,7 @@ def constant_torque(wx, wy, wz, rstar, fn, mur):
     return s * wx, s * wy, s * wz
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def epsd(wx, wy, wz, hx, hy, hz, rstar, fn, kn, mur, eta_r, inertia_r, dt):
     """Model C: returns (torque x, y, z, new spring torque x, y, z)."""
     kr = 2.25 * kn * mur * mur * rstar * rstar

@@ -17,7 +17,7 @@ NWI = 2
 PLANE, CYLINDER = 0, 1
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def wall_distance(wf, wi, w, x0, x1, x2, t):
     """Distance from a particle centre to wall ``w`` and the unit vector from the centre
     towards the wall. Returns (dist, nx, ny, nz); dist = inf when no contact is possible."""
@@ -68,7 +68,7 @@ def wall_distance(wf, wi, w, x0, x1, x2, t):
     return side * (wf[w, RAD] - rho), side * qx / rho, side * qy / rho, side * qz / rho
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def wall_velocity(wf, w, cx, cy, cz, t):
     """Velocity of the wall surface at point c: V + Omega x (c - C(t))."""
     ox = wf[w, OX]

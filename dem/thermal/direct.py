@@ -279,7 +279,7 @@ def beaulieu_2020_network(Ri, Rj, rc, ki, kj, kg, Hi, Hj, sig_i, sig_j, tau_i, t
 
 # ----------------------------------------------------------------- dispatchers
 @numba.njit(cache=True)
-def _zhou_or_static(rc, Ri_mass_R, Rstar, mstar, Estar_real, vn_impact, t_contact,
+def _zhou_or_static(rc, Rstar, mstar, Estar_real, vn_impact, t_contact,
                     rho_i, cp_i, k_i, rho_j, cp_j, k_j):
     rcm, tc = hertz_collision(mstar, Rstar, Estar_real, vn_impact)
     if vn_impact > 0.0 and t_contact < tc:
@@ -315,7 +315,7 @@ def direct_pp(model, Ri, Rj, d, rc, mi, mj, tmat, gas, t_contact, vn_impact):
                                real_modulus(tmat, mj), tmat[mj, POISSON])
         m1 = tmat[mi, DENSITY] * 4.0 / 3.0 * math.pi * Ri ** 3
         m2 = tmat[mj, DENSITY] * 4.0 / 3.0 * math.pi * Rj ** 3
-        return _zhou_or_static(rc, Ri, Ri * Rj / (Ri + Rj), m1 * m2 / (m1 + m2), Es, vn_impact,
+        return _zhou_or_static(rc, Ri * Rj / (Ri + Rj), m1 * m2 / (m1 + m2), Es, vn_impact,
                                t_contact, tmat[mi, DENSITY], tmat[mi, CP], ki,
                                tmat[mj, DENSITY], tmat[mj, CP], kj)
     elif model == DIRECT_BEAULIEU:
@@ -356,7 +356,7 @@ def direct_pw(model, R, d, rc, mp, mw, tmat, gas, t_contact, vn_impact):
         Es = effective_modulus(real_modulus(tmat, mp), tmat[mp, POISSON],
                                real_modulus(tmat, mw), tmat[mw, POISSON])
         m1 = tmat[mp, DENSITY] * 4.0 / 3.0 * math.pi * R ** 3
-        return _zhou_or_static(rc, R, R, m1, Es, vn_impact, t_contact,
+        return _zhou_or_static(rc, R, m1, Es, vn_impact, t_contact,
                                tmat[mp, DENSITY], tmat[mp, CP], kp,
                                tmat[mw, DENSITY], tmat[mw, CP], kw)
     elif model == DIRECT_BEAULIEU:
