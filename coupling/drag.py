@@ -113,7 +113,7 @@ def di_felice_1994(d, eps, rho_f, mu_f, ur):
 @njit(cache=True)
 def ergun_beta(d, eps, rho_f, mu_f, ur):
     """Ergun (1952) momentum-exchange coefficient per unit mixture volume as
-    used by Gidaspow (1994, eq. 5.7x):
+    used by Gidaspow (1994, ch. 5):
     beta = 150 (1-eps)^2 mu / (eps d^2) + 1.75 (1-eps) rho_f ur / d.
     With beta ur = eps * (Ergun pressure drop per length) at U_s = eps ur."""
     es = 1.0 - eps
@@ -153,8 +153,8 @@ def gidaspow_1994(d, eps, rho_f, mu_f, ur):
     gives beta_p = 1/2 C_d(Schiller-Naumann) rho_f (pi d^2/4) ur.
 
     Not continuous at eps = 0.8: in the Stokes limit Ergun gives
-    beta = 7.5 mu/d^2 and Wen-Yu 3.6 * 0.8^-2.65 mu/d^2 = 6.50 mu/d^2
-    (Wen-Yu 13.3 % lower); the jump changes with Re (see docs/models.md and
+    beta = 7.5 mu/d^2 and Wen-Yu 3.6 * 0.8^-2.65 mu/d^2 = 6.503 mu/d^2
+    (ratio 0.8671, Wen-Yu 13.3 % lower); the jump changes with Re (see docs/models.md and
     the test).  Use huilin_gidaspow_2003 for a continuous blend.
     """
     if eps < 0.8:

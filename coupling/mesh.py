@@ -48,7 +48,7 @@ import gzip
 import os
 import re
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from numba import njit, prange
@@ -61,6 +61,8 @@ __all__ = [
     "write_polymesh",
     "structured_hex_mesh",
     "UniformGrid",
+    "locate",
+    "benchmark_locate",
 ]
 
 
@@ -695,12 +697,18 @@ class PolyMesh:
         if np.any(cv <= 0):
             raise ValueError(f"{int(np.sum(cv <= 0))} cells with non-positive volume "
                              "(inverted faces / wrong owner-neighbour orientation?)")
-        self.cell_lo, self.cell_hi = _cell_bboxes(self.points, self.face_offsets,
-                                                  self.face_points, self.owner,
-                                                  self.neighbour, self.n_cells)
+        lo, hi = _cell_bboxes(self.points, self.face_offsets, self.face_points,
+                              self.owner, self.neighbour, self.n_cells)
+        #: vertex bounding boxes of the cells
+        self.cell_vlo, self.cell_vhi = lo, hi
+        # Search boxes: with warped (non-planar) faces the face-plane inside
+        # region can extend slightly beyond the vertices; pad by 10 % of the
+        # cell extent (exact for planar faces, where padding only costs time).
+        pad = 0.1 * (hi - lo)
+        self.cell_lo, self.cell_hi = lo - pad, hi + pad
         self._build_cell_faces()
-        self.bbox_lo = self.cell_lo.min(axis=0)
-        self.bbox_hi = self.cell_hi.max(axis=0)
+        self.bbox_lo = self.cell_vlo.min(axis=0)
+        self.bbox_hi = self.cell_vhi.max(axis=0)
         L = float(np.max(self.bbox_hi - self.bbox_lo))
         #: absolute tolerance of the inside test (points on a face belong to
         #: both cells; the first one found is returned)
@@ -765,7 +773,7 @@ class PolyMesh:
         return self._uniform
 
     def _detect_uniform(self, rtol=1e-9):
-        ext = self.cell_hi - self.cell_lo
+        ext = self.cell_vhi - self.cell_vlo
         h = ext[0]
         if np.any(h <= 0):
             return None
@@ -773,8 +781,8 @@ class PolyMesh:
             return None
         if not np.allclose(self.cell_volumes, np.prod(ext, axis=1), rtol=1e-8, atol=0):
             return None
-        origin = self.cell_lo.min(axis=0)
-        t = (self.cell_lo - origin) / h
+        origin = self.cell_vlo.min(axis=0)
+        t = (self.cell_vlo - origin) / h
         idx = np.rint(t).astype(np.int64)
         if np.max(np.abs(t - idx)) > 1e-6:
             return None
@@ -787,13 +795,13 @@ class PolyMesh:
         if np.any(lattice < 0):
             return None
         # use the exact extent to avoid drift over many cells
-        h = (self.cell_hi.max(axis=0) - origin) / dims
+        h = (self.cell_vhi.max(axis=0) - origin) / dims
         return UniformGrid(origin, h, dims.astype(np.int64), lattice)
 
     # ---- locate --------------------------------------------------------------
     def _ensure_buckets(self):
         if self._buckets is None:
-            lo, hi = self.bbox_lo, self.bbox_hi
+            lo, hi = self.cell_lo.min(axis=0), self.cell_hi.max(axis=0)
             ext = np.maximum(hi - lo, 1e-300)
             mean_size = float(np.mean(np.cbrt(self.cell_volumes)))
             target = np.maximum(np.ceil(ext / mean_size), 1).astype(np.int64)
@@ -942,3 +950,8 @@ def benchmark_locate(mesh: PolyMesh, n: int = 100_000, seed: int = 0) -> dict:
         mesh.locate(pts, method="uniform")
         res["uniform"] = time.perf_counter() - t4
     return res
+
+
+def locate(mesh: PolyMesh, points, hint=None, method: str = "auto") -> np.ndarray:
+    """Function form of :meth:`PolyMesh.locate`."""
+    return mesh.locate(points, hint=hint, method=method)

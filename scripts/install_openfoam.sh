@@ -17,7 +17,7 @@ CACHE_ROOT="${THERMODEM_CACHE:-$HOME/.cache/thermodem}"
 SRC_CACHE="$CACHE_ROOT/openfoam-src"
 TREE_NAME="openfoam-OpenFOAM-v1912.200626"
 TREE="$SRC_CACHE/$TREE_NAME"
-STAMP="$TREE/.thermodem-prepared"
+STAMP="$TREE/.thermodem-prepared-v3"   # bump when the preparation changes
 
 log() { echo "[install_openfoam] $*" >&2; }
 die() { echo "[install_openfoam] ERROR: $*" >&2; exit 1; }
@@ -112,7 +112,8 @@ tar -xf "$orig" -C "$SRC_CACHE" $members
             wmakeLnInclude -u "$FOAM_SRC/$l" >&2 || exit 1
         fi
     done
-    # the TurbulenceModels / transportModels sub-libraries
+    # OS layer and the TurbulenceModels / transportModels sub-libraries
+    wmakeLnInclude -u "$FOAM_SRC/OSspecific/${WM_OSTYPE:-POSIX}" >&2 || exit 1
     for d in "$FOAM_SRC"/TurbulenceModels/* "$FOAM_SRC"/transportModels/*; do
         if [ -f "$d/Make/files" ]; then wmakeLnInclude -u "$d" >&2 || exit 1; fi
     done

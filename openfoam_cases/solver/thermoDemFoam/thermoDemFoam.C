@@ -1,0 +1,222 @@
+/*---------------------------------------------------------------------------*\
+Application
+    thermoDemFoam
+
+Description
+    Gas phase of an unresolved CFD-DEM coupling (OpenFOAM v1912) for the
+    thermodem Python/Numba DEM code.
+
+    Volume-averaged, incompressible, laminar gas with void fraction eps:
+      d(eps)/dt + div(eps U) = 0
+      d(eps U)/dt + div(eps U U) - div(eps nu grad U)
+          = epsP (g - grad p) - Ksl/rho (U - Us)
+      eps rho cp (dT/dt + U.grad T) = div(eps k grad T) + Sexp - Simp T
+    epsP = eps (Zhou et al. 2010, set II, model A; default) or 1 (model B),
+    chosen by 'modelType' in constant/couplingProperties.
+
+    One CFD time step per coupling step. Protocol (docs/coupling_protocol.md):
+      start : send step i0 (initial U, T, grad p, p)
+      loop  : receive step n (eps, Ksl, Us, Simp, Sexp) -> solve -> send step n
+    Transport selected in system/couplingDict (file | socket | none).
+
+\*---------------------------------------------------------------------------*/
+
+#include "fvCFD.H"
+#include "pimpleControl.H"
+#include "fvOptions.H"
+#include "couplingIO.H"
+
+// * * * * * * * * * * * * * * * * * * * * * * * * * * * * * * * * * * * * //
+
+namespace
+{
+
+// Columns sent to the DEM: Ux Uy Uz T dpdx dpdy dpdz p   (SI: m/s, K, Pa/m, Pa)
+Foam::List<Foam::scalarField> outgoingColumns
+(
+    const Foam::volVectorField& U,
+    const Foam::volScalarField& T,
+    const Foam::volScalarField& p,
+    const Foam::dimensionedScalar& rho
+)
+{
+    using namespace Foam;
+    const volVectorField gradp(rho*fvc::grad(p));
+    List<scalarField> cols(8);
+    for (direction d = 0; d < 3; ++d)
+    {
+        cols[d] = U.primitiveField().component(d);
+        cols[4 + d] = gradp.primitiveField().component(d);
+    }
+    cols[3] = T.primitiveField();
+    cols[7] = rho.value()*p.primitiveField();
+    return cols;
+}
+
+} // End anonymous namespace
+
+
+int main(int argc, char *argv[])
+{
+    argList::addNote
+    (
+        "Volume-averaged incompressible gas flow and heat transfer for an"
+        " unresolved CFD-DEM coupling with the thermodem DEM code"
+    );
+
+    #include "setRootCaseLists.H"
+    #include "createTime.H"
+    #include "createMesh.H"
+    #include "createPimpleControl.H"
+    #include "createFields.H"
+
+    scalar cumulativeContErr = 0;
+
+    // ------------------------------------------------------------- step i0
+    if (coupling.active())
+    {
+        coupling.send
+        (
+            runTime.timeIndex(),
+            runTime.value(),
+            outgoingColumns(U, T, p, rho),
+            0
+        );
+    }
+
+    Info<< "\nStarting time loop\n" << endl;
+
+    while (runTime.loop())
+    {
+        const label step = runTime.timeIndex();
+        Info<< "Time = " << runTime.timeName() << "  coupling step " << step
+            << nl << endl;
+
+        // --------------------------------------------------------- receive
+        label peerFlags = 0;
+        if (coupling.active())
+        {
+            List<scalarField> in;
+            peerFlags = coupling.receive(step, in, 7);
+
+            scalarField& epsI = eps.primitiveFieldRef();
+            scalarField& KslI = Ksl.primitiveFieldRef();
+            vectorField& UsI = Us.primitiveFieldRef();
+            scalarField& SimpI = Simp.primitiveFieldRef();
+            scalarField& SexpI = Sexp.primitiveFieldRef();
+
+            label nBad = 0;
+            forAll(epsI, i)
+            {
+                const scalar e = in[0][i];
+                const scalar k = in[1][i];
+                const scalar si = in[5][i];
+                const scalar se = in[6][i];
+                if
+                (
+                    !std::isfinite(e) || e <= 0 || e > 1 + 1e-6
+                 || !std::isfinite(k) || k < 0
+                 || !std::isfinite(si) || si < 0 || !std::isfinite(se)
+                 || !std::isfinite(in[2][i]) || !std::isfinite(in[3][i])
+                 || !std::isfinite(in[4][i])
+                )
+                {
+                    if (nBad < 5)
+                    {
+                        Pout<< "bad DEM data in local cell " << i
+                            << ": eps " << e << " Ksl " << k << " Simp " << si
+                            << " Sexp " << se << endl;
+                    }
+                    ++nBad;
+                }
+                epsI[i] = min(max(e, epsMin), 1.0);
+                KslI[i] = k;
+                UsI[i] = vector(in[2][i], in[3][i], in[4][i]);
+                SimpI[i] = si;
+                SexpI[i] = se;
+            }
+            reduce(nBad, sumOp<label>());
+            if (nBad)
+            {
+                FatalErrorInFunction
+                    << nBad << " cells with non-physical data (need 0 < eps <= 1,"
+                    << " Ksl >= 0, Simp >= 0, finite values)"
+                    << " [peer: DEM, coupling step " << step << ']'
+                    << exit(FatalError);
+            }
+            eps.correctBoundaryConditions();
+            Ksl.correctBoundaryConditions();
+            Us.correctBoundaryConditions();
+            Simp.correctBoundaryConditions();
+            Sexp.correctBoundaryConditions();
+            if (modelA)
+            {
+                epsP = eps;
+            }
+        }
+
+        // Courant number on the interstitial velocity
+        {
+            const scalarField sumPhi
+            (
+                fvc::surfaceSum(mag(phi)/fvc::interpolate(eps))().primitiveField()
+            );
+            const scalar CoNum =
+                0.5*gMax(sumPhi/mesh.V().field())*runTime.deltaTValue();
+            Info<< "Courant Number max: " << CoNum << endl;
+        }
+
+        // --------------------------------------------------------- PIMPLE
+        while (pimple.loop())
+        {
+            #include "UEqn.H"
+
+            while (pimple.correct())
+            {
+                #include "pEqn.H"
+            }
+        }
+
+        #include "TEqn.H"
+
+        // --------------------------------------------------------- send
+        const bool lastStep =
+            (peerFlags & demCoupling::flagFinal)
+         || runTime.value() > runTime.endTime().value() - 0.5*runTime.deltaTValue();
+
+        if (lastStep)
+        {
+            runTime.writeNow();
+        }
+        else
+        {
+            runTime.write();
+        }
+
+        if (coupling.active())
+        {
+            coupling.send
+            (
+                step,
+                runTime.value(),
+                outgoingColumns(U, T, p, rho),
+                lastStep ? demCoupling::flagFinal : 0
+            );
+        }
+
+        runTime.printExecutionTime(Info);
+
+        if (peerFlags & demCoupling::flagFinal)
+        {
+            Info<< "DEM peer signalled the final step " << step << endl;
+            break;
+        }
+    }
+
+    Info<< "End\n" << endl;
+
+    return 0;
+}
+
+
+// ************************************************************************* //
