@@ -231,8 +231,8 @@ class FileExchange(_Exchange):
     timeout : seconds to wait for a frame before :class:`CouplingError`.
     poll_interval : longest sleep between polls (starts at 0.1 ms, doubles).
     peer_process : optional ``subprocess.Popen`` of the peer, checked while waiting.
-    clean : remove stale frames at start. Create the exchange BEFORE starting the
-        solver (the solver also removes stale frames when it starts).
+    clean : remove stale frames at start (incoming ones only when no live solver has
+        written ``cfd.pid``; the solver removes stale frames itself when it starts).
     side : "dem" (default) or "cfd" (to emulate the solver in tests).
     """
 
@@ -250,14 +250,15 @@ class FileExchange(_Exchange):
         self._own_pid_file = self.directory / ("dem.pid" if side == "dem" else "cfd.pid")
         self._peer_pid_seen: int | None = None
         if clean:
+            # Our outgoing frames cannot be legitimate yet. Incoming ones are stale only
+            # if no live peer has started: a live peer cleans up before it sends step 0.
+            peer_live = _pid_alive(_read_pid(self._peer_pid_file))
             for f in self.directory.iterdir():
                 n = f.name.lstrip(".")
-                if n.startswith(self._out_prefix) or (side == "dem" and n.startswith(self._in_prefix)):
+                if n.startswith(self._out_prefix) or (not peer_live and n.startswith(self._in_prefix)):
                     f.unlink(missing_ok=True)
-            if side == "dem":
-                pf = self._peer_pid_file
-                if pf.exists() and not _pid_alive(_read_pid(pf)):
-                    pf.unlink(missing_ok=True)
+            if not peer_live:
+                self._peer_pid_file.unlink(missing_ok=True)
         tmp = self._own_pid_file.with_name("." + self._own_pid_file.name + ".tmp")
         tmp.write_text(f"{os.getpid()}\n")
         os.replace(tmp, self._own_pid_file)
@@ -289,7 +290,7 @@ class FileExchange(_Exchange):
         name = self._name(self._in_prefix, step)
         t0 = time.monotonic()
         sleep = 1e-4
-        last_check = t0
+        last_check = t0 - 1.0  # check at once: learn the peer pid early
         while True:
             try:
                 with open(name, "rb") as f:

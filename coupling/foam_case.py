@@ -260,8 +260,14 @@ def write_coupling_dict(case, transport: str = "file", *, timeout: float = 60,
                         connect_timeout: float | None = None, directory: str = "coupling",
                         poll_interval: float = 0.002, keep_files: bool = False,
                         port: int | None = None, path: str | None = None,
-                        host: str = "127.0.0.1", role: str = "client") -> Path:
-    """Write ``system/couplingDict`` (transport file | socket | none)."""
+                        host: str = "127.0.0.1", role: str = "client",
+                        send_velocity: str = "cell") -> Path:
+    """Write ``system/couplingDict`` (transport file | socket | none).
+
+    ``send_velocity``: "cell" (momentum velocity, default) or "flux" (reconstructed from
+    the face fluxes, exact mass flow)."""
+    if send_velocity not in ("cell", "flux"):
+        raise ValueError("send_velocity must be cell or flux")
     if transport not in ("file", "socket", "none"):
         raise ValueError("transport must be file, socket or none")
     if transport == "socket" and (port is None) == (path is None):
@@ -274,7 +280,8 @@ def write_coupling_dict(case, transport: str = "file", *, timeout: float = 60,
     body = (
         f"transport       {transport};\n"
         f"timeout         {timeout};\n"
-        f"connectTimeout  {connect_timeout if connect_timeout is not None else timeout};\n\n"
+        f"connectTimeout  {connect_timeout if connect_timeout is not None else timeout};\n"
+        f"sendVelocity    {send_velocity};\n\n"
         "file\n{\n"
         f'    directory   "{directory}";\n'
         f"    pollInterval {poll_interval};\n"

@@ -10,6 +10,35 @@ Public API::
 __version__ = "0.1.0"
 
 
+def _numba_cache_dir():
+    """Numba's on-disk cache keyed by a hash of this package's sources.
+
+    Numba invalidates a cached kernel only when the file defining it changes, not when a
+    function it calls (in another file) does; keying the cache folder on all sources
+    makes any edit or upgrade recompile once, and never run stale machine code.
+    """
+    import hashlib
+    import os
+    import numba
+    if os.environ.get("NUMBA_CACHE_DIR"):
+        return
+    root = os.path.dirname(os.path.abspath(__file__))
+    h = hashlib.sha256()
+    for base in (root, os.path.join(os.path.dirname(root), "coupling")):
+        for dirpath, dirs, files in os.walk(base):
+            dirs[:] = sorted(d for d in dirs if d != "__pycache__")
+            for f in sorted(files):
+                if f.endswith(".py"):
+                    with open(os.path.join(dirpath, f), "rb") as fh:
+                        h.update(f.encode() + fh.read())
+    cache = os.path.join(os.environ.get("XDG_CACHE_HOME", os.path.expanduser("~/.cache")),
+                         "thermodem", "numba", h.hexdigest()[:16])
+    numba.config.CACHE_DIR = cache
+
+
+_numba_cache_dir()
+
+
 def __getattr__(name):  # lazy: importing dem.thermal must not pull in the solver
     if name in ("Simulation",):
         from .simulation import Simulation

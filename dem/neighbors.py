@@ -137,9 +137,9 @@ def build_half_list(x, r, n, lo, hi, periodic, reach, skin, slots,
     else:
         rhist = np.zeros((0, 1, 3))
     if use_age:
-        age = np.zeros((n, slots))
+        age = np.zeros((n, slots, 2))
     else:
-        age = np.zeros((0, 1))
+        age = np.zeros((0, 1, 2))
     nold = nb_old.shape[0]
     if nold == n:
         for i in range(n):
@@ -153,7 +153,8 @@ def build_half_list(x, r, n, lo, hi, periodic, reach, skin, slots,
                             if rolling:
                                 rhist[i, s, k] = rhist_old[i, so, k]
                         if use_age:
-                            age[i, s] = age_old[i, so]
+                            age[i, s, 0] = age_old[i, so, 0]
+                            age[i, s, 1] = age_old[i, so, 1]
                         found = True
                         break
                 if not found:
@@ -164,7 +165,8 @@ def build_half_list(x, r, n, lo, hi, periodic, reach, skin, slots,
                                 if rolling:
                                     rhist[i, s, k] = -rhist_old[j, so, k]
                             if use_age:
-                                age[i, s] = age_old[j, so]
+                                age[i, s, 0] = age_old[j, so, 0]
+                                age[i, s, 1] = age_old[j, so, 1]
                             break
     return nb, nnb, hist, rhist, age, maxc
 

@@ -57,8 +57,8 @@ class _V:
         x = float(x)
         if not math.isfinite(x):
             self.err(p, f"must be finite, got {x}")
-        rng = f"{'(' if lo_open else '['}{'-inf' if lo is None else lo}, " \
-              f"{'inf' if hi is None else hi}{')' if hi_open else ']'}"
+        rng = f"{'(' if lo_open or lo is None else '['}{'-inf' if lo is None else lo}, " \
+              f"{'inf' if hi is None else hi}{')' if hi_open or hi is None else ']'}"
         if lo is not None and (x < lo or (lo_open and x == lo)):
             self.err(p, f"must be in {rng}, got {x}")
         if hi is not None and (x > hi or (hi_open and x == hi)):
@@ -130,7 +130,7 @@ class _V:
 
 SIM_KEYS = {"time_step", "end_time", "gravity", "output_interval", "checkpoint_interval", "seed",
             "force", "max_overlap_ratio", "mechanics", "neighbor_skin", "initial_overlap_ratio",
-            "critical_fraction", "sort_interval"}
+            "sort_interval"}
 MAT_KEYS_MECH = {"name", "density", "youngs_modulus", "poisson_ratio", "restitution", "friction",
                  "rolling_friction"}
 PART_KEYS = {"material", "positions", "radii", "radius", "velocities", "velocity", "file", "count",
@@ -139,7 +139,7 @@ WALL_KEYS = {"type", "material", "point", "normal", "extent", "u_axis", "axis", 
              "length", "velocity", "angular_velocity", "rotation_center", "name", "thermal"}
 CONTACT_KEYS = {"model", "rolling", "damping", "normal_stiffness", "tangential_stiffness_ratio",
                 "characteristic_velocity", "rolling_damping"}
-OUTPUT_KEYS = {"vtk", "history"}
+OUTPUT_KEYS = {"vtk"}
 TOP_KEYS = {"simulation", "domain", "materials", "particles", "walls", "contact", "output",
             "thermal", "gas"}
 
@@ -252,7 +252,8 @@ def parse(data, file="<dict>", base_dir="."):
         v.table(m, p, MAT_KEYS_MECH | thermal_keys, required=("name", "density"))
         name = v.string(m, "name", p, required=True)
         if name in names:
-            v.err(p + ".name", f"duplicate material name {name!r}")
+            v.err(p + ".name", f"duplicate material name {name!r} (already materials[{names[name]}]); "
+                               "material names must be unique")
         names[name] = k
         mm = dict(name=name,
                   density=v.num(m, "density", p, lo=0, lo_open=True, required=True),
@@ -290,7 +291,7 @@ def parse(data, file="<dict>", base_dir="."):
     if not isinstance(parts, list) or not parts:
         v.err("particles", "must be a non-empty array of tables [[particles]]")
     rng = np.random.default_rng(sim["seed"])
-    P = dict(x=[], r=[], v=[], w=[], mat=[], id=[], T=[], group=[])
+    P = dict(x=[], r=[], v=[], w=[], mat=[], id=[], T=[], group=[], mode=[])
     from .insertion import insert, sample_radii
     for k, g in enumerate(parts):
         p = f"particles[{k}]"
@@ -313,6 +314,8 @@ def parse(data, file="<dict>", base_dir="."):
             pos = np.array(pos, float)
             n = len(pos)
             if "radii" in g:
+                if "radius" in g:
+                    v.err(p + ".radius", "give either 'radius' (one for all) or 'radii' (one per position), not both")
                 rr = g["radii"]
                 if not isinstance(rr, list) or len(rr) != n or not all(isinstance(e, _NUM) and not isinstance(e, bool) for e in rr):
                     v.err(p + ".radii", f"must be a list of {n} numbers (one per position)")
@@ -321,6 +324,8 @@ def parse(data, file="<dict>", base_dir="."):
                 if bad.size:
                     v.err(f"{p}.radii[{bad[0]}]", f"radius must be > 0, got {rad[bad[0]]}")
             else:
+                if "radius" not in g:
+                    v.err(p + ".radius", "missing required key (or 'radii', one per position)")
                 rad = np.full(n, v.num(g, "radius", p, lo=0, lo_open=True, required=True))
             vel = np.zeros((n, 3))
             if "velocities" in g:
@@ -331,7 +336,8 @@ def parse(data, file="<dict>", base_dir="."):
                 vel = np.array(vv, float)
             if "angular_velocities" in g:
                 vv = g["angular_velocities"]
-                if not isinstance(vv, list) or len(vv) != n:
+                if not isinstance(vv, list) or len(vv) != n or not all(
+                        isinstance(q, list) and len(q) == 3 and all(isinstance(e, _NUM) and not isinstance(e, bool) for e in q) for q in vv):
                     v.err(p + ".angular_velocities", f"must be a list of {n} [wx, wy, wz] triples")
                 om = np.array(vv, float)
         elif mode == "file":
@@ -407,6 +413,7 @@ def parse(data, file="<dict>", base_dir="."):
         P["id"].append(ids)
         P["T"].append(T)
         P["group"].append(np.full(n, k, np.int32))
+        P["mode"].append(mode)
     x = np.ascontiguousarray(np.concatenate(P["x"]))
     r = np.ascontiguousarray(np.concatenate(P["r"]))
     n = r.size
@@ -428,10 +435,17 @@ def parse(data, file="<dict>", base_dir="."):
         out = np.nonzero((x[:, ax] < lo[ax]) | (x[:, ax] > hi[ax]))[0]
         if out.size:
             q = out[0]
-            v.err(f"particles[{group[q]}]", f"particle id {ids[q]} at {x[q].tolist()} lies outside the domain "
-                                            f"[{lo.tolist()}, {hi.tolist()}] on axis {'xyz'[ax]}")
+            g = int(group[q])
+            i = q - int(np.argmax(group == g))   # index within its [[particles]] group
+            where = {"positions": f"particles[{g}].positions[{i}]", "file": f"particles[{g}].file",
+                     "count": f"particles[{g}].region"}[P["mode"][g]]
+            v.err(where, f"particle id {ids[q]}{f' (row {i})' if P['mode'][g] == 'file' else ''} at "
+                         f"{x[q].tolist()} lies outside the domain [{lo.tolist()}, {hi.tolist()}] on axis "
+                         f"{'xyz'[ax]}; particle centres must lie within domain.min .. domain.max")
     # --- walls
     walls = []
+    if not isinstance(data.get("walls", []), list):
+        v.err("walls", "must be an array of tables [[walls]]")
     for k, wl in enumerate(data.get("walls", [])):
         p = f"walls[{k}]"
         v.table(wl, p, WALL_KEYS, required=("type", "material"))

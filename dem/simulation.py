@@ -30,6 +30,8 @@ class Simulation:
         self.scene = scene
         sim = scene.simulation
         self.dt = sim["time_step"]
+        if scene.thermal is not None and scene.thermal["time_step"] is not None:
+            self.dt = scene.thermal["time_step"]  # frozen packing: the thermal step
         self.step_count = 0
         self.time = 0.0
         self.end_time = sim["end_time"]
@@ -54,6 +56,13 @@ class Simulation:
         self.reach = self.thermal.reach if self.thermal is not None else 0.0
         self.fp[K.F_REACH] = self.reach
         self._init_neighbors()
+        if self.thermal is not None:
+            self.TH = self.thermal.th_tuple()
+            self.Hd, self.Hi, self.rnear = self.thermal.slot_arrays(self.nb.shape[1])
+            self.thermal.update_porosity()
+        else:
+            self.TH = K.empty_thermal(self.nwalls)
+            self.Hd, self.Hi, self.rnear = np.zeros((0, 1)), np.zeros((0, 1)), np.zeros((0, 1), np.uint8)
         self.compile_seconds = None
         self._forces_ready = False
         self.last_contacts = 0
@@ -165,14 +174,14 @@ class Simulation:
             self.nb, self.nnb, self.hist, self.rhist, self.age, maxc = build_half_list(
                 st.position, st.radius, n, self.lo, self.hi, self.periodic, self.reach,
                 self.fp[K.F_SKIN], slots, nb0, np.zeros(0, np.int32), np.zeros((0, 1, 3)),
-                np.zeros((0, 1, 3)), np.zeros((0, 1)))
+                np.zeros((0, 1, 3)), np.zeros((0, 1, 2)))
             if maxc + 2 >= slots:
                 break
             slots = maxc + 2
         if rolling:
             self.rhist = np.zeros(self.hist.shape)
         if age:
-            self.age = np.zeros(self.nb.shape)
+            self.age = np.zeros(self.nb.shape + (2,))
         st.x_build[:] = st.position
         K.build_wall_list(st.position, st.radius, n, self.wf, self.wi, self.nwalls,
                           self.reach + self.fp[K.F_SKIN], self.time, self.wnb, self.wnn,
@@ -213,7 +222,8 @@ class Simulation:
         rep["dt_over_hertz"] = self.dt / th
         rep["steps"] = int(round(self.end_time / self.dt))
         mem = st.memory_bytes() + self.nb.nbytes + self.nnb.nbytes + self.hist.nbytes + self.rhist.nbytes \
-            + self.whist.nbytes + self.wrhist.nbytes + self.age.nbytes
+            + self.whist.nbytes + self.wrhist.nbytes + self.age.nbytes + self.Hd.nbytes + self.Hi.nbytes \
+            + self.rnear.nbytes
         rep["memory_bytes"] = int(mem)
         rep["memory_per_particle"] = mem / max(st.n, 1)
         runs, skipped = self.models_report()
@@ -260,11 +270,15 @@ class Simulation:
     # ------------------------------------------------------------------ stepping
     def _compute_forces(self):
         st = self.state
+        if self.thermal is not None:  # the initial force evaluation exchanges no heat
+            saved = (self.thermal.tot.copy(), self.thermal.wtot.copy())
         maxov, i, j, nc = K.compute_forces(
             st.n, st.position, st.velocity, st.angular_velocity, st.radius, st.mass, st.material,
             st.force, st.torque, self._fext(), self.nb, self.nnb, self.hist, self.rhist,
             self.wf, self.wi, self.wnb, self.wnn, self.whist, self.wrhist, self.tab, self.ip, self.fp,
-            self.lo, self.hi, self.periodic, self.time)
+            self.lo, self.hi, self.periodic, self.time, self.age, self.Hd, self.Hi, self.rnear, self.TH)
+        if self.thermal is not None:
+            self.thermal.tot[:], self.thermal.wtot[:] = saved
         self.last_contacts = nc
         return maxov
 
@@ -277,17 +291,14 @@ class Simulation:
         if not self._forces_ready:
             self._compute_forces()
             self._forces_ready = True
-        if self.thermal is not None:
-            res = self.thermal.advance(nsteps)
-        else:
-            res = K.advance(nsteps, self.step_count * self.dt, st.n, st.position, st.velocity,
-                            st.angular_velocity, st.radius, st.mass, st.inv_mass, st.inv_inertia,
-                            st.material, st.force, st.torque, self._fext(), st.x_build,
-                            self.nb, self.nnb, self.hist, self.rhist, self.age, self.wf, self.wi,
-                            self.wnb, self.wnn, self.whist, self.wrhist, self.tab, self.ip, self.fp, self.lo, self.hi,
-                            self.periodic)
+        res = K.advance(nsteps, self.step_count * self.dt, st.n, st.position, st.velocity,
+                        st.angular_velocity, st.radius, st.mass, st.inv_mass, st.inv_inertia,
+                        st.material, st.force, st.torque, self._fext(), st.x_build,
+                        self.nb, self.nnb, self.hist, self.rhist, self.age, self.wf, self.wi,
+                        self.wnb, self.wnn, self.whist, self.wrhist, self.tab, self.ip, self.fp, self.lo, self.hi,
+                        self.periodic, self.Hd, self.Hi, self.rnear, self.TH)
         done, status, who, other, value, nc, nreb = res[:7]
-        self.nb, self.nnb, self.hist, self.rhist, self.age = res[7:12]
+        self.nb, self.nnb, self.hist, self.rhist, self.age, self.Hd, self.Hi, self.rnear = res[7:15]
         self.step_count += done
         self.time = self.step_count * self.dt
         self.last_contacts = nc
@@ -308,6 +319,10 @@ class Simulation:
         elif status == K.NONFINITE:
             msg = (f"particle id {pid} got a non-finite velocity {where}: the run is unstable. "
                    f"Lower time_step (now {self.dt:g} s; see `dem check`), or check forces and properties")
+        elif status == K.BAD_TEMPERATURE:
+            msg = (f"particle id {pid} reached temperature {value:.6g} K {where}: the heat step is unstable. "
+                   f"Use thermal.integrator = \"exponential\" or a smaller step (see `dem check`: "
+                   f"network step limit), or check the heat sources and wall fluxes")
         else:
             msg = (f"particle id {pid} left the domain {where} at {pos} (domain {self.lo.tolist()} to "
                    f"{self.hi.tolist()}). Add walls, enlarge [domain], or make the axis periodic")
@@ -337,8 +352,15 @@ class Simulation:
         self.wnn = np.ascontiguousarray(self.wnn[perm])
         if self.wrhist.shape[0]:
             self.wrhist = np.ascontiguousarray(self.wrhist[perm])
+        if self.Hd.shape[0]:
+            self.Hd = np.ascontiguousarray(self.Hd[perm])
+        if self.Hi.shape[0]:
+            self.Hi = np.ascontiguousarray(self.Hi[perm])
+        if self.rnear.shape[0]:
+            self.rnear = np.ascontiguousarray(self.rnear[perm])
         if self.thermal is not None:
             self.thermal.permute(perm)
+            self.TH = self.thermal.th_tuple()
         if getattr(self, "external_force", None) is not None:
             self.external_force = np.ascontiguousarray(self.external_force[perm])
 
@@ -404,6 +426,7 @@ class Simulation:
         arr = {f"state_{k}": getattr(st, k) for k in st.fields()}
         arr.update(nb=self.nb, nnb=self.nnb, hist=self.hist, rhist=self.rhist, age=self.age,
                    whist=self.whist, wrhist=self.wrhist, wnb=self.wnb, wnn=self.wnn,
+                   Hd=self.Hd, Hi=self.Hi, rnear=self.rnear,
                    fp_tbuild=np.float64(self.fp[K.F_TBUILD]), step_count=np.int64(self.step_count),
                    dt=np.float64(self.dt), forces_ready=np.bool_(self._forces_ready),
                    scene_file=np.str_(os.path.abspath(self.scene.file)))
@@ -432,7 +455,7 @@ class Simulation:
                 if key not in z.files:
                     raise SimulationError(f"{path}: checkpoint lacks {k!r} (thermal settings changed?)")
                 setattr(st, k, np.ascontiguousarray(z[key]))
-            for k in ("nb", "nnb", "hist", "rhist", "age", "whist", "wrhist", "wnb", "wnn"):
+            for k in ("nb", "nnb", "hist", "rhist", "age", "whist", "wrhist", "wnb", "wnn", "Hd", "Hi", "rnear"):
                 setattr(self, k, np.ascontiguousarray(z[k]))
             self.fp[K.F_TBUILD] = float(z["fp_tbuild"])
             self.step_count = int(z["step_count"])
@@ -440,6 +463,7 @@ class Simulation:
             self._forces_ready = bool(z["forces_ready"])
             if self.thermal is not None:
                 self.thermal.load_checkpoint(z)
+                self.TH = self.thermal.th_tuple()
 
     # ------------------------------------------------------------------ run
     def run(self, end_time=None, out_dir=None, progress=None, restart=None, log=None):

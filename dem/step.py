@@ -19,6 +19,16 @@ from .contact.linear import linear_spring_dashpot
 from .contact.rolling import constant_torque, epsd
 from .contact.walls import wall_distance, wall_velocity, WMAT
 from .neighbors import build_half_list
+from .thermal.contact_radius import (contact_radius_pw, hertz_force, hertz_overlap, geometric_pp,
+                                     apply_correction, HERTZ_FORCE, HERTZ_OVERLAP)
+from .thermal.direct import direct_pp, direct_pw, batchelor_obrien_keff
+from .thermal.registry import DIRECT_BATCHELOR_OBRIEN
+from .thermal.indirect import indirect_pp, indirect_pw
+from .thermal.generation import friction_heat, partition
+from .thermal.heat import (heat_step, local_porosity, TI_HEAT, TI_DIRECT, TI_CR, TI_CORR,
+                           TI_INDIRECT, TI_RAD, TI_FRIC, TI_PART, TI_AGE, TF_DFACTOR,
+                           TF_RADRANGE, TF_CT, TF_CN, TF_CHI, WT_COND, TI_LOCALPOR, TI_FUSED, NTI,
+                           E_DIRECT, E_INDIRECT, E_WALL, wall_temperature)
 
 # integer parameters
 I_CONTACT, I_ROLLING, I_NWALLS, I_MECH = 0, 1, 2, 3
@@ -30,7 +40,22 @@ NFP = 16
 T_ESTAR, T_GSTAR, T_DAMP, T_MU, T_MUR = range(5)
 NTAB = 5
 # status
-OK, OVERLAP, NONFINITE, LEFT_DOMAIN = 0, 1, 2, 3
+OK, OVERLAP, NONFINITE, LEFT_DOMAIN, BAD_TEMPERATURE = 0, 1, 2, 3, 4
+# thermal tuple TH (see dem.thermal.kernel.ThermalModel.th_tuple)
+(H_THI, H_THF, H_TMAT, H_GAS, H_EREAL, H_HW, H_WTH, H_WTAB, H_POR, H_QGEN, H_WAGE, H_T, H_CINV,
+ H_Q, H_TF, H_UF, H_QSRC, H_SRCBOX, H_TOT, H_WTOT, H_WORK, H_KEFF) = range(22)
+
+
+def empty_thermal(nwalls=1):
+    """The thermal tuple of a scene without heat (tiny arrays of the right types)."""
+    z1 = np.zeros(0)
+    z2 = np.zeros((0, 1))
+    thi = np.full(NTI, -1, np.int64)
+    thi[TI_HEAT] = 0
+    return (thi, np.zeros(8), np.zeros((1, 11)), np.zeros(20), np.zeros((1, 1)), z2,
+            np.zeros((max(nwalls, 1), 4)), np.zeros((max(nwalls, 1), 1, 2)), z1, z1,
+            np.zeros((0, 1, 2)), z1, z1, z1, z1, np.zeros((0, 3)), z1, np.zeros((0, 7)),
+            np.zeros(8), np.zeros(max(nwalls, 1)), np.zeros((0, 3)), np.zeros((1, 1)))
 
 
 @njit(cache=True, error_model="numpy")
@@ -69,8 +94,49 @@ def _rotate_history(h, i, s, nx, ny, nz):
 
 @njit(cache=True, error_model="numpy")
 def compute_forces(n, x, v, w, r, m, mat, f, tq, fext, nb, nnb, hist, rhist,
-                   wf, wi, wnb, wnn, whist, wrhist, tab, ip, fp, lo, hi, periodic, t):
-    """Contact + wall + body forces. Returns (max overlap ratio, i, j (-1-wall), contacts)."""
+                   wf, wi, wnb, wnn, whist, wrhist, tab, ip, fp, lo, hi, periodic, t,
+                   age, Hd, Hi, rnear, TH):
+    """Contact + wall + body forces, and (when heat is on) the conductances of every
+    neighbour slot and wall candidate for the heat step: Hd, Hi, Hw, the radiation
+    neighbour flags and the friction heat. Returns (max overlap ratio, i, j (-1-wall), contacts)."""
+    thi = TH[H_THI]
+    heat = thi[TI_HEAT] != 0
+    dmodel = thi[TI_DIRECT]
+    crm = thi[TI_CR]
+    crc = thi[TI_CORR]
+    imodel = thi[TI_INDIRECT]
+    radon = thi[TI_RAD] >= 0
+    fric = thi[TI_FRIC]
+    pmodel = thi[TI_PART]
+    use_age = thi[TI_AGE] != 0
+    thf = TH[H_THF]
+    tmat = TH[H_TMAT]
+    gas = TH[H_GAS]
+    ereal = TH[H_EREAL]
+    Hw = TH[H_HW]
+    wth = TH[H_WTH]
+    por = TH[H_POR]
+    qgen = TH[H_QGEN]
+    wage = TH[H_WAGE]
+    dfac = thf[TF_DFACTOR]
+    radrange = thf[TF_RADRANGE]
+    fused = heat and thi[TI_FUSED] == 1
+    T = TH[H_T]
+    Q = TH[H_Q]
+    tot = TH[H_TOT]
+    wtot = TH[H_WTOT]
+    wtab = TH[H_WTAB]
+    keff = TH[H_KEFF]
+    bo = dmodel == DIRECT_BATCHELOR_OBRIEN
+    e_dir = 0.0
+    e_ind = 0.0
+    e_wall = 0.0
+    if heat and fric >= 0:
+        for i in range(n):
+            qgen[i] = 0.0
+    if fused:
+        for i in range(n):
+            Q[i] = 0.0
     dt = fp[F_DT]
     model = ip[I_CONTACT]
     rolling = ip[I_ROLLING]
@@ -131,13 +197,33 @@ def compute_forces(n, x, v, w, r, m, mat, f, tq, fext, nb, nnb, hist, rhist,
                     rhist[i, s, 0] = 0.0
                     rhist[i, s, 1] = 0.0
                     rhist[i, s, 2] = 0.0
+                if heat:
+                    if not fused:
+                        Hd[i, s] = 0.0
+                    if use_age:
+                        age[i, s, 0] = 0.0
+                    if imodel >= 0 or radon:
+                        d = math.sqrt(d2)
+                        if imodel >= 0:
+                            hind = indirect_pp(imodel, ri, r[j], d, 0.0, mi, mat[j], por[i], por[j],
+                                               tmat, gas)
+                            if fused:
+                                qq = hind * (T[j] - T[i])
+                                Q[i] += qq
+                                Q[j] -= qq
+                                e_ind += abs(qq)
+                            else:
+                                Hi[i, s] = hind
+                        if radon:
+                            rnear[i, s] = 1 if d < radrange * max(ri, r[j]) else 0
                 continue
             ncont += 1
             d = math.sqrt(d2)
             delta = rs - d
-            nx = dx / d
-            ny = dy / d
-            nz = dz / d
+            invd = 1.0 / d
+            nx = dx * invd
+            ny = dy * invd
+            nz = dz * invd
             rj = r[j]
             mj = mat[j]
             ov = delta / min(ri, rj)
@@ -166,6 +252,54 @@ def compute_forces(n, x, v, w, r, m, mat, f, tq, fext, nb, nnb, hist, rhist,
             hist[i, s, 0] = hx
             hist[i, s, 1] = hy
             hist[i, s, 2] = hz
+            if heat:
+                tc = 0.0
+                vimp = 0.0
+                if use_age:
+                    if age[i, s, 0] == 0.0:
+                        age[i, s, 1] = vn
+                    age[i, s, 0] += dt
+                    tc = age[i, s, 0]
+                    vimp = age[i, s, 1]
+                fel = (2.0 / 3.0) * kn * delta if model == 0 else kn * delta
+                # contact radius (the dispatcher of dem.thermal.contact_radius, with R* at hand)
+                if crm == HERTZ_OVERLAP:
+                    rc = hertz_overlap(rstar, delta)
+                elif crm == HERTZ_FORCE:
+                    rc = hertz_force(fel, rstar, tab[T_ESTAR, mi, mj])
+                else:
+                    rc = geometric_pp(ri, rj, d)
+                if crc != 0:
+                    rc = apply_correction(crm, crc, rc, rstar, fel, tab[T_ESTAR, mi, mj], ereal[mi, mj])
+                if bo:  # Batchelor & O'Brien with the tabulated series conductivity
+                    hdir = dfac * batchelor_obrien_keff(rc, keff[mi, mj])
+                elif dmodel >= 0:
+                    hdir = dfac * direct_pp(dmodel, ri, rj, d, rc, mi, mj, tmat, gas, tc, vimp)
+                else:
+                    hdir = 0.0
+                hind = indirect_pp(imodel, ri, rj, d, rc, mi, mj, por[i], por[j], tmat, gas) if imodel >= 0 else 0.0
+                if fused:
+                    dtij = T[j] - T[i]
+                    qd = hdir * dtij
+                    qi = hind * dtij
+                    Q[i] += qd + qi
+                    Q[j] -= qd + qi
+                    e_dir += abs(qd)
+                    e_ind += abs(qi)
+                else:
+                    Hd[i, s] = hdir
+                    if imodel >= 0:
+                        Hi[i, s] = hind
+                if radon:
+                    rnear[i, s] = 1
+                if fric >= 0:
+                    vtm = math.sqrt(vtx * vtx + vty * vty + vtz * vtz)
+                    ftv = abs(ftx * vtx + fty * vty + ftz * vtz)
+                    qf = friction_heat(fric, tab[T_MU, mi, mj], thf[TF_CHI], vtm, fn, ftv,
+                                       thf[TF_CT], thf[TF_CN], ftv, abs(fn * vn))
+                    psi = partition(pmodel, mi, mj, tmat)
+                    qgen[i] += psi * qf
+                    qgen[j] += (1.0 - psi) * qf
             fx = -fn * nx + ftx
             fy = -fn * ny + fty
             fz = -fn * nz + ftz
@@ -227,6 +361,20 @@ def compute_forces(n, x, v, w, r, m, mat, f, tq, fext, nb, nnb, hist, rhist,
                     wrhist[i, wl, 0] = 0.0
                     wrhist[i, wl, 1] = 0.0
                     wrhist[i, wl, 2] = 0.0
+                if heat:
+                    if use_age:
+                        wage[i, wl, 0] = 0.0
+                    hw = 0.0
+                    if imodel >= 0 and wth[wl, WT_COND] == 1.0 and dist >= ri:
+                        hw = indirect_pw(imodel, ri, dist, 0.0, mi, wi[wl, WMAT], por[i], tmat, gas)
+                    if fused:
+                        if hw > 0.0:
+                            qq = hw * (wall_temperature(wth, wtab, wl, t) - T[i])
+                            Q[i] += qq
+                            wtot[wl] += qq * dt
+                            e_wall += qq
+                    else:
+                        Hw[i, q] = hw
                 continue
             ncont += 1
             delta = ri - dist
@@ -258,6 +406,45 @@ def compute_forces(n, x, v, w, r, m, mat, f, tq, fext, nb, nnb, hist, rhist,
             whist[i, wl, 0] = hx
             whist[i, wl, 1] = hy
             whist[i, wl, 2] = hz
+            if heat:
+                cond = wth[wl, WT_COND]
+                fel = (2.0 / 3.0) * kn * delta if model == 0 else kn * delta
+                tc = 0.0
+                vimp = 0.0
+                if use_age:
+                    if wage[i, wl, 0] == 0.0:
+                        wage[i, wl, 1] = vn
+                    wage[i, wl, 0] += dt
+                    tc = wage[i, wl, 0]
+                    vimp = wage[i, wl, 1]
+                hw = 0.0
+                if cond != 0.0:
+                    rc = contact_radius_pw(crm, crc, ri, dist, fel, tab[T_ESTAR, mi, mw], ereal[mi, mw])
+                    if cond == 1.0:
+                        if dmodel >= 0:
+                            hw = dfac * direct_pw(dmodel, ri, dist, rc, mi, mw, tmat, gas, tc, vimp)
+                        if imodel >= 0:
+                            hw += indirect_pw(imodel, ri, dist, rc, mi, mw, por[i], tmat, gas)
+                    else:
+                        hw = math.pi * rc * rc
+                if fused:
+                    if cond == 1.0:
+                        qq = hw * (wall_temperature(wth, wtab, wl, t) - T[i])
+                    elif cond == 2.0:
+                        qq = hw * wth[wl, 2]
+                    else:
+                        qq = 0.0
+                    Q[i] += qq
+                    wtot[wl] += qq * dt
+                    e_wall += qq
+                else:
+                    Hw[i, q] = hw
+                if fric >= 0:
+                    vtm = math.sqrt(vtx * vtx + vty * vty + vtz * vtz)
+                    ftv = abs(ftx * vtx + fty * vty + ftz * vtz)
+                    qf = friction_heat(fric, tab[T_MU, mi, mw], thf[TF_CHI], vtm, fn, ftv,
+                                       thf[TF_CT], thf[TF_CN], ftv, abs(fn * vn))
+                    qgen[i] += partition(pmodel, mi, mw, tmat) * qf
             f[i, 0] += -fn * nx + ftx
             f[i, 1] += -fn * ny + fty
             f[i, 2] += -fn * nz + ftz
@@ -286,6 +473,10 @@ def compute_forces(n, x, v, w, r, m, mat, f, tq, fext, nb, nnb, hist, rhist,
                 tq[i, 0] += mx
                 tq[i, 1] += my
                 tq[i, 2] += mz
+    if fused:
+        tot[E_DIRECT] += e_dir * dt
+        tot[E_INDIRECT] += e_ind * dt
+        tot[E_WALL] += e_wall * dt
     return maxov, who_i, who_j, ncont
 
 
@@ -310,16 +501,19 @@ def build_wall_list(x, r, n, wf, wi, nwalls, reach, t, wnb, wnn, whist, wrhist):
 
 @njit(cache=True, error_model="numpy")
 def advance(nsteps, t0, n, x, v, w, r, m, inv_m, inv_i, mat, f, tq, fext, xb,
-            nb, nnb, hist, rhist, age, wf, wi, wnb, wnn, whist, wrhist, tab, ip, fp, lo, hi, periodic):
-    """Advance ``nsteps`` velocity-Verlet steps from time t0 (f, tq hold the forces at t0).
+            nb, nnb, hist, rhist, age, wf, wi, wnb, wnn, whist, wrhist, tab, ip, fp, lo, hi, periodic,
+            Hd, Hi, rnear, TH):
+    """Advance ``nsteps`` steps from time t0 (f, tq hold the forces at t0).
 
+    Mechanics on: velocity Verlet, neighbour rebuilds, then (with heat) one heat step on
+    the conductances found in the force loop. Mechanics off (frozen packing): only the
+    heat step, on the conductances computed once.
     Returns (steps done, status, particle, other (j, or -1-wall), value, contacts,
-    rebuilds, nb, nnb, hist, rhist, age): the neighbour arrays may have been reallocated.
+    rebuilds, nb, nnb, hist, rhist, age, Hd, Hi, rnear): arrays may have been reallocated.
     """
     dt = fp[F_DT]
     half = 0.5 * dt
     skin = fp[F_SKIN]
-    lim2 = 0.25 * skin * skin
     maxov_bound = fp[F_MAXOV]
     L0 = hi[0] - lo[0]
     L1 = hi[1] - lo[1]
@@ -327,58 +521,82 @@ def advance(nsteps, t0, n, x, v, w, r, m, inv_m, inv_i, mat, f, tq, fext, xb,
     nreb = 0
     ncont = 0
     nwalls = ip[I_NWALLS]
+    mech = ip[I_MECH] != 0
+    thi = TH[H_THI]
+    heat = thi[TI_HEAT] != 0
+    local_por = thi[TI_LOCALPOR] == 1
     for step in range(nsteps):
         t = t0 + (step + 1) * dt
-        maxd2 = 0.0
-        for i in range(n):
-            for k in range(3):
-                v[i, k] += half * f[i, k] * inv_m[i]
-                w[i, k] += half * tq[i, k] * inv_i[i]
-                x[i, k] += dt * v[i, k]
-            if periodic[0]:
-                x[i, 0] -= L0 * math.floor((x[i, 0] - lo[0]) / L0)
-            if periodic[1]:
-                x[i, 1] -= L1 * math.floor((x[i, 1] - lo[1]) / L1)
-            if periodic[2]:
-                x[i, 2] -= L2 * math.floor((x[i, 2] - lo[2]) / L2)
-            ddx = x[i, 0] - xb[i, 0]
-            ddy = x[i, 1] - xb[i, 1]
-            ddz = x[i, 2] - xb[i, 2]
-            if periodic[0]:
-                ddx -= L0 * math.floor(ddx / L0 + 0.5)
-            if periodic[1]:
-                ddy -= L1 * math.floor(ddy / L1 + 0.5)
-            if periodic[2]:
-                ddz -= L2 * math.floor(ddz / L2 + 0.5)
-            d2 = ddx * ddx + ddy * ddy + ddz * ddz
-            if d2 > maxd2:
-                maxd2 = d2
-        if math.sqrt(maxd2) + fp[F_VWALL] * (t - fp[F_TBUILD]) > 0.5 * skin:
+        if mech:
+            maxd2 = 0.0
             for i in range(n):
                 for k in range(3):
-                    if not periodic[k] and (x[i, k] < lo[k] or x[i, k] > hi[k]):
-                        return (step + 1, LEFT_DOMAIN, i, -1, x[i, k], ncont, nreb,
-                                nb, nnb, hist, rhist, age)
-            nb, nnb, hist, rhist, age, _ = build_half_list(
-                x, r, n, lo, hi, periodic, fp[F_REACH], skin, nb.shape[1],
-                nb, nnb, hist, rhist, age)
-            build_wall_list(x, r, n, wf, wi, nwalls, fp[F_REACH] + skin, t, wnb, wnn, whist, wrhist)
-            xb[:n] = x[:n]
-            fp[F_TBUILD] = t
-            nreb += 1
-        maxov, wi_, wj_, ncont = compute_forces(
-            n, x, v, w, r, m, mat, f, tq, fext, nb, nnb, hist, rhist,
-            wf, wi, wnb, wnn, whist, wrhist, tab, ip, fp, lo, hi, periodic, t)
-        bad = -1
-        for i in range(n):
-            for k in range(3):
-                v[i, k] += half * f[i, k] * inv_m[i]
-                w[i, k] += half * tq[i, k] * inv_i[i]
-            if not (math.isfinite(v[i, 0] + v[i, 1] + v[i, 2])
-                    and math.isfinite(w[i, 0] + w[i, 1] + w[i, 2])):
-                bad = i
-        if bad >= 0:
-            return (step + 1, NONFINITE, bad, -1, 0.0, ncont, nreb, nb, nnb, hist, rhist, age)
-        if maxov > maxov_bound:
-            return (step + 1, OVERLAP, wi_, wj_, maxov, ncont, nreb, nb, nnb, hist, rhist, age)
-    return nsteps, OK, -1, -1, 0.0, ncont, nreb, nb, nnb, hist, rhist, age
+                    v[i, k] += half * f[i, k] * inv_m[i]
+                    w[i, k] += half * tq[i, k] * inv_i[i]
+                    x[i, k] += dt * v[i, k]
+                if periodic[0]:
+                    x[i, 0] -= L0 * math.floor((x[i, 0] - lo[0]) / L0)
+                if periodic[1]:
+                    x[i, 1] -= L1 * math.floor((x[i, 1] - lo[1]) / L1)
+                if periodic[2]:
+                    x[i, 2] -= L2 * math.floor((x[i, 2] - lo[2]) / L2)
+                ddx = x[i, 0] - xb[i, 0]
+                ddy = x[i, 1] - xb[i, 1]
+                ddz = x[i, 2] - xb[i, 2]
+                if periodic[0]:
+                    ddx -= L0 * math.floor(ddx / L0 + 0.5)
+                if periodic[1]:
+                    ddy -= L1 * math.floor(ddy / L1 + 0.5)
+                if periodic[2]:
+                    ddz -= L2 * math.floor(ddz / L2 + 0.5)
+                d2 = ddx * ddx + ddy * ddy + ddz * ddz
+                if d2 > maxd2:
+                    maxd2 = d2
+            if math.sqrt(maxd2) + fp[F_VWALL] * (t - fp[F_TBUILD]) > 0.5 * skin:
+                for i in range(n):
+                    for k in range(3):
+                        if not periodic[k] and (x[i, k] < lo[k] or x[i, k] > hi[k]):
+                            return (step + 1, LEFT_DOMAIN, i, -1, x[i, k], ncont, nreb,
+                                    nb, nnb, hist, rhist, age, Hd, Hi, rnear)
+                nb, nnb, hist, rhist, age, _ = build_half_list(
+                    x, r, n, lo, hi, periodic, fp[F_REACH], skin, nb.shape[1],
+                    nb, nnb, hist, rhist, age)
+                build_wall_list(x, r, n, wf, wi, nwalls, fp[F_REACH] + skin, t, wnb, wnn, whist, wrhist)
+                if heat:
+                    if Hd.shape[1] != nb.shape[1]:
+                        Hd = np.zeros((n, nb.shape[1]))
+                        if Hi.shape[0] == n:
+                            Hi = np.zeros((n, nb.shape[1]))
+                        if rnear.shape[0] == n:
+                            rnear = np.zeros((n, nb.shape[1]), np.uint8)
+                    if local_por:
+                        local_porosity(n, x, r, nb, nnb, lo, hi, periodic, fp[F_REACH], wf, wi, wnb, wnn,
+                                       t, TH[H_POR], 0.2)
+                xb[:n] = x[:n]
+                fp[F_TBUILD] = t
+                nreb += 1
+            maxov, wi_, wj_, ncont = compute_forces(
+                n, x, v, w, r, m, mat, f, tq, fext, nb, nnb, hist, rhist,
+                wf, wi, wnb, wnn, whist, wrhist, tab, ip, fp, lo, hi, periodic, t,
+                age, Hd, Hi, rnear, TH)
+            bad = -1
+            for i in range(n):
+                for k in range(3):
+                    v[i, k] += half * f[i, k] * inv_m[i]
+                    w[i, k] += half * tq[i, k] * inv_i[i]
+                if not (math.isfinite(v[i, 0] + v[i, 1] + v[i, 2])
+                        and math.isfinite(w[i, 0] + w[i, 1] + w[i, 2])):
+                    bad = i
+            if bad >= 0:
+                return (step + 1, NONFINITE, bad, -1, 0.0, ncont, nreb, nb, nnb, hist, rhist, age, Hd, Hi, rnear)
+            if maxov > maxov_bound:
+                return (step + 1, OVERLAP, wi_, wj_, maxov, ncont, nreb, nb, nnb, hist, rhist, age, Hd, Hi, rnear)
+        if heat:
+            badt = heat_step(n, dt, t, TH[H_T], TH[H_CINV], TH[H_Q], v, r, x, mat, nb, nnb, Hd, Hi, rnear,
+                             wnb, wnn, TH[H_HW], TH[H_WTH], TH[H_WTAB], TH[H_TF], TH[H_UF], TH[H_POR],
+                             TH[H_QGEN], TH[H_QSRC], TH[H_SRCBOX], TH[H_TMAT], TH[H_GAS], thi,
+                             TH[H_TOT], TH[H_WTOT], TH[H_WORK])
+            if badt >= 0:
+                return (step + 1, BAD_TEMPERATURE, badt, -1, TH[H_T][badt], ncont, nreb, nb, nnb, hist, rhist,
+                        age, Hd, Hi, rnear)
+    return nsteps, OK, -1, -1, 0.0, ncont, nreb, nb, nnb, hist, rhist, age, Hd, Hi, rnear

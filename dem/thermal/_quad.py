@@ -51,12 +51,12 @@ KIND_SURR_LAYER_PW = 3
 TWO_PI = 2.0 * math.pi
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def _sqrt_pos(x):
     return math.sqrt(x) if x > 0.0 else 0.0
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def integrand(kind, r, p):
     """Integrand dH/dr [W/(K m)] of the integral indirect conduction models.
 
@@ -113,7 +113,7 @@ def integrand(kind, r, p):
         return kf * TWO_PI * r / max(S, gap)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def _gk15(kind, a, b, p):
     c = 0.5 * (a + b)
     h = 0.5 * (b - a)
@@ -130,7 +130,7 @@ def _gk15(kind, a, b, p):
     return resk * h, abs((resk - resg) * h)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def gk_adaptive(kind, a, b, p, epsrel=1e-11, epsabs=0.0, maxint=400):
     """Globally adaptive G7/K15 integral of ``integrand(kind, r, p)`` on [a, b].
 
@@ -183,7 +183,7 @@ def gk_adaptive(kind, a, b, p, epsrel=1e-11, epsabs=0.0, maxint=400):
     return s
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def erfcinv(x):
     """Inverse complementary error function, 0 < x < 2 (inf/-inf at 0/2).
 

@@ -55,7 +55,7 @@ CORRECTIONS = {"none": NONE, "zhou_2010": ZHOU_2010, "lu_2017": LU_2017,
                "morris_2016_area_time": MORRIS_2016_AREA_TIME}
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def effective_radius(Ri, Rj):
     """R* = Ri Rj / (Ri + Rj) [m]; a wall is passed as Rj = inf -> R* = Ri."""
     if math.isinf(Rj):
@@ -65,7 +65,7 @@ def effective_radius(Ri, Rj):
     return Ri * Rj / (Ri + Rj)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def effective_modulus(Ei, nui, Ej, nuj):
     """E* = [(1-nu_i^2)/E_i + (1-nu_j^2)/E_j]^-1 [Pa]; E = inf is rigid."""
     s = 0.0
@@ -78,7 +78,7 @@ def effective_modulus(Ei, nui, Ej, nuj):
     return 1.0 / s
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def hertz_force(Fn, Rstar, Estar):
     """Hertz static contact radius rc = (3 Fn R*/(4 E*))^(1/3) [m] (ref 002 App. A)."""
     if Fn <= 0.0 or Estar <= 0.0:
@@ -86,7 +86,7 @@ def hertz_force(Fn, Rstar, Estar):
     return (3.0 * Fn * Rstar / (4.0 * Estar)) ** (1.0 / 3.0)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def hertz_overlap(Rstar, delta):
     """Hertz contact radius from the overlap, rc = sqrt(R* delta_n) [m] (ref 002 App. A)."""
     if delta <= 0.0:
@@ -94,7 +94,7 @@ def hertz_overlap(Rstar, delta):
     return math.sqrt(Rstar * delta)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def geometric_pp(Ri, Rj, d):
     """Radius [m] of the intersection circle of two spheres at centre distance d.
 
@@ -112,7 +112,7 @@ def geometric_pp(Ri, Rj, d):
     return math.sqrt(v) / (2.0 * d)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def geometric_pw(R, d):
     """Radius [m] of the circle cut by a plane at distance d from a sphere centre, sqrt(R^2 - d^2)."""
     if d >= R:
@@ -122,7 +122,7 @@ def geometric_pw(R, d):
     return math.sqrt(R * R - d * d)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def zhou_2010(rc, Estar, Estar_real):
     """Zhou et al. (2010) correction rc_real = rc (E*/E*_real)^(1/5) [m] (ref 002, ref 000)."""
     if Estar_real <= 0.0 or Estar <= 0.0:
@@ -130,7 +130,7 @@ def zhou_2010(rc, Estar, Estar_real):
     return rc * (Estar / Estar_real) ** 0.2
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def lu_2017(Fn, Rstar, Estar_real):
     """Lu et al. (2017): rc = sqrt(R* (Fn/K_HZ,real)^(2/3)) = (3 Fn R*/(4 E*_real))^(1/3) [m]."""
     if Fn <= 0.0:
@@ -138,7 +138,7 @@ def lu_2017(Fn, Rstar, Estar_real):
     return (3.0 * Fn * Rstar / (4.0 * Estar_real)) ** (1.0 / 3.0)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def morris_2016_area(Fn, Rstar, Estar_real):
     """Morris et al. (2016a) area correction rc = (Fn R*/E*_real)^(1/3) [m] (ref 002)."""
     if Fn <= 0.0:
@@ -146,7 +146,7 @@ def morris_2016_area(Fn, Rstar, Estar_real):
     return (Fn * Rstar / Estar_real) ** (1.0 / 3.0)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def morris_2016_time_factor(Estar, Estar_real):
     """Morris et al. (2016a) time correction (t_c,real/t_c)^(2/3) = (E*/E*_real)^(4/15) [-]."""
     if Estar_real <= 0.0 or Estar <= 0.0:
@@ -154,7 +154,13 @@ def morris_2016_time_factor(Estar, Estar_real):
     return (Estar / Estar_real) ** (4.0 / 15.0)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
+def apply_correction(method, correction, rc, Rstar, Fn, Estar, Estar_real):
+    """Softened-stiffness correction of a contact radius (ids of CORRECTIONS)."""
+    return _apply(method, correction, rc, Rstar, Fn, Estar, Estar_real)
+
+
+@numba.njit(cache=True, error_model="numpy")
 def _apply(method, correction, rc, Rstar, Fn, Estar, Estar_real):
     if rc <= 0.0:
         return 0.0
@@ -171,7 +177,7 @@ def _apply(method, correction, rc, Rstar, Fn, Estar, Estar_real):
     return -1.0  # unknown correction id
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def contact_radius_pp(method, correction, Ri, Rj, d, Fn, Estar, Estar_real):
     """Particle-particle contact radius [m] (0 if the spheres do not overlap).
 
@@ -194,7 +200,7 @@ def contact_radius_pp(method, correction, Ri, Rj, d, Fn, Estar, Estar_real):
     return _apply(method, correction, rc, Rstar, Fn, Estar, Estar_real)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def contact_radius_pw(method, correction, R, d, Fn, Estar, Estar_real):
     """Particle-wall contact radius [m]; d = centre-to-wall distance, R* = R."""
     if d >= R:

@@ -29,32 +29,32 @@ LI_MASON_DENSE = 4.75
 LI_MASON_DILUTE = 3.5
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def reynolds(por, rho_f, u_rel, diameter, mu_f):
     """Particle Reynolds number Re = eps rho_f |u_rel| d_p / mu_f [-]."""
     return por * rho_f * abs(u_rel) * diameter / mu_f
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def prandtl(cp_f, mu_f, k_f):
     """Pr = c_f mu_f / k_f [-]."""
     return cp_f * mu_f / k_f
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def ranz_marshall_1952(Re, Pr):
     """Ranz & Marshall (1952): Nu = 2 + 0.6 Re^(1/2) Pr^(1/3) (Re 1-1e4, Pr 0.6-380)."""
     return 2.0 + 0.6 * math.sqrt(max(Re, 0.0)) * Pr ** (1.0 / 3.0)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def whitaker_1972(Re, Pr, visc_ratio):
     """Whitaker (1972): Nu = 2 + (0.4 Re^(1/2) + 0.06 Re^(2/3)) Pr^0.4 (mu_f/mu_fs)^(1/4)."""
     Re = max(Re, 0.0)
     return 2.0 + (0.4 * math.sqrt(Re) + 0.06 * Re ** (2.0 / 3.0)) * Pr ** 0.4 * visc_ratio ** 0.25
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def gunn_1978(Re, Pr, por):
     """Gunn (1978): Nu = (7 - 10e + 5e^2)(1 + 0.7 Re^0.2 Pr^(1/3)) + (1.33 - 2.4e + 1.2e^2) Re^0.7 Pr^(1/3)."""
     Re = max(Re, 0.0)
@@ -64,7 +64,7 @@ def gunn_1978(Re, Pr, por):
         (1.33 - 2.4 * e + 1.2 * e * e) * Re ** 0.7 * p3
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def li_mason_2000(Re, Pr, por, m):
     """Li & Mason (2000), three Re ranges (see module doc); m porosity exponent."""
     Re = max(Re, 0.0)
@@ -76,7 +76,7 @@ def li_mason_2000(Re, Pr, por, m):
     return 2.0 + 4.5e-5 * em * Re ** 1.8
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def nusselt_id_opt(corr, Re, Pr, por, visc_ratio, lm_exponent):
     """Nusselt number for correlation id ``corr`` with explicit options; -1 if unknown."""
     if corr == NU_RANZ_MARSHALL:
@@ -90,19 +90,19 @@ def nusselt_id_opt(corr, Re, Pr, por, visc_ratio, lm_exponent):
     return -1.0
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def nusselt_id(corr, Re, Pr, por):
     """Nusselt number, default options (viscosity ratio 1, Li-Mason m = 4.75)."""
     return nusselt_id_opt(corr, Re, Pr, por, 1.0, LI_MASON_DENSE)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def nusselt_gas(corr, Re, Pr, por, gas):
     """Nusselt number with the options read from the gas table (VISC_RATIO, LM_EXPONENT)."""
     return nusselt_id_opt(corr, Re, Pr, por, gas[VISC_RATIO], gas[LM_EXPONENT])
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def convection_conductance(R, k_f, Nu):
     """H = h A_s = (Nu k_f/(2R)) 4 pi R^2 = 2 pi R k_f Nu [W/K]; Q = H (T_f - T_p)."""
     return 2.0 * math.pi * R * k_f * Nu

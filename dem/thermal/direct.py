@@ -26,7 +26,7 @@ SQRT2 = math.sqrt(2.0)
 
 
 # ----------------------------------------------------------------- helpers
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def series_conductivity(ki, kj):
     """k_bar = (1/ki + 1/kj)^-1 = ki kj/(ki+kj) [W/(m K)] (ref 002 App. A); inf = perfect conductor."""
     if math.isinf(ki):
@@ -38,13 +38,13 @@ def series_conductivity(ki, kj):
     return ki * kj / (ki + kj)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def harmonic_mean(a, b):
     """2 a b/(a + b); an infinite argument gives 2 x the other (perfect conductor)."""
     return 2.0 * series_conductivity(a, b)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def real_modulus(tmat, m):
     """Real Young's modulus of material m (REAL_YOUNG if > 0 else YOUNG) [Pa]."""
     e = tmat[m, REAL_YOUNG]
@@ -54,7 +54,16 @@ def real_modulus(tmat, m):
 
 
 # ----------------------------------------------------------------- models
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
+def batchelor_obrien_keff(rc, keff):
+    """Batchelor & O'Brien conductance from the series conductivity: H = 4 k_bar rc [W/K]
+    (the solver passes k_bar from a per-material-pair table; see batchelor_obrien_1977)."""
+    if rc <= 0.0:
+        return 0.0
+    return 4.0 * keff * rc
+
+
+@numba.njit(cache=True, error_model="numpy")
 def batchelor_obrien_1977(rc, ki, kj):
     """Batchelor & O'Brien (1977) static contact conductance [W/K].
 
@@ -65,12 +74,10 @@ def batchelor_obrien_1977(rc, ki, kj):
     2 k rc. Wall (kj = inf, perfect conductor, ref 001 eq. 3300): H = 4 ki rc.
     rc [m]: contact radius (Hertz or geometric, possibly corrected).
     """
-    if rc <= 0.0:
-        return 0.0
-    return 4.0 * series_conductivity(ki, kj) * rc
+    return batchelor_obrien_keff(rc, series_conductivity(ki, kj))
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def thermal_pipe(rc, d, ki, kj):
     """Generic thermal pipe (ref 002, "Thermal pipe models") [W/K].
 
@@ -82,7 +89,7 @@ def thermal_pipe(rc, d, ki, kj):
     return harmonic_mean(ki, kj) * math.pi * rc * rc / d
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def quintana_ruiz_campello_2020(rc, d, Ri, Rj, ki, kj):
     """Quintana-Ruiz & Campello (2020) thermal pipe [W/K].
 
@@ -99,7 +106,7 @@ def quintana_ruiz_campello_2020(rc, d, Ri, Rj, ki, kj):
     return ktil * math.pi * rc * rc / d
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def rojek_2014(Ri, Rj, ki, kj):
     """Rojek (2014) 3D bar model [W/K]: H = k_p b with b = r_bar = (Ri+Rj)/2.
 
@@ -109,14 +116,14 @@ def rojek_2014(Ri, Rj, ki, kj):
     return harmonic_mean(ki, kj) * 0.5 * (Ri + Rj)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def rojek_2014_wall(R, kp):
     """Rojek (2014) bar model against a wall [W/K]: H = k_p A_p / L with
     A_p = 2 R b, b = R and bar length L = R (centre to wall): H = 2 k_p R."""
     return 2.0 * kp * R
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def hertz_collision(mstar, Rstar, Estar, vn):
     """Hertz impact (ref 002 App. A): returns (Rc_max [m], t_c [s]).
 
@@ -130,7 +137,7 @@ def hertz_collision(mstar, Rstar, Estar, vn):
     return rcm, tc
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def zhou_2008_coefficient(Fo, c):
     """Zhou et al. (2008) correction coefficient C(Fo, c), c = rho_i c_i/(rho_j c_j).
 
@@ -152,7 +159,7 @@ def zhou_2008_coefficient(Fo, c):
     return C
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def zhou_2008_collisional(rc_max, t_c, rho_i, cp_i, k_i, rho_j, cp_j, k_j):
     """Zhou, Yu & Horio (2008) collisional contact conductance [W/K].
 
@@ -181,7 +188,7 @@ def zhou_2008_collisional(rc_max, t_c, rho_i, cp_i, k_i, rho_j, cp_j, k_j):
     return C * math.pi * rc_max * rc_max / math.sqrt(t_c) / den
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def gas_parameter_m(alpha_i, alpha_j, gamma, mfp, Pr):
     """Gas parameter M [m] (temperature-jump distance, ref 000; Bahrami 2006):
 
@@ -191,7 +198,7 @@ def gas_parameter_m(alpha_i, alpha_j, gamma, mfp, Pr):
         (2.0 * gamma / (1.0 + gamma)) * mfp / Pr
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def _macrogap(rho, rc, kg, M):
     # 1/R_G = (pi kg / 2) [S ln(S/(S - A)) - A], A = 2 sqrt(rho^2 - rc^2),
     # S = 2 (rho - rc^2/(2 rho)) + M  (ref 000, B = 0)
@@ -207,7 +214,7 @@ def _macrogap(rho, rc, kg, M):
     return 2.0 / (math.pi * kg * g)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def beaulieu_2020_network(Ri, Rj, rc, ki, kj, kg, Hi, Hj, sig_i, sig_j, tau_i, tau_j,
                           Estar_real, M, wall):
     """Beaulieu (2020) thermal resistance network, conductance [W/K] (ref 000).
@@ -278,7 +285,7 @@ def beaulieu_2020_network(Ri, Rj, rc, ki, kj, kg, Hi, Hj, sig_i, sig_j, tau_i, t
 
 
 # ----------------------------------------------------------------- dispatchers
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def _zhou_or_static(rc, Rstar, mstar, Estar_real, vn_impact, t_contact,
                     rho_i, cp_i, k_i, rho_j, cp_j, k_j):
     rcm, tc = hertz_collision(mstar, Rstar, Estar_real, vn_impact)
@@ -287,7 +294,7 @@ def _zhou_or_static(rc, Rstar, mstar, Estar_real, vn_impact, t_contact,
     return batchelor_obrien_1977(rc, k_i, k_j)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def direct_pp(model, Ri, Rj, d, rc, mi, mj, tmat, gas, t_contact, vn_impact):
     """Particle-particle direct conduction conductance [W/K].
 
@@ -329,7 +336,7 @@ def direct_pp(model, Ri, Rj, d, rc, mi, mj, tmat, gas, t_contact, vn_impact):
     return -1.0
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def direct_pw(model, R, d, rc, mp, mw, tmat, gas, t_contact, vn_impact):
     """Particle-wall direct conduction conductance [W/K].
 

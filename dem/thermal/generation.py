@@ -21,26 +21,26 @@ from .registry import (CP, DENSITY, FRIC_IMPACT_001, FRIC_NGUYEN_2009, FRIC_ROJE
                        PART_EQUAL, PART_ROJEK_2014, PART_VARADI_1996)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def nguyen_2009_friction_heat(mu_dyn, vt, Fn):
     """Q = mu_d |v_t F_n| [W]; vt [m/s] sliding speed, Fn [N] normal force."""
     return mu_dyn * abs(vt * Fn)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def rojek_2014_friction_heat(chi, vt_dot_ft):
     """Q = chi |v_t . F_t| [W]; vt_dot_ft [W] = dot product of the irreversible
     tangential velocity and the tangential force."""
     return chi * abs(vt_dot_ft)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def impact_heat_001(ct, cn, ft_vt, fn_vn):
     """Q = c_t |F_t v_t| + c_n |F_n v_n| [W] (ref 001 eq. 3305)."""
     return ct * abs(ft_vt) + cn * abs(fn_vn)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def varadi_1996_partition(ki, kj):
     """psi_i = k_i/(k_i + k_j) (Varadi et al. 1996)."""
     if math.isinf(kj):
@@ -50,7 +50,7 @@ def varadi_1996_partition(ki, kj):
     return ki / (ki + kj)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def rojek_2014_partition(rho_i, c_i, k_i, rho_j, c_j, k_j):
     """psi_i = e_i/(e_i + e_j), e = sqrt(rho c k) (Rojek 2014)."""
     ei = math.sqrt(rho_i * c_i * k_i)
@@ -62,7 +62,7 @@ def rojek_2014_partition(rho_i, c_i, k_i, rho_j, c_j, k_j):
     return ei / (ei + ej)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def friction_heat(model, mu_dyn, chi, vt, Fn, vt_dot_ft, ct, cn, ft_vt, fn_vn):
     """Dispatcher: generated heat rate [W] at a contact; -1 for unknown ids."""
     if model == FRIC_NGUYEN_2009:
@@ -74,7 +74,7 @@ def friction_heat(model, mu_dyn, chi, vt, Fn, vt_dot_ft, ct, cn, ft_vt, fn_vn):
     return -1.0
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def partition(model, mi, mj, tmat):
     """Dispatcher: fraction psi_i of the generated heat absorbed by body i; -1 if unknown."""
     if model == PART_VARADI_1996:

@@ -38,20 +38,20 @@ EPSREL = 1e-11  # quadrature tolerance (error estimate of G7-K15 is pessimistic)
 
 
 # ----------------------------------------------------------------- Zhou 2009 estimates
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def zhou_2009_face_area(R, por):
     """Voronoi face area A_n = 0.985 R^2 (1 - eps)^(-2/3) [m^2] (Zhou et al. 2009; ref 002)."""
     return 0.985 * R * R * (1.0 - por) ** (-2.0 / 3.0)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def zhou_2009_face_radius(R, por):
     """Voronoi face (double cone base) radius r_ij = sqrt(A_n/pi) = 0.560 R (1-eps)^(-1/3) [m]."""
     return math.sqrt(zhou_2009_face_area(R, por) / math.pi)
 
 
 # ----------------------------------------------------------------- Voronoi model A
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def cheng_1999_voronoi_a(Rp, d, r_low, ki, kj, kf, rij):
     """Cheng, Yu & Zulli (1999) Voronoi model A, mono-size [W/K] (ref 002):
 
@@ -68,7 +68,7 @@ def cheng_1999_voronoi_a(Rp, d, r_low, ki, kj, kf, rij):
     return gk_adaptive(KIND_VORONOI_A_PP, r_low, rsf, p, EPSREL)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def gan_2016_voronoi_a(Ri, Rj, d, r_low, ki, kj, kf, rij):
     """Gan, Zhou & Yu (2016) Voronoi model A for multi-size spheres [W/K] (ref 002):
 
@@ -96,7 +96,7 @@ def gan_2016_voronoi_a(Ri, Rj, d, r_low, ki, kj, kf, rij):
     return gk_adaptive(KIND_VORONOI_A_PP, r_low, rsf, p, EPSREL)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def voronoi_a_wall(R, d, r_low, kp, kf, rij):
     """Voronoi model A, particle-wall [W/K] (ref 002, interaction with walls):
 
@@ -111,7 +111,7 @@ def voronoi_a_wall(R, d, r_low, kp, kf, rij):
 
 
 # ----------------------------------------------------------------- Voronoi model B
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def cheng_1999_voronoi_b(Rp, d, r_low, ki, kj, kf, rij, core):
     """Cheng, Yu & Zulli (1999) Voronoi model B, mono-size [W/K] (ref 002):
 
@@ -136,7 +136,7 @@ def cheng_1999_voronoi_b(Rp, d, r_low, ki, kj, kf, rij, core):
     return math.pi / b * math.log(num / den)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def voronoi_b_wall(R, d, r_low, kp, kf, rij, core):
     """Voronoi model B, particle-wall [W/K] (ref 002, interaction with walls):
 
@@ -158,7 +158,7 @@ def voronoi_b_wall(R, d, r_low, kp, kf, rij, core):
     return math.pi / b * math.log(num / den)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def chen_2019_voronoi_b(Ri, Rj, d, r_low, ki, kj, kf, An, core):
     """Chen et al. (2019) Voronoi model B for multi-size spheres [W/K] (ref 002):
 
@@ -201,7 +201,7 @@ def chen_2019_voronoi_b(Ri, Rj, d, r_low, ki, kj, kf, An, core):
 
 
 # ----------------------------------------------------------------- surrounding layer
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def surrounding_layer_upper_radius(Ri, Rj, d, layer):
     """Upper radius R_f [m] of the surrounding-layer integral (ref 002, Musser 2011):
 
@@ -221,7 +221,7 @@ def surrounding_layer_upper_radius(Ri, Rj, d, layer):
     return min(math.sqrt(v), Rl)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def _gap_floor_radius(Ri, Rj, d, S):
     # radius where the gap d - sqrt(Ri^2-r^2) - sqrt(Rj^2-r^2) equals S:
     # intersection circle of the two spheres brought to centre distance d - S
@@ -233,7 +233,7 @@ def _gap_floor_radius(Ri, Rj, d, S):
     return geometric_pp(Ri, Rj, D)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def _surrounding_layer_pp(Ri, Rj, d, r_low, kf, layer, S):
     Rf = surrounding_layer_upper_radius(Ri, Rj, d, layer)
     if Rf <= r_low:
@@ -249,7 +249,7 @@ def _surrounding_layer_pp(Ri, Rj, d, r_low, kf, layer, S):
     return H
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def musser_2011_surrounding_layer(Ri, Rj, d, r_low, kf, layer, S):
     """Surrounding layer model, Musser (2011) multi-size form [W/K] (ref 002, ref 003):
 
@@ -263,7 +263,7 @@ def musser_2011_surrounding_layer(Ri, Rj, d, r_low, kf, layer, S):
     return _surrounding_layer_pp(Ri, Rj, d, r_low, kf, layer, S)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def rong_horio_1999_surrounding_layer(Ri, Rj, d, kf, layer, S):
     """Surrounding layer model of Rong & Horio (1999) [W/K] (ref 002):
 
@@ -279,7 +279,7 @@ def rong_horio_1999_surrounding_layer(Ri, Rj, d, kf, layer, S):
     return _surrounding_layer_pp(Ri, Rj, d, 0.0, kf, layer, S)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def surrounding_layer_wall(R, d, r_low, kf, layer, S):
     """Surrounding layer, particle-wall [W/K] (ref 002 "contact with walls", ref 003):
 
@@ -321,14 +321,14 @@ def surrounding_layer_wall(R, d, r_low, kf, layer, S):
 
 
 # ----------------------------------------------------------------- Vargas & McCarthy
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def _seg_area(Rp, x):
     # area between the sphere profile and its tangent plane for 0 <= r <= x:
     # int_0^x (Rp - sqrt(Rp^2 - r^2)) dr
     return x * Rp - 0.5 * (Rp * Rp * math.asin(min(x / Rp, 1.0)) + x * math.sqrt(max(Rp * Rp - x * x, 0.0)))
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def vargas_mccarthy_2002(Rp, rc, kg, M, k_liq, phi):
     """Vargas & McCarthy (2002) stagnant interstitial fluid conductance [W/K] (ref 002).
 
@@ -375,7 +375,7 @@ def vargas_mccarthy_2002(Rp, rc, kg, M, k_liq, phi):
 
 
 # ----------------------------------------------------------------- dispatchers
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def indirect_pp(model, Ri, Rj, d, rc, mi, mj, por_i, por_j, tmat, gas):
     """Particle-particle indirect conduction conductance [W/K].
 
@@ -416,7 +416,7 @@ def indirect_pp(model, Ri, Rj, d, rc, mi, mj, por_i, por_j, tmat, gas):
     return -1.0
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def indirect_pw(model, R, d, rc, mp, mw, por, tmat, gas):
     """Particle-wall indirect conduction conductance [W/K].
 

@@ -24,6 +24,7 @@ Description
 #include "fvCFD.H"
 #include "pimpleControl.H"
 #include "fvOptions.H"
+#include "fixedFluxPressureFvPatchScalarField.H"
 #include "couplingIO.H"
 
 // * * * * * * * * * * * * * * * * * * * * * * * * * * * * * * * * * * * * //
@@ -37,15 +38,30 @@ Foam::List<Foam::scalarField> outgoingColumns
     const Foam::volVectorField& U,
     const Foam::volScalarField& T,
     const Foam::volScalarField& p,
-    const Foam::dimensionedScalar& rho
+    const Foam::dimensionedScalar& rho,
+    const Foam::surfaceScalarField& phi,
+    const Foam::volScalarField& eps,
+    const bool fluxVelocity
 )
 {
     using namespace Foam;
     const volVectorField gradp(rho*fvc::grad(p));
+
+    // Velocity for the DEM: the cell (momentum) velocity, or, with fluxVelocity,
+    // reconstructed from the conservative face fluxes (superficial flux / eps),
+    // which is exact for uniform flow and not disturbed next to sharp jumps of
+    // Ksl (bed surface) where the collocated cell pressure gradient averages two
+    // very different face gradients.
+    vectorField Usend(U.primitiveField());
+    if (fluxVelocity)
+    {
+        Usend = (fvc::reconstruct(phi)().primitiveField())/eps.primitiveField();
+    }
+
     List<scalarField> cols(8);
     for (direction d = 0; d < 3; ++d)
     {
-        cols[d] = U.primitiveField().component(d);
+        cols[d] = Usend.component(d);
         cols[4 + d] = gradp.primitiveField().component(d);
     }
     cols[3] = T.primitiveField();
@@ -72,6 +88,22 @@ int main(int argc, char *argv[])
 
     scalar cumulativeContErr = 0;
 
+    // velocity sent to the DEM: "cell" (default, the momentum-equation velocity:
+    // gas and particles exchange exactly opposite drag forces) or "flux"
+    // (reconstructed from the conservative face fluxes / eps: exact mass flow,
+    // free of the wiggles a collocated grid shows next to a sharp jump of Ksl)
+    const word sendVelocity
+    (
+        couplingDict.lookupOrDefault<word>("sendVelocity", "cell")
+    );
+    if (sendVelocity != "flux" && sendVelocity != "cell")
+    {
+        FatalIOErrorInFunction(couplingDict)
+            << "sendVelocity " << sendVelocity << " unknown: use flux or cell"
+            << exit(FatalIOError);
+    }
+    const bool fluxVelocity = (sendVelocity == "flux");
+
     // ------------------------------------------------------------- step i0
     if (coupling.active())
     {
@@ -79,7 +111,7 @@ int main(int argc, char *argv[])
         (
             runTime.timeIndex(),
             runTime.value(),
-            outgoingColumns(U, T, p, rho),
+            outgoingColumns(U, T, p, rho, phi, eps, fluxVelocity),
             0
         );
     }
@@ -199,7 +231,7 @@ int main(int argc, char *argv[])
             (
                 step,
                 runTime.value(),
-                outgoingColumns(U, T, p, rho),
+                outgoingColumns(U, T, p, rho, phi, eps, fluxVelocity),
                 lastStep ? demCoupling::flagFinal : 0
             );
         }

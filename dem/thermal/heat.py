@@ -1,0 +1,250 @@
+"""Per-step heat kernels: the thermal update over stored conductances, local porosity.
+
+Conductances are computed where the geometry is (in the contact loop of
+dem.step.compute_forces, or once for frozen packings) and stored per neighbour slot:
+Hd (direct) and Hi (indirect) per pair, Hw per particle-wall candidate (for a
+fixed-heat-flux wall Hw holds the contact area instead). ``heat_step`` then advances
+the temperatures with either
+
+* ``euler``: T += dt Q / (m c), Q the sum of all heat rates (the references' scheme;
+  stable for dt below the network limit min_i m_i c_i / sum_j H_ij), or
+* ``exponential``: each pair (and each particle-reservoir link: fixed-temperature
+  wall, convection) is advanced with its exact two-body solution
+  dT = (T_j - T_i)(1 - exp(-H (1/C_i + 1/C_j) dt)) in sequence; explicit terms
+  (radiation, generation, sources, fixed flux) are added after. Every update is a
+  convex combination, so it is stable for any step, conserves sum(C T) exactly, and is
+  exact for two bodies.
+"""
+import math
+
+import numpy as np
+from numba import njit
+
+from .convection import convection_conductance, nusselt_gas
+from .radiation import radiation_accumulate, radiation_pp_heat
+from .registry import EMISSIVITY, KF, RHO_F, MU_F, PR
+
+# integer thermal parameters
+TI_HEAT, TI_DIRECT, TI_CR, TI_CORR, TI_INDIRECT, TI_CONV, TI_RAD, TI_FRIC, TI_PART, TI_INTEG, TI_AGE = range(11)
+TI_LOCALPOR = 11
+TI_FUSED = 12  # pairs and walls accumulated in the force loop (mechanics + euler)
+NTI = 13
+# float thermal parameters
+TF_DFACTOR, TF_RADRANGE, TF_CT, TF_CN, TF_CHI = range(5)
+NTF = 8
+# totals (J since the start): direct exchanged, indirect exchanged, convection, radiation,
+# generation, sources, walls
+E_DIRECT, E_INDIRECT, E_CONV, E_RAD, E_GEN, E_SRC, E_WALL = range(7)
+NTOT = 8
+# wall thermal columns
+WT_COND, WT_T, WT_Q, WT_NTAB = 0, 1, 2, 3
+
+
+@njit(cache=True, error_model="numpy")
+def wall_temperature(wth, wtab, w, t):
+    """Wall temperature at time t (constant, or linear in a [time, T] table, held at the ends)."""
+    nt = int(wth[w, WT_NTAB])
+    if nt == 0:
+        return wth[w, WT_T]
+    if t <= wtab[w, 0, 0]:
+        return wtab[w, 0, 1]
+    for k in range(nt - 1):
+        if t <= wtab[w, k + 1, 0]:
+            a = (t - wtab[w, k, 0]) / (wtab[w, k + 1, 0] - wtab[w, k, 0])
+            return wtab[w, k, 1] + a * (wtab[w, k + 1, 1] - wtab[w, k, 1])
+    return wtab[w, nt - 1, 1]
+
+
+@njit(cache=True, error_model="numpy")
+def heat_step(n, dt, t, T, cinv, Q, v, r, x, mat, nb, nnb, Hd, Hi, rnear, wnb, wnn, Hw, wth, wtab,
+              tf, uf, por, qgen, qsrc, srcbox, tmat, gas, thi, tot, wtot, work):
+    """Advance temperatures by dt. Q receives the net heat rate of each particle (W)."""
+    integ = thi[TI_INTEG]
+    has_ind = Hi.shape[0] == n
+    conv = thi[TI_CONV]
+    rad = thi[TI_RAD]
+    fused = thi[TI_FUSED] == 1
+    for i in range(n):
+        work[i, 0] = T[i]
+        if not fused:
+            Q[i] = 0.0
+    # ---- particle pairs (already in Q when fused into the force loop)
+    ed = 0.0
+    ei = 0.0
+    for i in range(n if not fused else 0):
+        for s in range(nnb[i]):
+            hd = Hd[i, s]
+            hi = Hi[i, s] if has_ind else 0.0
+            h = hd + hi
+            if h <= 0.0:
+                continue
+            j = nb[i, s]
+            if integ == 0:
+                q = h * (T[j] - T[i])
+                Q[i] += q
+                Q[j] -= q
+                e = abs(q) * dt
+            else:
+                a = cinv[i] + cinv[j]
+                e = (T[j] - T[i]) * (-math.expm1(-h * a * dt)) / a
+                T[i] += e * cinv[i]
+                T[j] -= e * cinv[j]
+                e = abs(e)
+            ed += e * hd / h
+            ei += e * hi / h
+    tot[E_DIRECT] += ed
+    tot[E_INDIRECT] += ei
+    # ---- walls
+    for i in range(n if not fused else 0):
+        for q in range(wnn[i]):
+            h = Hw[i, q]
+            if h <= 0.0:
+                continue
+            w = wnb[i, q]
+            cond = wth[w, WT_COND]
+            if cond == 1.0:
+                tw = wall_temperature(wth, wtab, w, t)
+                if integ == 0:
+                    qq = h * (tw - T[i])
+                    Q[i] += qq
+                    e = qq * dt
+                else:
+                    tn = tw + (T[i] - tw) * math.exp(-h * cinv[i] * dt)
+                    e = (tn - T[i]) / cinv[i]
+                    T[i] = tn
+            elif cond == 2.0:
+                qq = h * wth[w, WT_Q]
+                Q[i] += qq
+                e = qq * dt
+            else:
+                e = 0.0
+            wtot[w] += e
+            tot[E_WALL] += e
+    # ---- convection with the gas at the particle
+    if conv >= 0:
+        kf = gas[KF]
+        rho = gas[RHO_F]
+        mu = gas[MU_F]
+        pr = gas[PR]
+        ec = 0.0
+        for i in range(n):
+            ux = uf[i, 0] - v[i, 0]
+            uy = uf[i, 1] - v[i, 1]
+            uz = uf[i, 2] - v[i, 2]
+            ur = math.sqrt(ux * ux + uy * uy + uz * uz)
+            re = por[i] * rho * ur * 2.0 * r[i] / mu
+            nu = nusselt_gas(conv, re, pr, por[i], gas)
+            h = convection_conductance(r[i], kf, nu)
+            if integ == 0:
+                qq = h * (tf[i] - T[i])
+                Q[i] += qq
+                ec += qq * dt
+            else:
+                tn = tf[i] + (T[i] - tf[i]) * math.exp(-h * cinv[i] * dt)
+                ec += (tn - T[i]) / cinv[i]
+                T[i] = tn
+        tot[E_CONV] += ec
+    # ---- explicit terms: radiation, generation, sources (added to Q)
+    if integ != 0:
+        for i in range(n):
+            work[i, 2] = Q[i]  # explicit wall flux so far
+            Q[i] = 0.0
+    if rad >= 0:
+        acc0 = np.zeros(n)
+        acc1 = np.zeros(n)
+        for i in range(n):
+            for s in range(nnb[i]):
+                if rnear[i, s]:
+                    j = nb[i, s]
+                    a0, a1 = radiation_accumulate(rad, acc0[i], acc1[i], T[j], tmat[mat[j], EMISSIVITY], r[j])
+                    acc0[i] = a0
+                    acc1[i] = a1
+                    a0, a1 = radiation_accumulate(rad, acc0[j], acc1[j], T[i], tmat[mat[i], EMISSIVITY], r[i])
+                    acc0[j] = a0
+                    acc1[j] = a1
+        er = 0.0
+        for i in range(n):
+            qq = radiation_pp_heat(rad, tmat[mat[i], EMISSIVITY], r[i], T[i], acc0[i], acc1[i], por[i], tf[i])
+            Q[i] += qq
+            er += qq * dt
+        tot[E_RAD] += er
+    eg = 0.0
+    es = 0.0
+    has_gen = qgen.shape[0] == n
+    has_src = qsrc.shape[0] == n
+    nbox = srcbox.shape[0]
+    for i in range(n):
+        if has_gen:
+            Q[i] += qgen[i]
+            eg += qgen[i] * dt
+        if has_src:
+            Q[i] += qsrc[i]
+            es += qsrc[i] * dt
+        for b in range(nbox):
+            if (srcbox[b, 0] <= x[i, 0] <= srcbox[b, 3] and srcbox[b, 1] <= x[i, 1] <= srcbox[b, 4]
+                    and srcbox[b, 2] <= x[i, 2] <= srcbox[b, 5]):
+                qq = srcbox[b, 6] * 4.0 / 3.0 * math.pi * r[i] ** 3
+                Q[i] += qq
+                es += qq * dt
+    tot[E_GEN] += eg
+    tot[E_SRC] += es
+    if integ == 0:
+        for i in range(n):
+            T[i] += dt * Q[i] * cinv[i]
+    else:
+        for i in range(n):
+            T[i] += dt * (Q[i] + work[i, 2]) * cinv[i]
+            Q[i] = (T[i] - work[i, 0]) / (cinv[i] * dt)
+    # guard: report the first non-finite or non-positive temperature
+    for i in range(n):
+        if not (T[i] > 0.0) or not math.isfinite(T[i]):
+            return i
+    return -1
+
+
+@njit(cache=True, error_model="numpy")
+def local_porosity(n, x, r, nb, nnb, lo, hi, periodic, reach, wf, wi, wnb, wnn, t, out, floor):
+    """Porosity in a measuring sphere of radius R_m = R_i + reach around each particle:
+    1 - (own volume + exact lens volumes of the neighbours inside) / (sphere volume minus
+    the caps cut off by plane walls). Floor applied (a measuring sphere that is mostly wall)."""
+    vs = np.zeros(n)
+    for i in range(n):
+        vs[i] += 4.0 / 3.0 * math.pi * r[i] ** 3
+    for i in range(n):
+        for s in range(nnb[i]):
+            j = nb[i, s]
+            d2 = 0.0
+            for k in range(3):
+                dd = x[j, k] - x[i, k]
+                if periodic[k]:
+                    L = hi[k] - lo[k]
+                    dd -= L * math.floor(dd / L + 0.5)
+                d2 += dd * dd
+            d = math.sqrt(d2)
+            vs[i] += _lens(r[i] + reach, r[j], d)
+            vs[j] += _lens(r[j] + reach, r[i], d)
+    for i in range(n):
+        rm = r[i] + reach
+        vm = 4.0 / 3.0 * math.pi * rm ** 3
+        for q in range(wnn[i]):
+            w = wnb[i, q]
+            if wi[w, 0] != 0:
+                continue
+            dist = (x[i, 0] - wf[w, 0]) * wf[w, 3] + (x[i, 1] - wf[w, 1]) * wf[w, 4] + (x[i, 2] - wf[w, 2]) * wf[w, 5]
+            if dist < rm:
+                hcap = rm - max(dist, -rm)
+                vm -= math.pi * hcap * hcap * (3.0 * rm - hcap) / 3.0
+        p = 1.0 - vs[i] / max(vm, 1e-300)
+        out[i] = min(max(p, floor), 1.0)
+
+
+@njit(cache=True, error_model="numpy")
+def _lens(R, r, d):
+    """Volume of sphere r (centre at distance d) inside sphere R."""
+    if d >= R + r:
+        return 0.0
+    if d <= R - r:
+        return 4.0 / 3.0 * math.pi * r ** 3
+    if d <= r - R:
+        return 4.0 / 3.0 * math.pi * R ** 3
+    return math.pi * (R + r - d) ** 2 * (d * d + 2 * d * r - 3 * r * r + 2 * d * R + 6 * r * R - 3 * R * R) / (12 * d)

@@ -1,0 +1,262 @@
+"""ThermalModel: the thermal part of a Simulation (arrays, tables, reports, output).
+
+Built only when the scene has a [thermal] section: a scene without heat allocates no
+thermal arrays and its step runs no heat code (the kernel tests one flag per step).
+"""
+import math
+
+import numpy as np
+
+from . import registry as R
+from .heat import (NTI, NTF, NTOT, TI_HEAT, TI_DIRECT, TI_CR, TI_CORR, TI_INDIRECT, TI_CONV, TI_RAD,
+                   TI_FRIC, TI_PART, TI_INTEG, TI_AGE, TI_LOCALPOR, TI_FUSED, TF_DFACTOR, TF_RADRANGE, TF_CT,
+                   TF_CN, TF_CHI, WT_COND, WT_T, WT_Q, WT_NTAB, E_DIRECT, E_INDIRECT, E_CONV, E_RAD,
+                   E_GEN, E_SRC, E_WALL, local_porosity)
+
+MECHANISMS = ("direct", "indirect", "convection", "radiation", "generation", "sources")
+
+
+class ThermalModel:
+    def __init__(self, sim):
+        self.sim = sim
+        sc = sim.scene
+        th = sc.thermal
+        self.cfg = th
+        st = sim.state
+        n = st.n
+        mats = [dict((k, m[k]) for k in R.MATERIAL_KEYS if k in m) for m in sc.materials]
+        self.tmat, self.gas, _ = R.build_tables(mats, th["gas"])
+        st.enable_thermal(th["temperature"], self.tmat[:, R.CP])
+        thi = np.full(NTI, -1, np.int64)
+        thi[TI_HEAT] = 1
+        thi[TI_DIRECT] = th["direct_id"]
+        thi[TI_CR] = th["cr_id"]
+        thi[TI_CORR] = th["corr_id"]
+        thi[TI_INDIRECT] = th["indirect_id"]
+        thi[TI_CONV] = th["convection_id"]
+        thi[TI_RAD] = th["radiation_id"]
+        thi[TI_FRIC] = th["friction_id"] if sc.simulation["mechanics"] else -1
+        thi[TI_PART] = th["partition_id"]
+        thi[TI_INTEG] = th["integrator_id"]
+        self.needs_age = th["direct"] == "zhou_2008_collisional"
+        thi[TI_AGE] = 1 if self.needs_age else 0
+        uses_por = th["indirect_id"] >= 0 or th["convection_id"] >= 0 or th["radiation"] == "zhou_2009"
+        self.local_porosity = uses_por and th["porosity"] == "local"
+        thi[TI_LOCALPOR] = 1 if self.local_porosity else 0
+        thi[TI_FUSED] = 1 if (sc.simulation["mechanics"] and th["integrator"] == "euler") else 0
+        self.thi = thi
+        thf = np.zeros(NTF)
+        thf[TF_DFACTOR] = th["direct_factor"]
+        thf[TF_RADRANGE] = self.gas[R.RAD_RANGE]
+        thf[TF_CT] = th["impact_ct"]
+        thf[TF_CN] = th["impact_cn"]
+        thf[TF_CHI] = th["chi"]
+        self.thf = thf
+        # real effective modulus per material pair (softened-stiffness corrections)
+        E = np.array([m["youngs_modulus"] for m in sc.materials])
+        nu = np.array([m["poisson_ratio"] for m in sc.materials])
+        Er = np.array([m.get("real_youngs_modulus", m["youngs_modulus"]) for m in sc.materials])
+        self.ereal = np.ascontiguousarray(1.0 / ((1 - nu[:, None] ** 2) / Er[:, None] + (1 - nu[None, :] ** 2) / Er[None, :]))
+        del E
+        from .direct import series_conductivity
+        k = self.tmat[:, R.K_COND]
+        nm = len(k)
+        self.keff = np.array([[series_conductivity(k[a], k[b]) for b in range(nm)] for a in range(nm)]).reshape(nm, nm)
+        # reach of the neighbour list: indirect cut-off and radiation range (in radii)
+        rmax = float(st.radius.max())
+        reach = 0.0
+        if th["indirect_id"] >= 0:
+            reach = max(reach, self.gas[R.CUTOFF] * rmax)
+        if th["radiation_id"] >= 0:
+            reach = max(reach, (self.gas[R.RAD_RANGE] - 2.0) * rmax)
+        if self.local_porosity:
+            reach = max(reach, rmax)
+        self.reach = reach
+        # walls
+        nw = max(len(sc.walls), 1)
+        wth = np.zeros((nw, 4))
+        ntab = max([len(w["table"]) for w in th["walls"] if w["table"] is not None], default=1)
+        wtab = np.zeros((nw, ntab, 2))
+        for k, w in enumerate(th["walls"]):
+            wth[k, WT_COND] = w["cond_id"]
+            wth[k, WT_T] = w["temperature"]
+            wth[k, WT_Q] = w["heat_flux"]
+            if w["table"] is not None:
+                wth[k, WT_NTAB] = len(w["table"])
+                wtab[k, :len(w["table"])] = w["table"]
+        self.wth, self.wtab = wth, wtab
+        self.Hw = np.zeros((n, nw))
+        self.por = np.full(n, self.gas[R.POROSITY_GLOBAL])
+        self.qgen = np.zeros(n) if thi[TI_FRIC] >= 0 else np.zeros(0)
+        self.wage = np.zeros((n, nw, 2)) if self.needs_age else np.zeros((0, 1, 2))
+        tf = self.gas[R.T_F] if math.isfinite(self.gas[R.T_F]) else 0.0
+        self.tf = np.full(n, tf)
+        self.uf = np.tile(th["gas_velocity"], (n, 1))
+        qsrc = np.zeros(n)
+        boxes = []
+        for s in th["sources"]:
+            if "power" in s:
+                qsrc[st.group == s["group"]] += s["power"]
+            else:
+                boxes.append(list(s["min"]) + list(s["max"]) + [s["power_density"]])
+        self.qsrc = qsrc if np.any(qsrc != 0) else np.zeros(0)
+        self.srcbox = np.array(boxes, float).reshape(-1, 7)
+        self.tot = np.zeros(NTOT)
+        self.wtot = np.zeros(nw)
+        self.work = np.zeros((n, 3))
+        self.E0 = None
+
+    # -------------------------------------------------------------- kernel data
+    def th_tuple(self):
+        st = self.sim.state
+        return (self.thi, self.thf, self.tmat, self.gas, self.ereal, self.Hw, self.wth, self.wtab,
+                self.por, self.qgen, self.wage, st.temperature, st.inv_heat_capacity, st.heat_rate,
+                self.tf, self.uf, self.qsrc, self.srcbox, self.tot, self.wtot, self.work, self.keff)
+
+    def slot_arrays(self, slots):
+        n = self.sim.state.n
+        Hd = np.zeros((n, slots))
+        Hi = np.zeros((n, slots)) if self.thi[TI_INDIRECT] >= 0 else np.zeros((0, 1))
+        rn = np.zeros((n, slots), np.uint8) if self.thi[TI_RAD] >= 0 else np.zeros((0, 1), np.uint8)
+        return Hd, Hi, rn
+
+    def update_porosity(self):
+        if not self.local_porosity:
+            return
+        s = self.sim
+        st = s.state
+        local_porosity(st.n, st.position, st.radius, s.nb, s.nnb, s.lo, s.hi, s.periodic, self.reach,
+                       s.wf, s.wi, s.wnb, s.wnn, s.time, self.por, 0.2)
+
+    def permute(self, perm):
+        for name in ("Hw", "por", "tf", "uf"):
+            setattr(self, name, np.ascontiguousarray(getattr(self, name)[perm]))
+        if self.qgen.shape[0]:
+            self.qgen = np.ascontiguousarray(self.qgen[perm])
+        if self.qsrc.shape[0]:
+            self.qsrc = np.ascontiguousarray(self.qsrc[perm])
+        if self.wage.shape[0]:
+            self.wage = np.ascontiguousarray(self.wage[perm])
+
+    # -------------------------------------------------------------- reports
+    def critical_step(self):
+        """Thermal critical step rho c R / k of the particles (smallest), ref 002."""
+        st = self.sim.state
+        k = self.tmat[st.material, R.K_COND]
+        rho = self.tmat[st.material, R.DENSITY]
+        c = self.tmat[st.material, R.CP]
+        return float(np.min(rho * c * st.radius / k))
+
+    def network_limit(self):
+        """Euler stability limit of the conduction network: min_i C_i / sum_j H_ij."""
+        s = self.sim
+        st = s.state
+        hsum = np.zeros(st.n)
+        H = s.Hd + (s.Hi if s.Hi.shape[0] == st.n else 0.0)
+        mask = np.arange(H.shape[1])[None, :] < s.nnb[:, None]
+        H = np.where(mask, H, 0.0)
+        np.add.at(hsum, np.repeat(np.arange(st.n), H.shape[1]), H.ravel())
+        np.add.at(hsum, s.nb.ravel()[mask.ravel()], H.ravel()[mask.ravel()])
+        wmask = (np.arange(self.Hw.shape[1])[None, :] < s.wnn[:, None]) & (self.wth[s.wnb, WT_COND] == 1.0)
+        hsum += (self.Hw * wmask).sum(1)
+        C = 1.0 / st.inv_heat_capacity
+        with np.errstate(divide="ignore"):
+            lim = np.where(hsum > 0, C / hsum, np.inf)
+        return float(lim.min())
+
+    def check(self):
+        s = self.sim
+        st = s.state
+        rep = {}
+        tcrit = self.critical_step()
+        rep["thermal_critical_step"] = tcrit
+        rep["thermal_step"] = s.dt
+        rep["thermal_step_ratio"] = s.dt / tcrit
+        warnings = []
+        # conductances stored per slot (the fused Euler path does not store them)
+        fused = self.thi[TI_FUSED]
+        saved = (self.tot.copy(), self.wtot.copy(), st.heat_rate.copy())
+        self.thi[TI_FUSED] = 0
+        s._compute_forces()
+        self.thi[TI_FUSED] = fused
+        self.tot[:], self.wtot[:], st.heat_rate[:] = saved
+        lim = self.network_limit()
+        rep["network_step_limit"] = lim
+        if self.cfg["integrator"] == "euler" and s.dt > lim:
+            warnings.append(f"euler thermal step {s.dt:.3g} s exceeds the network stability limit "
+                            f"min C_i/sum H_ij = {lim:.3g} s: use thermal.integrator = \"exponential\" "
+                            f"or a smaller step")
+        if self.thi[TI_CONV] >= 0:
+            from .convection import nusselt_gas
+            g = self.gas
+            kp = self.tmat[st.material, R.K_COND]
+            ur = np.linalg.norm(self.uf - st.velocity, axis=1)
+            bi = 0.0
+            for i in range(st.n):
+                re = self.por[i] * g[R.RHO_F] * ur[i] * 2 * st.radius[i] / g[R.MU_F]
+                nu = nusselt_gas(int(self.thi[TI_CONV]), re, g[R.PR], self.por[i], g)
+                h = nu * g[R.KF] / (2 * st.radius[i])
+                bi = max(bi, h * st.radius[i] / kp[i])
+            rep["biot_max"] = bi
+            if bi > 0.1:
+                warnings.append(f"Biot number {bi:.3g} > 0.1: the lumped (uniform) particle temperature "
+                                f"is not accurate")
+        rep["warnings"] = warnings
+        return rep
+
+    def models_report(self):
+        c = self.cfg
+        runs, skipped = [], []
+        integ = f"{c['integrator']} thermal integration"
+        runs.append(integ)
+        for key, label in (("direct", "direct conduction"), ("indirect", "indirect conduction"),
+                           ("convection", "convection"), ("radiation", "radiation"),
+                           ("friction_heat", "friction heat")):
+            name = c[key]
+            if name != "none" and not (key == "friction_heat" and self.thi[TI_FRIC] < 0):
+                extra = ""
+                if key == "direct":
+                    extra = f" (contact radius {c['contact_radius']}, correction {c['correction']})"
+                if key in ("indirect", "convection") or (key == "radiation" and name == "zhou_2009"):
+                    extra = f" (porosity {'local, measured around each particle' if self.local_porosity else 'global'})"
+                runs.append(f"{label}: {name}{extra}")
+            else:
+                why = f"thermal.{key} = 'none'"
+                if key == "friction_heat" and name != "none":
+                    why = "mechanics frozen: no sliding"
+                if key in ("indirect", "convection") and "gas" not in self.sim.scene.raw:
+                    why += " (no [gas] section)"
+                skipped.append(f"{label}: {why}")
+        if len(self.cfg["sources"]):
+            runs.append(f"heat sources: {len(self.cfg['sources'])}")
+        for k, w in enumerate(self.cfg["walls"]):
+            runs.append(f"wall {self.sim.scene.walls[k]['name']}: {w['condition']}")
+        return runs, skipped
+
+    # -------------------------------------------------------------- output
+    def history_columns(self):
+        cols = ["thermal_energy", "T_mean", "T_min", "T_max"]
+        cols += [f"E_{m}" for m in MECHANISMS]
+        cols += [f"E_wall_{w['name']}" for w in self.sim.scene.walls]
+        return cols
+
+    def history_row(self):
+        st = self.sim.state
+        n = st.n_owned
+        C = 1.0 / st.inv_heat_capacity[:n]
+        T = st.temperature[:n]
+        row = dict(thermal_energy=float(np.sum(C * T)), T_mean=float(T.mean()), T_min=float(T.min()),
+                   T_max=float(T.max()))
+        for k, m in enumerate(MECHANISMS):
+            row[f"E_{m}"] = float(self.tot[k])
+        for k, w in enumerate(self.sim.scene.walls):
+            row[f"E_wall_{w['name']}"] = float(self.wtot[k])
+        return row
+
+    def checkpoint_arrays(self):
+        return dict(th_Hw=self.Hw, th_por=self.por, th_qgen=self.qgen, th_wage=self.wage, th_tot=self.tot,
+                    th_wtot=self.wtot, th_tf=self.tf, th_uf=self.uf, th_qsrc=self.qsrc)
+
+    def load_checkpoint(self, z):
+        for k in ("Hw", "por", "qgen", "wage", "tot", "wtot", "tf", "uf", "qsrc"):
+            setattr(self, k, np.ascontiguousarray(z["th_" + k]))

@@ -1,0 +1,224 @@
+"""[thermal] and [gas] sections of a scene, and the thermal conditions of walls.
+
+    [thermal]
+    initial_temperature = 300.0          # K, for groups without their own temperature
+    initial_regions = [{min = [..], max = [..], temperature = 400.0}]   # override in boxes
+    direct = "batchelor_obrien"          # or "none"; see docs/models.md for all names
+    contact_radius = "hertz_overlap"     # hertz_force | hertz_overlap | geometric
+    correction = "none"                  # zhou_2010 | lu_2017 | morris_2016_area | ...
+    direct_factor = 1.0                  # multiplies the direct conductance
+    indirect = "none"                    # voronoi_a, voronoi_b, surrounding_layer, ...
+    porosity = "local"                   # local | global  (Voronoi models)
+    convection = "none"                  # ranz_marshall | whitaker | gunn | li_mason
+    radiation = "none"                   # zhou_2009 | krause_2017
+    friction_heat = "none"               # nguyen_2009 | rojek_2014 | impact_heat
+    partition = "equal"                  # varadi_1996 | rojek_2014 | equal
+    integrator = "auto"                  # euler | exponential | auto
+    time_step = 1.0                      # thermal step, only with simulation.mechanics = false
+    [[thermal.sources]]                  # W per particle of a group, or W/m3 in a box
+    group = 0 ; power = 0.01
+    [gas]                                # conductivity, density, viscosity, heat_capacity,
+    conductivity = 0.026                 # temperature, velocity = [ux, uy, uz], ...
+
+Walls: ``thermal = { condition = "adiabatic" | "fixed_temperature" | "fixed_heat_flux",
+temperature = 400.0 | table = [[t0, T0], [t1, T1], ...], heat_flux = 1000.0 }``.
+"""
+import math
+
+import numpy as np
+
+from . import registry as R
+
+THERMAL_KEYS = {"initial_temperature", "direct", "contact_radius", "correction", "direct_factor",
+                "indirect", "porosity", "convection", "radiation", "friction_heat", "partition",
+                "integrator", "time_step", "sources", "impact_heat_ct", "impact_heat_cn",
+                "friction_heat_chi", "initial_regions"}
+INTEGRATORS = {"euler": 0, "exponential": 1}
+WALL_CONDITIONS = {"adiabatic": 0, "fixed_temperature": 1, "fixed_heat_flux": 2}
+
+
+def _model(v, t, key, mech, default):
+    name = t.get(key, default)
+    if not isinstance(name, str):
+        v.err(f"thermal.{key}", f"must be a string, got {name!r}")
+    if name == "none":
+        return "none", -1
+    try:
+        canon = R.canonical_name(mech, name)
+    except ValueError:
+        v.err(f"thermal.{key}", f"unknown {mech} model {name!r}; valid: none, {', '.join(R.valid_names(mech))}")
+    return canon, R.MODELS[mech][canon]["id"]
+
+
+def parse_thermal(v, sc, data):
+    t = data.get("thermal")
+    if t is None:
+        v.err("thermal", "a [gas] section needs a [thermal] section (heat transfer settings)")
+    v.table(t, "thermal", THERMAL_KEYS)
+    g = data.get("gas", {})
+    v.table(g, "gas", set(R.GAS_KEYS) | {"velocity"})
+    th = {}
+    th["direct"], th["direct_id"] = _model(v, t, "direct", "direct", "batchelor_obrien")
+    th["contact_radius"], th["cr_id"] = _model(v, t, "contact_radius", "contact_radius", "hertz_overlap")
+    th["correction"], th["corr_id"] = _model(v, t, "correction", "correction", "none")
+    if th["corr_id"] < 0:
+        th["corr_id"] = 0
+    th["indirect"], th["indirect_id"] = _model(v, t, "indirect", "indirect", "none")
+    th["convection"], th["convection_id"] = _model(v, t, "convection", "convection", "none")
+    th["radiation"], th["radiation_id"] = _model(v, t, "radiation", "radiation", "none")
+    th["friction_heat"], th["friction_id"] = _model(v, t, "friction_heat", "friction", "none")
+    th["partition"], th["partition_id"] = _model(v, t, "partition", "partition", "equal")
+    th["direct_factor"] = v.num(t, "direct_factor", "thermal", default=1.0, lo=0)
+    th["porosity"] = v.string(t, "porosity", "thermal", default="local", choices=["local", "global"])
+    th["impact_ct"] = v.num(t, "impact_heat_ct", "thermal", default=0.0, lo=0, hi=1)
+    th["impact_cn"] = v.num(t, "impact_heat_cn", "thermal", default=0.0, lo=0, hi=1)
+    th["chi"] = v.num(t, "friction_heat_chi", "thermal", default=1.0, lo=0, hi=1)
+    integ = v.string(t, "integrator", "thermal", default="auto", choices=["auto", "euler", "exponential"])
+    mech = sc.simulation["mechanics"]
+    if integ == "auto":
+        integ = "euler" if mech else "exponential"
+    th["integrator"] = integ
+    th["integrator_id"] = INTEGRATORS[integ]
+    if "time_step" in t and mech:
+        v.err("thermal.time_step", "a separate thermal step needs simulation.mechanics = false "
+                                   "(with mechanics on, heat advances with the mechanical step)")
+    th["time_step"] = v.num(t, "time_step", "thermal", default=None, lo=0, lo_open=True)
+    if th["indirect"] == "rong_horio_1999_surrounding_layer" and th["direct_id"] >= 0:
+        v.err("thermal.indirect", "rong_horio_1999_surrounding_layer already integrates over the contact "
+                                  "region; use it with direct = \"none\" (or use musser_2011_surrounding_layer)")
+    # gas
+    gas = {}
+    for k, val in g.items():
+        if k == "velocity":
+            continue
+        gas[k] = v.num(g, k, "gas", lo=R.GAS_KEYS[k][2][0], hi=R.GAS_KEYS[k][2][1])
+    uvec = v.vec(g, "velocity", "gas", default=np.zeros(3))
+    gas["velocity"] = float(np.linalg.norm(uvec))
+    th["gas_velocity"] = uvec
+    needs_gas = [("indirect", th["indirect"]), ("convection", th["convection"])]
+    if th["direct"] == "beaulieu_2020":
+        needs_gas.append(("direct", th["direct"]))
+    for mechn, name in needs_gas:
+        if name == "none":
+            continue
+        if "gas" not in data:
+            v.err("gas", f"missing [gas] section, needed by {mechn} model {name!r} (conductivity, ...)")
+        try:
+            R.check_params(mechn, name, gas)
+        except ValueError as exc:
+            v.err("gas", str(exc))
+    if th["convection"] != "none" or th["radiation"] == "zhou_2009":
+        if "temperature" not in gas:
+            v.err("gas.temperature", "missing required key (the gas temperature, K), needed by "
+                                     + ("convection" if th["convection"] != "none" else "radiation zhou_2009"))
+    if th["convection"] != "none":
+        for k in ("density", "viscosity", "conductivity"):
+            if k not in gas:
+                v.err(f"gas.{k}", f"missing required key, needed by convection model {th['convection']!r}")
+        if "prandtl" not in gas and "heat_capacity" not in gas:
+            v.err("gas.prandtl", "missing: give prandtl, or heat_capacity (Pr = mu cp / k)")
+    th["gas"] = gas
+    # materials: thermal keys needed by the chosen models
+    for k, m in enumerate(sc.materials):
+        p = f"materials[{k}]"
+        for key in R.MATERIAL_KEYS:
+            if key in m and key not in ("density", "youngs_modulus", "poisson_ratio"):
+                v.num(m, key, p, lo=0, lo_open=key in ("thermal_conductivity", "heat_capacity"))
+        if "heat_capacity" not in m:
+            v.err(p + ".heat_capacity", "missing required key for heat transfer (J/(kg K), > 0)")
+    used = set(np.unique(sc.material).tolist()) | {w["material"] for w in sc.walls}
+    for mech_, name in (("direct", th["direct"]), ("indirect", th["indirect"]),
+                        ("radiation", th["radiation"]), ("partition", th["partition"]),
+                        ("contact_radius", th["contact_radius"]), ("correction", th["correction"])):
+        if name == "none" or (mech_ == "partition" and th["friction_id"] < 0):
+            continue
+        for k in sorted(used):
+            m = sc.materials[k]
+            missing = [key for key in R.required_material_keys(mech_, name) if key not in m]
+            if missing:
+                v.err(f"materials[{k}].{missing[0]}",
+                      f"missing required key for {mech_} model {name!r} (material {m['name']!r})")
+    if th["correction"] != "none":
+        for k in sorted(used):
+            if "real_youngs_modulus" not in sc.materials[k]:
+                v.err(f"materials[{k}].real_youngs_modulus",
+                      f"missing: correction {th['correction']!r} needs the physical Young's modulus")
+    # temperatures
+    T0 = v.num(t, "initial_temperature", "thermal", default=None, lo=0, lo_open=True)
+    temps = []
+    for k, (tg, n) in enumerate(zip(sc.temperature, np.bincount(sc.group, minlength=len(sc.temperature)))):
+        if tg is None:
+            if T0 is None:
+                v.err(f"particles[{k}].temperature",
+                      "missing: give a temperature for this group or thermal.initial_temperature")
+            tg = np.full(n, T0)
+        temps.append(np.asarray(tg, float))
+    th["temperature"] = np.concatenate(temps) if temps else np.zeros(0)
+    regs = t.get("initial_regions", [])
+    if not isinstance(regs, list):
+        v.err("thermal.initial_regions", "must be an array of tables {min, max, temperature}")
+    for k, rg in enumerate(regs):
+        p = f"thermal.initial_regions[{k}]"
+        v.table(rg, p, {"min", "max", "temperature"}, required=("min", "max", "temperature"))
+        a = v.vec(rg, "min", p, required=True)
+        b = v.vec(rg, "max", p, required=True)
+        tt = v.num(rg, "temperature", p, lo=0, lo_open=True, required=True)
+        inside = np.all((sc.position >= a) & (sc.position <= b), axis=1)
+        th["temperature"][inside] = tt
+    # sources
+    srcs = t.get("sources", [])
+    if not isinstance(srcs, list):
+        v.err("thermal.sources", "must be an array of tables [[thermal.sources]]")
+    th["sources"] = []
+    for k, s in enumerate(srcs):
+        p = f"thermal.sources[{k}]"
+        v.table(s, p, {"group", "power", "power_density", "region"})
+        if ("power" in s) == ("power_density" in s):
+            v.err(p, "give exactly one of power (W per particle, with group) or power_density (W/m3, with region)")
+        if "power" in s:
+            grp = v.integer(s, "group", p, required=True, lo=0)
+            if grp >= len(sc.temperature):
+                v.err(p + ".group", f"no particle group {grp} (groups 0..{len(sc.temperature) - 1})")
+            th["sources"].append(dict(group=grp, power=v.num(s, "power", p)))
+        else:
+            reg = s.get("region")
+            if reg is None:
+                v.err(p + ".region", "missing required key (a box: {min = [..], max = [..]})")
+            v.table(reg, p + ".region", {"min", "max", "type"})
+            th["sources"].append(dict(power_density=v.num(s, "power_density", p),
+                                      min=v.vec(reg, "min", p + ".region", required=True),
+                                      max=v.vec(reg, "max", p + ".region", required=True)))
+    # walls
+    th["walls"] = []
+    for k, w in enumerate(sc.walls):
+        p = f"walls[{k}].thermal"
+        spec = w.get("thermal") or {"condition": "adiabatic"}
+        v.table(spec, p, {"condition", "temperature", "table", "heat_flux"}, required=("condition",))
+        cond = v.string(spec, "condition", p, choices=list(WALL_CONDITIONS), required=True)
+        W = dict(condition=cond, cond_id=WALL_CONDITIONS[cond], table=None, temperature=0.0, heat_flux=0.0)
+        if cond == "fixed_temperature":
+            if ("temperature" in spec) == ("table" in spec):
+                v.err(p, "fixed_temperature needs exactly one of temperature (K) or table ([[t, T], ...])")
+            if "temperature" in spec:
+                W["temperature"] = v.num(spec, "temperature", p, lo=0, lo_open=True)
+            else:
+                tab = spec["table"]
+                ok = isinstance(tab, list) and len(tab) >= 1 and all(
+                    isinstance(r, list) and len(r) == 2 and all(isinstance(e, (int, float)) for e in r) for r in tab)
+                if not ok:
+                    v.err(p + ".table", "must be a list of [time, temperature] pairs")
+                tab = np.array(tab, float)
+                if np.any(np.diff(tab[:, 0]) <= 0) or np.any(tab[:, 1] <= 0):
+                    v.err(p + ".table", "times must increase and temperatures be > 0")
+                W["table"] = tab
+                W["temperature"] = float(tab[0, 1])
+            if th["direct_id"] < 0 and th["indirect_id"] < 0:
+                v.err(p + ".condition", "fixed_temperature needs a direct or indirect conduction model")
+            m = sc.materials[w["material"]]
+            if "thermal_conductivity" not in m:
+                v.err(f"materials[{w['material']}].thermal_conductivity",
+                      f"missing: wall {w['name']!r} conducts heat (fixed_temperature)")
+        elif cond == "fixed_heat_flux":
+            W["heat_flux"] = v.num(spec, "heat_flux", p, required=True)
+        th["walls"].append(W)
+    return th
