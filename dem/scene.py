@@ -222,7 +222,7 @@ def parse(data, file="<dict>", base_dir="."):
         max_overlap_ratio=v.num(s, "max_overlap_ratio", "simulation", default=0.1, lo=0, lo_open=True, hi=1),
         initial_overlap_ratio=v.num(s, "initial_overlap_ratio", "simulation", default=0.05, lo=0, hi=1),
         neighbor_skin=v.num(s, "neighbor_skin", "simulation", default=None, lo=0, lo_open=True),
-        sort_interval=v.integer(s, "sort_interval", "simulation", default=50, lo=0),
+        sort_interval=v.integer(s, "sort_interval", "simulation", default=1000, lo=0),
     )
     sim["output_interval"] = v.num(s, "output_interval", "simulation", default=sim["end_time"] / 10 or 1.0,
                                    lo=0, lo_open=True)

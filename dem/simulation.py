@@ -66,6 +66,10 @@ class Simulation:
         self.compile_seconds = None
         self._forces_ready = False
         self.last_contacts = 0
+        if self.thermal is not None and not sim["mechanics"]:
+            # frozen packing: contacts, overlaps and conductances are computed once, here
+            self._compute_forces()
+            self._forces_ready = True
 
     # ------------------------------------------------------------------ construction
     @classmethod
@@ -363,6 +367,29 @@ class Simulation:
             self.TH = self.thermal.th_tuple()
         if getattr(self, "external_force", None) is not None:
             self.external_force = np.ascontiguousarray(self.external_force[perm])
+
+    def set_fluid(self, force=None, velocity=None, temperature=None, porosity=None):
+        """Fluid data at each particle (current order of ``state``) for the next steps of a
+        coupled run: force (N, drag + pressure gradient + buoyancy, added every step),
+        gas velocity (m/s) and temperature (K) for convection, void fraction (replaces the
+        locally measured porosity in the heat models)."""
+        n = self.state.n
+        if force is not None:
+            if getattr(self, "external_force", None) is None:
+                self.external_force = np.zeros((n, 3))
+            self.external_force[:] = force
+        th = self.thermal
+        if th is None:
+            return
+        if velocity is not None:
+            th.uf[:] = velocity
+        if temperature is not None:
+            th.tf[:] = temperature
+        if porosity is not None:
+            th.por[:] = porosity
+            th.local_porosity = False
+            from .thermal.heat import TI_LOCALPOR
+            th.thi[TI_LOCALPOR] = 0  # the CFD void fraction is used instead
 
     def warmup(self):
         """Compile (or load from Numba's cache) the kernels; returns seconds spent."""

@@ -128,6 +128,16 @@ class ThermalModel:
         local_porosity(st.n, st.position, st.radius, s.nb, s.nnb, s.lo, s.hi, s.periodic, self.reach,
                        s.wf, s.wi, s.wnb, s.wnn, s.time, self.por, 0.2)
 
+    def convection_h(self):
+        """Per-particle convective conductance h A (W/K) with the current fluid data."""
+        from .heat import convection_conductances
+        st = self.sim.state
+        out = np.zeros(st.n)
+        if self.thi[TI_CONV] >= 0:
+            convection_conductances(st.n, st.velocity, st.radius, self.uf, self.por, self.gas,
+                                    int(self.thi[TI_CONV]), out)
+        return out
+
     def permute(self, perm):
         for name in ("Hw", "por", "tf", "uf"):
             setattr(self, name, np.ascontiguousarray(getattr(self, name)[perm]))

@@ -1,0 +1,35 @@
+#!/usr/bin/env bash
+# Install everything thermodem needs on Debian 12 (as root, or with sudo): Open MPI,
+# Debian's OpenFOAM v1912 with the headers/wmake to build our gas solver, the solver
+# itself (cached on a hash of its sources), and the Python package with its
+# dependencies. Idempotent: a second run takes a few seconds.
+set -euo pipefail
+ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd -P)"
+cd "$ROOT"
+log() { echo "[setup] $*" >&2; }
+
+SUDO=""
+[ "$(id -u)" = 0 ] || SUDO="sudo"
+need=()
+for p in openmpi-bin libopenmpi-dev g++ make python3-venv; do
+    dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || need+=("$p")
+done
+if [ ${#need[@]} -gt 0 ]; then
+    log "apt-get install ${need[*]}"
+    $SUDO apt-get update -qq
+    DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq --no-install-recommends "${need[@]}" >&2
+fi
+
+PY="${PYTHON:-python3}"
+if ! "$PY" -c "import dem, numba, meshio, mpi4py, pytest, scipy, pyvista, matplotlib" >/dev/null 2>&1; then
+    log "pip install -e .[test,render]"
+    "$PY" -m pip install -q --disable-pip-version-check -e ".[test,render]" >&2
+fi
+
+if [ "${THERMODEM_NO_OPENFOAM:-0}" != 1 ]; then
+    log "OpenFOAM (Debian package + headers for our solver)"
+    bash scripts/install_openfoam.sh >/dev/null
+    log "building the gas solver (cached)"
+    bash scripts/build_openfoam_solver.sh >/dev/null
+fi
+log "ready"
