@@ -1,0 +1,487 @@
+"""``coupling`` command: check and run a coupled CFD-DEM case (DEM side + thermoDemFoam).
+
+    coupling check CASE_DIR
+    coupling run   CASE_DIR [--out DIR] [--transport file|socket] [--end-time T] [--restart]
+
+``run`` copies the OpenFOAM part of CASE_DIR into the output directory (default
+``out/<case name>``), meshes it (blockMesh), writes the initial void fraction of the
+particles into 0/eps, decomposes it when ``gas_processes > 1``, builds the solver if
+needed (scripts/build_openfoam_solver.sh, cached), starts thermoDemFoam, runs the coupled
+loop (coupling.interface) and writes
+
+* ``history.csv``, ``particles.pvd`` + ``vtk/``, ``final.npz`` (DEM, dem.output);
+* ``coupling.csv`` (gas and particle energies, heat rate, pressure drop, bed height);
+* ``checkpoint.npz`` (DEM state at the end, or at the failure) and
+  ``checkpoints/checkpoint_<step>.npz`` at every OpenFOAM write (restart points);
+* the OpenFOAM time directories (written by the solver), ``log.thermoDemFoam``;
+* ``timings.json`` (wall time per phase) and ``coupling.png``.
+
+If the solver dies or hangs (CouplingError) the DEM state is checkpointed first, then the
+command exits with status 3 and a message naming the peer and the coupling step.
+``--restart`` continues a run in --out from the latest OpenFOAM time that has a DEM
+checkpoint. Under ``mpirun -np 1`` the command works as in serial; more DEM ranks are not
+supported yet.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import re
+import shutil
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+EXIT_CHECK = 2
+EXIT_COUPLING = 3
+EXIT_DEM = 4
+
+
+class CouplingRunError(RuntimeError):
+    pass
+
+
+def _mpi_size() -> int:
+    for k in ("OMPI_COMM_WORLD_SIZE", "PMI_SIZE", "PMIX_SIZE", "MPI_LOCALNRANKS"):
+        v = os.environ.get(k)
+        if v and v.isdigit():
+            return int(v)
+    return 1
+
+
+def _scrub_mpi_env():
+    """Started by mpirun -np 1: the solver's own mpirun must not inherit our MPI job."""
+    for k in list(os.environ):
+        if k.startswith(("OMPI_", "PMIX_", "PMI_", "OPAL_", "PRTE_", "HYDRA_")):
+            del os.environ[k]
+
+
+# --------------------------------------------------------------------------- helpers
+
+def _time_dirs(case: Path) -> list[tuple[float, Path]]:
+    out = []
+    for p in case.iterdir():
+        if p.is_dir():
+            try:
+                out.append((float(p.name), p))
+            except ValueError:
+                pass
+    return sorted(out)
+
+
+def _time_index(tdir: Path) -> int | None:
+    f = tdir / "uniform" / "time"
+    if not f.exists():
+        return None
+    m = re.search(r"\bindex\s+(\d+)\s*;", f.read_text())
+    return int(m.group(1)) if m else None
+
+
+def prepare_output(case, out: Path, *, restart: bool) -> None:
+    from . import foam_case as fc
+    if restart:
+        if not (out / "system" / "controlDict").exists():
+            raise CouplingRunError(f"{out}: nothing to restart (no system/controlDict)")
+        return
+    if out.exists():
+        for sub in ("0", "constant", "system", "coupling", "vtk", "checkpoints"):
+            shutil.rmtree(out / sub, ignore_errors=True)
+        for p in out.glob("processor*"):
+            shutil.rmtree(p, ignore_errors=True)
+        for t, p in _time_dirs(out):
+            shutil.rmtree(p, ignore_errors=True)
+        for f in ("history.csv", "coupling.csv", "final.npz", "checkpoint.npz", "particles.pvd",
+                  "coupling_state.npz", "timings.json", "coupling.png"):
+            (out / f).unlink(missing_ok=True)
+    out.mkdir(parents=True, exist_ok=True)
+    for sub in ("0", "constant", "system"):
+        shutil.copytree(case.dir / sub, out / sub)
+    for f in ("dem.toml", "coupling.toml"):
+        shutil.copy2(case.dir / f, out / f)
+    if not (out / "constant" / "polyMesh" / "owner").exists():
+        fc.block_mesh(out)
+
+
+# --------------------------------------------------------------------------- diagnostics
+
+class Diagnostics:
+    """coupling.csv rows: energies, heat rate, pressure drop, bed height, timings."""
+
+    COLUMNS = ["time", "step", "T_particles", "T_gas", "E_particles", "E_gas", "Q_to_gas",
+               "E_conv_particles", "dp", "bed_height", "v_max", "n_outside", "wall"]
+
+    def __init__(self, path, mesh, gas, keep_until=None):
+        from dem.output import History
+        self.hist = History(str(path), self.COLUMNS, keep_until)
+        self.mesh = mesh
+        self.gas = gas
+        z = np.round(mesh.cell_centres[:, 2], 12)
+        self.zlev = np.unique(z)
+        self.bottom = np.flatnonzero(z == self.zlev[0])
+        self.top = np.flatnonzero(z == self.zlev[-1])
+
+    def row(self, t, step, sim, iface, fluid, frame, wall):
+        st = sim.state
+        n = st.n_owned
+        V = self.mesh.cell_volumes
+        g = self.gas
+        eps = frame["eps"]
+        T = fluid["T"]
+        if sim.thermal is not None:
+            C = 1.0 / st.inv_heat_capacity[:n]
+            Tp = float((C * st.temperature[:n]).sum() / C.sum())
+            Ep = float((C * st.temperature[:n]).sum())
+            Ec = float(sim.thermal.tot[2])
+        else:
+            Tp = Ep = Ec = float("nan")
+        mg = g.rho * g.cp * eps * V
+        Eg = float((mg * T).sum())
+        Tg = float(Eg / mg.sum())
+        q = float(((frame["Sexp"] - frame["Simp"] * T) * V).sum())
+        p = fluid["p"]
+        dp = float(p[self.bottom].mean() - p[self.top].mean())
+        zb = float(st.position[:n, 2].mean()) if n else 0.0
+        vmax = float(np.sqrt((st.velocity[:n] ** 2).sum(1)).max()) if n else 0.0
+        self.hist.add(dict(time=t, step=step, T_particles=Tp, T_gas=Tg, E_particles=Ep, E_gas=Eg,
+                           Q_to_gas=q, E_conv_particles=Ec, dp=dp, bed_height=zb, v_max=vmax,
+                           n_outside=iface.n_lost, wall=wall))
+
+
+def plot(out: Path, title: str) -> Path | None:
+    """coupling.png: particle/gas temperature, heat rate, pressure drop, bed height."""
+    try:
+        import matplotlib
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        return None
+    f = out / "coupling.csv"
+    if not f.exists():
+        return None
+    d = np.atleast_1d(np.genfromtxt(f, delimiter=",", names=True))
+    if d.size < 2:
+        return None
+    fig, ax = plt.subplots(2, 2, figsize=(10, 7))
+    t = d["time"]
+    ax[0, 0].plot(t, d["T_particles"], label="particles (mass-weighted)")
+    ax[0, 0].plot(t, d["T_gas"], label="gas (eps rho cp V weighted)")
+    ax[0, 0].set_ylabel("T [K]")
+    ax[0, 0].legend()
+    ax[0, 1].plot(t, d["Q_to_gas"])
+    ax[0, 1].set_ylabel("heat to the gas [W]")
+    ax[1, 0].plot(t, d["dp"])
+    ax[1, 0].set_ylabel("p(bottom cells) - p(top cells) [Pa]")
+    ax[1, 1].plot(t, d["bed_height"])
+    ax[1, 1].set_ylabel("mean particle height [m]")
+    for a in ax.ravel():
+        a.set_xlabel("t [s]")
+        a.grid(alpha=0.3)
+    fig.suptitle(title)
+    fig.tight_layout()
+    p = out / "coupling.png"
+    fig.savefig(p, dpi=110)
+    plt.close(fig)
+    return p
+
+
+# --------------------------------------------------------------------------- run
+
+def run_case(case_dir, out=None, *, transport=None, end_time=None, restart=False,
+             quiet=False, solver=None, log=print):
+    """Run a coupled case; returns a summary dict. Raises CouplingError / CaseConfigError /
+    SimulationError / CouplingRunError (``main`` maps them to exit codes)."""
+    from . import foam_case as fc
+    from .case import check_coupled_case, format_report, load_case
+    from .exchange import CouplingError, FileExchange, SocketExchange
+    from .interface import CouplingInterface
+    from .mesh import read_polymesh
+    from dem.output import VTKSeries, History, save_npz
+    from dem.simulation import SimulationError
+
+    t_wall0 = time.perf_counter()
+    case = load_case(case_dir)
+    cfg = case.config
+    if transport is not None:
+        cfg.transport = transport
+    out = Path(out) if out is not None else Path("out") / case.dir.name
+    out = out.resolve()
+    sim = case.sim
+    prepare_output(case, out, restart=restart)
+    mesh = read_polymesh(str(out))
+    mt, eps_min_cfd = case.model_type, None
+    g = np.asarray(sim.scene.simulation["gravity"], float)
+    iface = CouplingInterface(mesh, sim, case.gas, drag=cfg.drag, void_fraction=cfg.void_fraction,
+                              interpolation=cfg.interpolation, model_type=mt, eps_min=cfg.eps_min,
+                              smoothing_time=cfg.smoothing_time, gravity=g,
+                              n_satellites=cfg.n_satellites, heat=cfg.heat)
+    dt = case.dt_cfd
+    k = cfg.coupling_interval
+    # ---- restart: DEM checkpoint matching the latest gas time
+    i0 = 0
+    t_start = 0.0
+    if restart:
+        i0, t_start = _restart(out, sim, iface, dt, log)
+    eps0 = iface.initial_void_fraction()
+    rep = check_coupled_case(case, mesh, eps0=eps0)
+    if not quiet:
+        log(format_report(case, rep))
+    if rep["problems"] and not cfg.force:
+        raise CouplingRunError(f"{case.config_file}: case refused by the checks:\n  "
+                               + "\n  ".join(rep["problems"]))
+    end = case.end_time if end_time is None else float(end_time)
+    n_steps = int(round((end - t_start) / dt))
+    if n_steps < 1:
+        raise CouplingRunError(f"end time {end:g} s is not after the start time {t_start:g} s")
+    ctl = out / "system" / "controlDict"
+    fc.set_entries(ctl, {"endTime": repr(end), "startFrom": "latestTime"})
+    if not restart:
+        fc.write_eps(out, eps0)
+    # ---- transport
+    ex = None
+    if cfg.transport == "socket":
+        ex = SocketExchange(port=0, timeout=cfg.timeout, n_cells=mesh.n_cells)
+        fc.write_coupling_dict(out, "socket", port=ex.port, timeout=cfg.timeout,
+                               send_velocity=cfg.send_velocity)
+    else:
+        fc.write_coupling_dict(out, "file", timeout=cfg.timeout, send_velocity=cfg.send_velocity)
+        ex = FileExchange(out / "coupling", timeout=cfg.timeout, n_cells=mesh.n_cells)
+    if cfg.gas_processes > 1:
+        if restart and (out / "processor0").exists():
+            pass
+        else:
+            fc.decompose(out, cfg.gas_processes)
+    fc.check_case(out)
+    exe = Path(solver) if solver else fc.build_solver()
+    sim.warmup()
+    # ---- output writers
+    out_int = cfg.output_interval or sim.scene.simulation["output_interval"]
+    out_every = max(1, int(round(out_int / dt)))
+    write_every = int(round(case.control["writeInterval"])) if case.control["writeControl"] == "timeStep" else 0
+    keep = t_start if restart else None
+    hist = History(str(out / "history.csv"), sim.history_columns(), keep)
+    vtk = VTKSeries(str(out)) if sim.scene.output["vtk"] else None
+    diag = Diagnostics(out / "coupling.csv", mesh, case.gas, keep)
+    (out / "checkpoints").mkdir(exist_ok=True)
+
+    proc = fc.start_solver(out, nprocs=cfg.gas_processes, solver=exe)
+    ex.peer_process = proc
+    timer = iface.timer
+    step = i0
+    t = t_start
+    status = "running"
+    frame = None
+    try:
+        with timer("gas_wait"):
+            fluid = ex.receive(i0)
+        for s in range(1, n_steps + 1):
+            step = i0 + s
+            frame = iface.prepare(fluid, dt)
+            if s == 1 and not restart:
+                _output(hist, vtk, diag, sim, iface, fluid, frame, t, step - 1, t_wall0, timer)
+            with timer("exchange"):
+                ex.send(step, frame, time_value=t + dt, final=(s == n_steps))
+            iface.advance_dem(k)
+            t = t_start + s * dt
+            with timer("gas_wait"):
+                fluid = ex.receive(step)
+            if s % out_every == 0 or s == n_steps or ex.peer_final:
+                _output(hist, vtk, diag, sim, iface, fluid, frame, t, step, t_wall0, timer)
+            if write_every and step % write_every == 0:
+                with timer("output"):
+                    sim.write_checkpoint(str(out / "checkpoints" / f"checkpoint_{step:08d}.npz"))
+            if not np.all(np.isfinite(fluid["T"])) or not np.all(np.isfinite(fluid["U"])):
+                raise CouplingError("non-finite gas field received", peer="CFD solver", step=step)
+            if ex.peer_final and s < n_steps:
+                log(f"coupling: the solver reached its endTime at step {step} (t = {t:g} s)")
+                break
+        status = "finished"
+        try:
+            rc = proc.wait(timeout=max(cfg.timeout, 30))
+        except Exception:  # noqa: BLE001
+            proc.kill()
+            rc = proc.wait()
+        if rc != 0:
+            raise CouplingError(f"CFD solver exited with code {rc} after the last step "
+                                f"(log: {out / 'log.thermoDemFoam'})", peer="CFD solver", step=step)
+    except (CouplingError, SimulationError, KeyboardInterrupt) as e:
+        status = "failed"
+        with timer("output"):
+            sim.write_checkpoint(str(out / "checkpoint.npz"))
+            save_npz(str(out / "coupling_state.npz"), **_coupling_state(iface, step, t))
+        if isinstance(e, CouplingError):
+            tail = _log_tail(out / "log.thermoDemFoam")
+            e.args = (e.args[0] + f"\n  DEM checkpoint at t = {sim.time:.9g} s written to "
+                      f"{out / 'checkpoint.npz'}" + (f"\n  solver log tail:\n{tail}" if tail else ""),)
+        raise
+    finally:
+        if proc.poll() is None and status != "finished":
+            proc.kill()
+            proc.wait()
+        ex.close()
+        (out / "timings.json").write_text(json.dumps(_timings(timer, t_wall0, sim, n_steps=step - i0, k=k),
+                                                     indent=1))
+    # ---- final output
+    save_npz(str(out / "final.npz"), **sim.final_arrays())
+    sim.write_checkpoint(str(out / "checkpoint.npz"))
+    save_npz(str(out / "coupling_state.npz"), **_coupling_state(iface, step, t))
+    png = plot(out, f"{case.dir.name}: {cfg.transport} transport")
+    summ = _timings(timer, t_wall0, sim, n_steps=step - i0, k=k)
+    summ.update(out=str(out), steps=step - i0, time=t, png=str(png) if png else None)
+    if not quiet:
+        log(_format_timings(summ))
+    return summ
+
+
+def _coupling_state(iface, step, t):
+    return dict(step=np.int64(step), time=np.float64(t),
+                eps_sent=iface.eps_sent if iface.eps_sent is not None else np.zeros(0),
+                ksl_sent=iface.ksl_sent if iface.ksl_sent is not None else np.zeros(0))
+
+
+def _restart(out: Path, sim, iface, dt, log):
+    """Load the DEM checkpoint of the latest OpenFOAM time that has one; remove later
+    gas time directories. Returns (step index, time)."""
+    cks = {int(m.group(1)): p for p in (out / "checkpoints").glob("checkpoint_*.npz")
+           if (m := re.match(r"checkpoint_(\d+)\.npz", p.name))}
+    gas_times = [(tv, p) for tv, p in _time_dirs(out) if tv > 0]
+    best = None
+    for tv, p in gas_times:
+        idx = _time_index(p)
+        if idx is None:
+            idx = int(round(tv / dt))
+        if idx in cks:
+            best = (idx, tv, p)
+    if best is None:
+        raise CouplingRunError(f"{out}: no OpenFOAM time directory with a matching DEM checkpoint "
+                               f"(checkpoints/checkpoint_<step>.npz); gas times: "
+                               f"{[p.name for _, p in gas_times]}, DEM checkpoints: {sorted(cks)}")
+    idx, tv, p = best
+    for tv2, p2 in gas_times:
+        if tv2 > tv + 1e-12:
+            shutil.rmtree(p2)
+    for proc in out.glob("processor*"):
+        for tv2, p2 in _time_dirs(proc):
+            if tv2 > tv + 1e-12:
+                shutil.rmtree(p2)
+    sim.load_checkpoint(str(cks[idx]))
+    if abs(sim.time - tv) > 1e-9 * max(1.0, tv):
+        raise CouplingRunError(f"{cks[idx]}: DEM time {sim.time} does not match the gas time {tv}")
+    log(f"coupling: restarting from t = {tv:g} s (step {idx}, {cks[idx].name})")
+    return idx, tv
+
+
+def _output(hist, vtk, diag, sim, iface, fluid, frame, t, step, t_wall0, timer):
+    with timer("output"):
+        hist.add(sim.history_row())
+        if vtk is not None:
+            st = sim.state
+            f = sim.particle_fields()
+            f["fluid_force"] = np.ascontiguousarray(iface.last.get("force", np.zeros((st.n_owned, 3))))
+            vtk.write(sim.time, sim.step_count, st.position[:st.n_owned], f)
+        diag.row(t, step, sim, iface, fluid, frame, time.perf_counter() - t_wall0)
+
+
+def _timings(timer, t_wall0, sim, n_steps, k):
+    wall = time.perf_counter() - t_wall0
+    loop = sum(v for p, v in timer.total.items())
+    d = {"wall_total": wall, "loop": loop, "phases": dict(timer.total),
+         "coupling_steps": n_steps, "dem_steps": n_steps * k, "particles": sim.state.n_owned}
+    d["particle_steps_per_s"] = sim.state.n_owned * n_steps * k / loop if loop > 0 else 0.0
+    return d
+
+
+def _format_timings(s):
+    lines = [f"done: {s['coupling_steps']} coupling steps ({s['dem_steps']} DEM steps, "
+             f"{s['particles']} particles) to t = {s['time']:.6g} s in {s['wall_total']:.1f} s "
+             f"(loop {s['loop']:.1f} s, {s['particle_steps_per_s']:.3g} particle-steps/s)"]
+    for p, v in s["phases"].items():
+        lines.append(f"  {p:15s} {v:9.3f} s  {100 * v / max(s['loop'], 1e-12):5.1f} %")
+    lines.append(f"output in {s['out']}" + (f" (plot {s['png']})" if s.get("png") else ""))
+    return "\n".join(lines)
+
+
+def _log_tail(path: Path, n=12) -> str:
+    try:
+        lines = path.read_text(errors="replace").splitlines()
+    except OSError:
+        return ""
+    return "\n".join("    " + x for x in lines[-n:])
+
+
+# --------------------------------------------------------------------------- CLI
+
+def cmd_check(args) -> int:
+    from .case import check_coupled_case, format_report, load_case, mesh_in_tmp
+    from .interface import CouplingInterface
+    case = load_case(args.case)
+    tmp, mesh = mesh_in_tmp(case.dir)
+    try:
+        cfg = case.config
+        iface = CouplingInterface(mesh, case.sim, case.gas, drag=cfg.drag, void_fraction=cfg.void_fraction,
+                                  model_type=case.model_type, eps_min=cfg.eps_min,
+                                  n_satellites=cfg.n_satellites, heat=cfg.heat)
+        eps0 = iface.initial_void_fraction()
+        rep = check_coupled_case(case, mesh, eps0=eps0)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    print(format_report(case, rep))
+    print(f"  initial void fraction: min {eps0.min():.3f}, mean {eps0.mean():.3f}")
+    return 0 if (not rep["problems"] or case.config.force) else EXIT_CHECK
+
+
+def cmd_run(args) -> int:
+    run_case(args.case, args.out, transport=args.transport, end_time=args.end_time,
+             restart=args.restart, quiet=args.quiet)
+    return 0
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="coupling", description="CFD-DEM coupling (thermodem + thermoDemFoam)")
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    c = sub.add_parser("check", help="validate a coupled case and print the coupling checks")
+    c.add_argument("case")
+    r = sub.add_parser("run", help="run a coupled case")
+    r.add_argument("case")
+    r.add_argument("--out", default=None, help="output directory (default out/<case name>)")
+    r.add_argument("--transport", choices=["file", "socket"], default=None)
+    r.add_argument("--end-time", type=float, default=None)
+    r.add_argument("--restart", action="store_true", help="continue the run in --out")
+    r.add_argument("--quiet", action="store_true")
+    args = ap.parse_args(argv)
+
+    nranks = _mpi_size()
+    if nranks > 1:
+        print(f"coupling: error: {nranks} DEM MPI ranks requested; the coupled run supports one DEM "
+              f"process for now (not yet: domain-decomposed DEM). Use mpirun -np 1 or no mpirun; "
+              f"the gas solver's ranks are set by coupling.gas_processes", file=sys.stderr)
+        return EXIT_CHECK
+    if any(k.startswith("OMPI_") or k.startswith("PMIX_") for k in os.environ):
+        _scrub_mpi_env()
+
+    from .case import CaseConfigError
+    from .exchange import CouplingError
+    from .foam_case import CaseError, FoamError
+    from dem.scene import SceneError
+    from dem.simulation import SimulationError
+    try:
+        return cmd_check(args) if args.cmd == "check" else cmd_run(args)
+    except CouplingError as e:
+        print(f"coupling: error: coupling failed: {e}", file=sys.stderr)
+        return EXIT_COUPLING
+    except SimulationError as e:
+        print(f"coupling: error: DEM failed: {e}", file=sys.stderr)
+        return EXIT_DEM
+    except (CaseConfigError, CaseError, SceneError, CouplingRunError, FoamError) as e:
+        print(f"coupling: error: {e}", file=sys.stderr)
+        return EXIT_CHECK
+    except KeyboardInterrupt:
+        print("coupling: interrupted (checkpoint written)", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,18 @@
+#!/usr/bin/env bash
+# The main job: install what is missing, then run a small case and render a picture.
+#   bash scripts/main.sh            -> out/main/...
+set -euo pipefail
+ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd -P)"
+cd "$ROOT"
+bash scripts/setup.sh
+PY="${PYTHON:-python3}"
+OUT="${OUT:-out/main}"
+if [ -f openfoam_cases/fluidized_bed_heating/coupling.toml ] && [ "${MAIN_JOB:-coupled}" = coupled ]; then
+    "$PY" -m coupling.run run openfoam_cases/fluidized_bed_heating --out "$OUT/fluidized_bed" --quick
+    echo "main job done: $OUT/fluidized_bed"
+else
+    "$PY" -m dem.cli check examples/settle_box.toml
+    "$PY" -m dem.cli run examples/settle_box.toml --out "$OUT/settle_box"
+    "$PY" -m dem.cli render "$OUT/settle_box" --png "$OUT/settle_box/render.png"
+    echo "main job done: $OUT/settle_box (render.png, particles.pvd, history.csv)"
+fi
