@@ -34,9 +34,10 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
+from numba import njit
 
 from . import voidfraction as vf
-from .drag import drag_coefficients, drag_model_id
+from .drag import drag_coefficient, drag_model_id
 from .interpolate import interpolate
 
 __all__ = ["GasProperties", "CouplingInterface", "PhaseTimer"]
@@ -113,6 +114,14 @@ class CouplingInterface:
         self.heat = bool(self.heat) and self.sim.thermal is not None
         self.last = {}
         self.n_lost = 0
+        self._mapped = None
+
+    def map_particles(self) -> None:
+        """Locate the particles and build the stencil / void fraction now (e.g. right after
+        the DEM interval, while the gas solver is still busy); ``prepare`` reuses it if
+        the DEM has not moved since."""
+        pw, eps = self._stencil()
+        self._mapped = (self.sim.step_count, pw, eps)
 
     # ------------------------------------------------------------------ particle -> mesh
     def _stencil(self):
@@ -156,59 +165,47 @@ class CouplingInterface:
         st = sim.state
         n = st.n_owned
         pos, rad, vel = st.position[:n], st.radius[:n], st.velocity[:n]
-        pw, eps_raw = self._stencil()
+        if self._mapped is not None and self._mapped[0] == sim.step_count:
+            pw, eps_raw = self._mapped[1], self._mapped[2]
+        else:
+            pw, eps_raw = self._stencil()
+        self._mapped = None
         eps = self._relax(self.eps_sent, eps_raw, dt_cfd)
         self.eps_sent = eps
 
         with self.timer("interpolation"):
             cells = pw.centre_cell
-            m = self.interpolation
-            uf = interpolate(self.mesh, fluid["U"], pos, cells, m)
-            gradp = interpolate(self.mesh, fluid["gradp"], pos, cells, m)
-            tg = interpolate(self.mesh, fluid["T"], pos, cells, m) if self.heat else None
-            # void fraction at the particle: stencil-weighted mean of the sent field, so a
-            # particle spread over several cells sees what the gas sees there
-            c = np.where(pw.cells >= 0, pw.cells, 0)
-            wsum = pw.weights.sum(axis=1)
-            eps_p = np.where(wsum > 0, (pw.weights * eps[c]).sum(axis=1) / np.where(wsum > 0, wsum, 1), 1.0)
             lost = cells < 0
-            if np.any(lost):  # outside the mesh: no fluid force, gas at rest
+            if self.interpolation == "cell":
+                uf, gradp, tg, eps_p = _gather_cell(pw.cells, pw.weights, cells, fluid["U"], fluid["gradp"],
+                                                    fluid["T"], eps)
+            else:
+                m = self.interpolation
+                uf = interpolate(self.mesh, fluid["U"], pos, cells, m)
+                gradp = interpolate(self.mesh, fluid["gradp"], pos, cells, m)
+                tg = interpolate(self.mesh, fluid["T"], pos, cells, m)
+                _, _, _, eps_p = _gather_cell(pw.cells, pw.weights, cells, fluid["U"], fluid["gradp"],
+                                              fluid["T"], eps)
                 uf[lost] = 0.0
                 gradp[lost] = 0.0
-                if tg is not None:
-                    tg[lost] = np.nan
+                tg[lost] = np.nan
 
         with self.timer("exchange_terms"):
-            d = 2.0 * rad
-            rel = uf - vel
-            ur = np.sqrt((rel * rel).sum(axis=1))
-            beta = drag_coefficients(self.drag_id, np.ascontiguousarray(d), np.ascontiguousarray(eps_p),
-                                     self.gas.rho, self.gas.mu, ur)
-            if self.model_type == "B":
-                beta = beta / eps_p
-            beta[lost] = 0.0
-            vp = (math.pi / 6.0) * d ** 3
-            force = beta[:, None] * rel
-            if self.model_type == "A":
-                force -= vp[:, None] * gradp
-            else:
-                force -= self.gas.rho * vp[:, None] * self.gravity[None, :]
-            force[lost] = 0.0
-            ksl_raw = vf.drag_coefficient_sum(pw, beta, self.V)
-            ksl = self._relax(self.ksl_sent, ksl_raw, dt_cfd)
-            self.ksl_sent = ksl
-            us = vf.mean_particle_velocity(pw, rad, vel, weights=np.where(beta > 0, beta, vp * 1e-30))
+            force, beta = _particle_forces(self.drag_id, self.model_type == "B", rad, vel, uf, gradp, eps_p,
+                                           self.gas.rho, self.gas.mu, self.gravity, cells)
             if self.heat:
                 tgas = np.where(lost, st.temperature[:n], tg)
                 sim.set_fluid(force=force, velocity=uf, temperature=tgas, porosity=eps_p)
                 hA = sim.thermal.convection_h()[:n]
                 hA[lost] = 0.0
-                simp, sexp = vf.heat_sources(pw, hA, st.temperature[:n], self.V)
+                Tp = st.temperature[:n]
             else:
                 sim.set_fluid(force=force)
                 hA = np.zeros(n)
-                simp = np.zeros(self.mesh.n_cells)
-                sexp = np.zeros(self.mesh.n_cells)
+                Tp = np.zeros(n)
+            ksl_raw, us, simp, sexp = _scatter_terms(pw.cells, pw.weights, beta, vel, hA, Tp, self.V)
+            ksl = self._relax(self.ksl_sent, ksl_raw, dt_cfd)
+            self.ksl_sent = ksl
         self.last = dict(beta=beta, force=force, hA=hA, eps_p=eps_p, uf=uf, eps_raw=eps_raw,
                          Tg=tg)
         return dict(eps=eps, Ksl=ksl, Us=us, Simp=simp, Sexp=sexp)
@@ -216,3 +213,100 @@ class CouplingInterface:
     def advance_dem(self, k: int) -> None:
         with self.timer("dem"):
             self.sim.step(k)
+
+
+# --------------------------------------------------------------------------- kernels
+
+@njit(cache=True)
+def _gather_cell(scells, sweights, cells, U, gradp, T, eps):
+    """Cell values of U, grad p, T at the particles (centre cell) and the stencil-weighted
+    void fraction eps_p (what the gas sees where the particle's volume went)."""
+    n = cells.shape[0]
+    uf = np.zeros((n, 3))
+    gp = np.zeros((n, 3))
+    tg = np.full(n, np.nan)
+    ep = np.ones(n)
+    for p in range(n):
+        c = cells[p]
+        if c < 0:
+            continue
+        for i in range(3):
+            uf[p, i] = U[c, i]
+            gp[p, i] = gradp[c, i]
+        tg[p] = T[c]
+        ws = 0.0
+        es = 0.0
+        for j in range(scells.shape[1]):
+            cj = scells[p, j]
+            if cj >= 0:
+                ws += sweights[p, j]
+                es += sweights[p, j] * eps[cj]
+        if ws > 0.0:
+            ep[p] = es / ws
+    return uf, gp, tg, ep
+
+
+@njit(cache=True)
+def _particle_forces(model_id, model_b, rad, vel, uf, gradp, eps_p, rho, mu, g, cells):
+    """beta_p (drag law; /eps for model B) and the fluid force on each particle:
+    A: beta (u_f - u_p) - V_p grad p;  B: beta (u_f - u_p) - rho V_p g."""
+    n = rad.shape[0]
+    force = np.zeros((n, 3))
+    beta = np.zeros(n)
+    for p in range(n):
+        if cells[p] < 0:
+            continue
+        d = 2.0 * rad[p]
+        r0 = uf[p, 0] - vel[p, 0]
+        r1 = uf[p, 1] - vel[p, 1]
+        r2 = uf[p, 2] - vel[p, 2]
+        ur = math.sqrt(r0 * r0 + r1 * r1 + r2 * r2)
+        b = drag_coefficient(model_id, d, eps_p[p], rho, mu, ur)
+        if model_b:
+            b /= eps_p[p]
+        beta[p] = b
+        vp = math.pi / 6.0 * d * d * d
+        force[p, 0] = b * r0
+        force[p, 1] = b * r1
+        force[p, 2] = b * r2
+        for i in range(3):
+            if model_b:
+                force[p, i] -= rho * vp * g[i]
+            else:
+                force[p, i] -= vp * gradp[p, i]
+    return force, beta
+
+
+@njit(cache=True)
+def _scatter_terms(scells, sweights, beta, vel, hA, Tp, V):
+    """Ksl = sum w beta / V, Us = sum w beta u_p / sum w beta (volume-free beta-weighted
+    mean), Simp = sum w hA / V, Sexp = sum w hA T_p / V, with the same stencil."""
+    nc = V.shape[0]
+    ksl = np.zeros(nc)
+    us = np.zeros((nc, 3))
+    simp = np.zeros(nc)
+    sexp = np.zeros(nc)
+    for p in range(scells.shape[0]):
+        for j in range(scells.shape[1]):
+            c = scells[p, j]
+            if c < 0:
+                continue
+            w = sweights[p, j]
+            wb = w * beta[p]
+            ksl[c] += wb
+            for i in range(3):
+                us[c, i] += wb * vel[p, i]
+            wh = w * hA[p]
+            simp[c] += wh
+            sexp[c] += wh * Tp[p]
+    for c in range(nc):
+        if ksl[c] > 0.0:
+            for i in range(3):
+                us[c, i] /= ksl[c]
+        else:
+            for i in range(3):
+                us[c, i] = 0.0
+        ksl[c] /= V[c]
+        simp[c] /= V[c]
+        sexp[c] /= V[c]
+    return ksl, us, simp, sexp

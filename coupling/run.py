@@ -286,6 +286,8 @@ def run_case(case_dir, out=None, *, transport=None, end_time=None, restart=False
                 ex.send(step, frame, time_value=t + dt, final=(s == n_steps))
             iface.advance_dem(k)
             t = t_start + s * dt
+            if s < n_steps:
+                iface.map_particles()   # overlaps with the gas solve
             with timer("gas_wait"):
                 fluid = ex.receive(step)
             if s % out_every == 0 or s == n_steps or ex.peer_final:

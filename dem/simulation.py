@@ -364,6 +364,8 @@ class Simulation:
             self.rnear = np.ascontiguousarray(self.rnear[perm])
         if self.thermal is not None:
             self.thermal.permute(perm)
+            if self.thermal.voronoi and self.scene.simulation["mechanics"]:
+                self.thermal.update_porosity()
             self.TH = self.thermal.th_tuple()
         if getattr(self, "external_force", None) is not None:
             self.external_force = np.ascontiguousarray(self.external_force[perm])

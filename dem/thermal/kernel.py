@@ -41,8 +41,11 @@ class ThermalModel:
         self.needs_age = th["direct"] == "zhou_2008_collisional"
         thi[TI_AGE] = 1 if self.needs_age else 0
         uses_por = th["indirect_id"] >= 0 or th["convection_id"] >= 0 or th["radiation"] == "zhou_2009"
-        self.local_porosity = uses_por and th["porosity"] == "local"
-        thi[TI_LOCALPOR] = 1 if self.local_porosity else 0
+        self.local_porosity = uses_por and th["porosity"] in ("local", "voronoi")
+        self.voronoi = uses_por and th["porosity"] == "voronoi"
+        # the kernel re-measures the local porosity at each neighbour rebuild; the Voronoi
+        # porosity is computed in Python at start-up and at each spatial reordering
+        thi[TI_LOCALPOR] = 1 if (self.local_porosity and not self.voronoi) else 0
         thi[TI_FUSED] = 1 if (sc.simulation["mechanics"] and th["integrator"] == "euler") else 0
         self.thi = thi
         thf = np.zeros(NTF)
@@ -127,6 +130,11 @@ class ThermalModel:
         st = s.state
         local_porosity(st.n, st.position, st.radius, s.nb, s.nnb, s.lo, s.hi, s.periodic, self.reach,
                        s.wf, s.wi, s.wnb, s.wnn, s.time, self.por, 0.2)
+        if self.voronoi:
+            from .voronoi import voronoi_porosity
+            pv = voronoi_porosity(st.position, st.radius, s.lo, s.hi)
+            ok = np.isfinite(pv)
+            self.por[ok] = np.clip(pv[ok], 0.2, 1.0)
 
     def convection_h(self):
         """Per-particle convective conductance h A (W/K) with the current fluid data."""
@@ -228,7 +236,9 @@ class ThermalModel:
                 if key == "direct":
                     extra = f" (contact radius {c['contact_radius']}, correction {c['correction']})"
                 if key in ("indirect", "convection") or (key == "radiation" and name == "zhou_2009"):
-                    extra = f" (porosity {'local, measured around each particle' if self.local_porosity else 'global'})"
+                    kind = ("Voronoi cells (scipy)" if self.voronoi else "local, measured around each particle"
+                            if self.local_porosity else "global")
+                    extra = f" (porosity {kind})"
                 runs.append(f"{label}: {name}{extra}")
             else:
                 why = f"thermal.{key} = 'none'"

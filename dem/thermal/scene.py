@@ -8,7 +8,7 @@
     correction = "none"                  # zhou_2010 | lu_2017 | morris_2016_area | ...
     direct_factor = 1.0                  # multiplies the direct conductance
     indirect = "none"                    # voronoi_a, voronoi_b, surrounding_layer, ...
-    porosity = "local"                   # local | global  (Voronoi models)
+    porosity = "local"                   # local | global | voronoi (true tessellation, scipy)
     convection = "none"                  # ranz_marshall | whitaker | gunn | li_mason
     radiation = "none"                   # zhou_2009 | krause_2017
     friction_heat = "none"               # nguyen_2009 | rojek_2014 | impact_heat
@@ -69,7 +69,7 @@ def parse_thermal(v, sc, data):
     th["friction_heat"], th["friction_id"] = _model(v, t, "friction_heat", "friction", "none")
     th["partition"], th["partition_id"] = _model(v, t, "partition", "partition", "equal")
     th["direct_factor"] = v.num(t, "direct_factor", "thermal", default=1.0, lo=0)
-    th["porosity"] = v.string(t, "porosity", "thermal", default="local", choices=["local", "global"])
+    th["porosity"] = v.string(t, "porosity", "thermal", default="local", choices=["local", "global", "voronoi"])
     th["impact_ct"] = v.num(t, "impact_heat_ct", "thermal", default=0.0, lo=0, hi=1)
     th["impact_cn"] = v.num(t, "impact_heat_cn", "thermal", default=0.0, lo=0, hi=1)
     th["chi"] = v.num(t, "friction_heat_chi", "thermal", default=1.0, lo=0, hi=1)

@@ -1,0 +1,341 @@
+"""Coupled CFD-DEM runs (coupling.run) against thermoDemFoam.
+
+The session fixture builds the solver like tests/test_openfoam_solver.py (install
+OpenFOAM if needed, build cached on the sources' sha256). Each test is small (< ~1 min).
+"""
+from __future__ import annotations
+
+import math
+import os
+import re
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+from coupling import foam_case as fc  # noqa: E402
+from coupling.case import CaseConfigError, load_case  # noqa: E402
+from coupling.run import main as coupling_main, run_case  # noqa: E402
+
+CASES = ROOT / "openfoam_cases"
+RHO, NU, CP, K = 1.2, 1.5e-5, 1005.0, 0.0262
+MU = RHO * NU
+
+
+@pytest.fixture(scope="session")
+def solver() -> Path:
+    r = subprocess.run(["bash", str(ROOT / "scripts" / "install_openfoam.sh")],
+                       capture_output=True, text=True)
+    assert r.returncode == 0, f"install_openfoam.sh failed:\n{r.stderr[-3000:]}"
+    exe = fc.build_solver()
+    assert exe.is_file() and os.access(exe, os.X_OK)
+    return exe
+
+
+def copy_case(name: str, dest: Path) -> Path:
+    shutil.copytree(CASES / name, dest, ignore=shutil.ignore_patterns("README.md"))
+    return dest
+
+
+def read_csv(path: Path):
+    return np.atleast_1d(np.genfromtxt(path, delimiter=",", names=True))
+
+
+def set_toml(path: Path, **entries):
+    """Replace/add keys of the [coupling] table of coupling.toml (scalars)."""
+    text = path.read_text()
+    for k, v in entries.items():
+        val = f'"{v}"' if isinstance(v, str) else ("true" if v is True else "false" if v is False else repr(v))
+        pat = re.compile(rf"^{k}\s*=.*$", re.M)
+        text = pat.sub(f"{k} = {val}", text) if pat.search(text) else text.replace(
+            "[coupling]\n", f"[coupling]\n{k} = {val}\n")
+    path.write_text(text)
+
+
+def set_inlet_velocity(case: Path, u: float):
+    f = case / "0" / "U"
+    f.write_text(re.sub(r"uniform \(0 0 [0-9.eE+-]+\)", f"uniform (0 0 {u})", f.read_text()))
+
+
+# --------------------------------------------------------------------------- single particle
+
+def lumped_analytic(t, T0=373.15, Tg=298.15, u=6.0, d=3.6e-3, rho_p=8850.0, cp_p=55.0):
+    re_ = RHO * u * d / MU
+    pr = MU * CP / K
+    nu = 2.0 + 0.6 * math.sqrt(re_) * pr ** (1.0 / 3.0)          # Ranz-Marshall
+    hA = math.pi * d * K * nu                                    # h * pi d^2, h = Nu k / d
+    C = rho_p * math.pi / 6.0 * d ** 3 * cp_p
+    return Tg + (T0 - Tg) * np.exp(-hA / C * np.asarray(t)), C / hA
+
+
+def test_single_particle_heating(tmp_path, solver):
+    """Zhou, Yu & Zulli (2009) single sphere: lumped solution with Ranz-Marshall, 1 %."""
+    s = run_case(CASES / "single_particle_heating", tmp_path / "out", end_time=2.0, solver=solver,
+                 quiet=True)
+    d = read_csv(Path(s["out"]) / "coupling.csv")
+    T_ref, tau = lumped_analytic(d["time"])
+    assert d["time"][-1] == pytest.approx(2.0)
+    assert d["time"][-1] > tau
+    err = np.abs(d["T_particles"] - T_ref) / (373.15 - 298.15)
+    assert err.max() < 0.01, err.max()
+    assert d["T_particles"][-1] < 340.0        # really cooled (more than one time constant)
+
+
+# --------------------------------------------------------------------------- Ergun
+
+def ergun_gradient(u, eps, d=2e-3):
+    return (150 * MU * (1 - eps) ** 2 * u / (eps ** 3 * d ** 2)
+            + 1.75 * RHO * (1 - eps) * u ** 2 / (eps ** 3 * d))
+
+
+@pytest.mark.parametrize("u", [0.1, 0.4, 0.8])
+def test_ergun_pressure_drop(tmp_path, solver, u):
+    """Fixed lattice bed (eps = 1 - pi/6), Gidaspow (Ergun) drag: pressure drop vs Ergun."""
+    case = copy_case("ergun", tmp_path / "case")
+    set_inlet_velocity(case, u)
+    set_toml(case / "coupling.toml", end_time=0.01)
+    s = run_case(case, tmp_path / "out", solver=solver, quiet=True)
+    out = Path(s["out"])
+    d = read_csv(out / "coupling.csv")
+    eps = 1 - math.pi / 6
+    g = ergun_gradient(u, eps)
+    # total: bottom cell centre (z = 3 mm) .. bed top (60 mm) + hydrostatics to the top cell
+    expected = g * (0.06 - 0.003) + RHO * 9.81 * (0.117 - 0.003)
+    assert d["dp"][-1] == pytest.approx(expected, rel=0.10)
+    # inside the bed the gradient (written p is kinematic) is Ergun's
+    n = 320
+    p = fc.read_internal_field(out / "0.01" / "p", n).reshape(20, 16).mean(axis=1) * RHO
+    grad = (p[1] - p[8]) / 0.042 - RHO * 9.81
+    assert grad == pytest.approx(g, rel=0.02)
+
+
+# --------------------------------------------------------------------------- transports
+
+def test_file_and_socket_bit_identical(tmp_path, solver):
+    """Fluidized bed, 20 coupling steps (200 DEM steps, heat on): same particle temperatures."""
+    res = {}
+    for tr in ("file", "socket"):
+        s = run_case(CASES / "fluidized_bed_heating", tmp_path / tr, transport=tr, end_time=0.002,
+                     solver=solver, quiet=True)
+        res[tr] = np.load(Path(s["out"]) / "final.npz")
+    a, b = res["file"], res["socket"]
+    assert np.array_equal(a["id"], b["id"])
+    assert np.array_equal(a["temperature"].view(np.uint64), b["temperature"].view(np.uint64))
+    assert np.array_equal(a["position"].view(np.uint64), b["position"].view(np.uint64))
+    assert a["temperature"].max() > 300.0      # heat was exchanged
+
+
+# --------------------------------------------------------------------------- energy
+
+CLOSED_BOX_DEM = """
+[simulation]
+time_step = 1e-4
+end_time = 1.0
+mechanics = false
+output_interval = 0.01
+
+[domain]
+min = [0.0, 0.0, 0.0]
+max = [0.024, 0.024, 0.12]
+
+[[materials]]
+name = "glass"
+density = 2500.0
+youngs_modulus = 1e7
+poisson_ratio = 0.25
+restitution = 0.5
+friction = 0.3
+heat_capacity = 840.0
+thermal_conductivity = 1.0
+
+[[particles]]
+material = "glass"
+file = "bed.csv"
+temperature = 400.0
+
+[thermal]
+direct = "none"
+convection = "ranz_marshall"
+porosity = "global"
+time_step = 1e-4
+
+[gas]
+conductivity = 0.0262
+density = 1.2
+viscosity = 1.8e-5
+heat_capacity = 1005.0
+temperature = 300.0
+
+[output]
+vtk = false
+"""
+
+
+def make_closed_box(dest: Path) -> Path:
+    case = copy_case("ergun", dest)
+    (case / "dem.toml").write_text(CLOSED_BOX_DEM)
+    (case / "coupling.toml").write_text(
+        '[coupling]\ntransport = "socket"\ncoupling_interval = 1\ndrag = "gidaspow_1994"\n'
+        'void_fraction = "centre"\nheat = true\nend_time = 0.05\noutput_interval = 0.005\n')
+    # walls everywhere: gas at rest, no inlet/outlet
+    u = (case / "0" / "U").read_text()
+    u = re.sub(r"internalField\s+uniform \([^)]*\);", "internalField   uniform (0 0 0);", u)
+    u = re.sub(r"(inlet|outlet)\s*\{[^}]*\}", r"\1 { type noSlip; }", u)
+    (case / "0" / "U").write_text(u)
+    p = (case / "0" / "p").read_text()
+    p = re.sub(r"outlet\s*\{[^}]*\}", "outlet { type fixedFluxPressure; value uniform 0; }", p)
+    (case / "0" / "p").write_text(p)
+    t = (case / "0" / "T").read_text()
+    t = re.sub(r"(inlet|outlet)\s*\{[^}]*\}", r"\1 { type zeroGradient; }", t)
+    (case / "0" / "T").write_text(t)
+    # no gravity: thermoDemFoam's adjustPhi fails in a closed domain with gravity (the
+    # g-flux Dp (g . Sf) on wall faces is not zeroed before adjustPhi); particles are held
+    fc.set_entries(case / "constant" / "g", {"value": "(0 0 0)"})
+    dem = (case / "dem.toml").read_text().replace("mechanics = false", "mechanics = false\ngravity = [0.0, 0.0, 0.0]")
+    (case / "dem.toml").write_text(dem)
+    return case
+
+
+def test_closed_box_energy_balance(tmp_path, solver):
+    """Hot fixed bed in a closed, adiabatic box: gas + particle energy is conserved.
+
+    The explicit (staggered) exchange lags the gas temperature seen by the particles by
+    one coupling step; the mismatch telescopes, so it stays O(dt / tau_gas) of the
+    exchanged energy (tau_gas = gas capacity / hA, 14 ms here, dt = 0.1 ms): 1.5 % bound.
+    """
+    case = make_closed_box(tmp_path / "case")
+    s = run_case(case, tmp_path / "out", solver=solver, quiet=True)
+    out = Path(s["out"])
+    mesh_V = fc.read_cell_volumes(out)
+    n = len(mesh_V)
+    eps = fc.read_internal_field(out / "0" / "eps", n)
+    T0 = fc.read_internal_field(out / "0" / "T", n)
+    T1 = fc.read_internal_field(out / "0.05" / "T", n)
+    dEg = float((RHO * CP * eps * mesh_V * (T1 - T0)).sum())
+    sim_final = np.load(out / "final.npz")
+    d = 2e-3
+    C = 2500.0 * math.pi / 6 * d ** 3 * 840.0
+    dEp = float(C * (sim_final["temperature"] - 400.0).sum())
+    assert dEg > 1.0                                   # joules exchanged
+    assert dEg + dEp == pytest.approx(0.0, abs=0.015 * dEg)
+    # the DEM's own convection total matches the particle energy change
+    h = read_csv(out / "coupling.csv")
+    assert h["E_conv_particles"][-1] == pytest.approx(dEp, rel=1e-9)
+
+
+# --------------------------------------------------------------------------- solver killed
+
+def test_solver_killed_checkpoint_restart(tmp_path, solver):
+    case = copy_case("single_particle_heating", tmp_path / "case")
+    set_toml(case / "coupling.toml", transport="file", timeout=20.0, output_interval=0.01)
+    out = tmp_path / "out"
+    env = dict(os.environ)
+    env["PYTHONPATH"] = str(ROOT) + os.pathsep + env.get("PYTHONPATH", "")
+    proc = subprocess.Popen([sys.executable, "-m", "coupling.run", "run", str(case), "--out", str(out),
+                             "--end-time", "3.0"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, env=env)
+    pidfile = out / "coupling" / "cfd.pid"
+    csv = out / "coupling.csv"
+    t0 = time.monotonic()
+    try:
+        # wait until the run is past the first OpenFOAM write (t = 1 s)
+        while time.monotonic() - t0 < 120:
+            if csv.exists() and pidfile.exists():
+                d = read_csv(csv)
+                if d.size > 2 and d["time"][-1] > 1.2:
+                    break
+            if proc.poll() is not None:
+                break
+            time.sleep(0.2)
+        assert proc.poll() is None, proc.communicate()[1][-2000:]
+        os.kill(int(pidfile.read_text().split()[0]), signal.SIGKILL)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 3, err
+    assert "peer: CFD solver, coupling step" in err, err
+    assert "checkpoint" in err
+    # the checkpoint is usable: a new Simulation continues from it
+    import dem
+    sim = dem.Simulation.from_file(str(out / "dem.toml"))
+    sim.load_checkpoint(str(out / "checkpoint.npz"))
+    assert sim.time > 1.2
+    T = sim.state.temperature.copy()
+    sim.step(5)
+    assert sim.step_count > 0 and np.all(np.isfinite(sim.state.temperature))
+    assert np.all(T < 373.15)
+    # coupled restart from the last OpenFOAM write that has a DEM checkpoint (t = 1 s)
+    s = run_case(case, out, restart=True, end_time=1.5, solver=solver, quiet=True)
+    assert s["time"] == pytest.approx(1.5)
+    d = read_csv(out / "coupling.csv")
+    T_ref, _ = lumped_analytic(d["time"])
+    assert np.abs(d["T_particles"] - T_ref).max() < 0.01 * 75
+
+
+# --------------------------------------------------------------------------- bad cases
+
+def _check(case: Path, capsys) -> tuple[int, str]:
+    rc = coupling_main(["check", str(case)])
+    return rc, capsys.readouterr().err
+
+
+def test_bad_cases_refused(tmp_path, capsys):
+    # missing field
+    c = copy_case("single_particle_heating", tmp_path / "a")
+    (c / "0" / "T").unlink()
+    rc, err = _check(c, capsys)
+    assert rc == 2 and "0/T: missing field 'T'" in err
+    # mesh without the needed patch (outlet renamed in blockMeshDict)
+    c = copy_case("single_particle_heating", tmp_path / "b")
+    bm = c / "system" / "blockMeshDict"
+    bm.write_text(bm.read_text().replace("outlet", "top"))
+    rc, err = _check(c, capsys)
+    assert rc == 2 and "0/U" in err and "['top']" in err
+    # non-physical gas property
+    c = copy_case("single_particle_heating", tmp_path / "c")
+    tp = c / "constant" / "transportProperties"
+    tp.write_text(tp.read_text().replace("rho             1.2", "rho             -1.2"))
+    rc, err = _check(c, capsys)
+    assert rc == 2 and "transportProperties: non-physical gas property rho" in err
+    # DEM gas properties inconsistent with the OpenFOAM ones
+    c = copy_case("single_particle_heating", tmp_path / "d")
+    tp = c / "dem.toml"
+    tp.write_text(tp.read_text().replace("conductivity = 0.0262", "conductivity = 0.03"))
+    rc, err = _check(c, capsys)
+    assert rc == 2 and "dem.toml: gas.conductivity" in err and "transportProperties" in err
+    # coupling.toml: unknown key, bad value, interval inconsistent with deltaT
+    c = copy_case("single_particle_heating", tmp_path / "e")
+    set_toml(c / "coupling.toml", drag="stokes")
+    rc, err = _check(c, capsys)
+    assert rc == 2 and "coupling.toml: coupling.drag: 'stokes' is not one of" in err
+    set_toml(c / "coupling.toml", drag="di_felice_1994", coupling_interval=2)
+    rc, err = _check(c, capsys)
+    assert rc == 2 and "coupling.coupling_interval" in err and "deltaT" in err
+    (c / "coupling.toml").write_text("[coupling]\ntransprt = 'file'\n")
+    with pytest.raises(CaseConfigError, match=r"coupling.toml: coupling.transprt: unknown key"):
+        load_case(c)
+    # particle outside the mesh
+    c = copy_case("single_particle_heating", tmp_path / "f")
+    tp = c / "dem.toml"
+    tp.write_text(tp.read_text().replace("[[0.015, 0.015, 0.025]]", "[[0.015, 0.015, 0.0595]]")
+                  .replace("max = [0.03, 0.03, 0.06]", "max = [0.03, 0.03, 0.07]")
+                  .replace("0.0595", "0.065"))
+    rc, err = _check(c, capsys)
+    assert rc == 2 and "dem.toml" in err and "outside the OpenFOAM mesh" in err
+
+
+def test_mpi_ranks_not_yet(monkeypatch, capsys, tmp_path):
+    monkeypatch.setenv("OMPI_COMM_WORLD_SIZE", "2")
+    rc = coupling_main(["run", str(CASES / "single_particle_heating"), "--out", str(tmp_path)])
+    assert rc == 2 and "not yet" in capsys.readouterr().err
