@@ -10,4 +10,7 @@ Particle-to-mesh submodules:
                              conservative per-cell accumulation of exchange terms
 * ``coupling.drag``          drag correlations (Di Felice, Gidaspow, Beetstra, ...)
 * ``coupling.interpolate``   cell-centre fields to particle positions
+
+Coupled runs: ``coupling.interface`` (one coupling step), ``coupling.case`` (case files,
+validation, checks), ``coupling.run`` (the ``coupling`` command).
 """

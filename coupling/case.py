@@ -24,6 +24,7 @@ Layout::
     end_time = 0.5                # s (default: endTime of system/controlDict)
     output_interval = 0.01        # s, DEM output (default: dem.toml simulation.output_interval)
     force = false                 # run despite failed checks (reported as problems)
+    solver_nice = 0               # nice level of the solver (serial runs; 0 = unchanged)
 
 Checks (``check_coupled_case``), in the spirit of CFDEMcoupling's: CFD deltaT =
 coupling_interval x DEM dt; gas CFL; particle Courant number (particle displacement per
@@ -85,6 +86,8 @@ class CouplingConfig:
     output_interval: float | None = None
     force: bool = False
     n_satellites: int = 29
+    solver_nice: int = 0
+
 
 
 _KEYS = {
@@ -103,6 +106,7 @@ _KEYS = {
     "output_interval": (float, (0.0, None)),
     "force": (bool, None),
     "n_satellites": (int, (1, 10000)),
+    "solver_nice": (int, (0, 19)),
 }
 
 
@@ -294,7 +298,7 @@ def check_coupled_case(case: CoupledCase, mesh, *, eps0: np.ndarray | None = Non
     vals["cells"] = mesh.n_cells
     vals["cell_size_min"] = dx_min
     vals["cell_over_diameter"] = dx_min / float(d.max())
-    if dx_min < CELL_DIAMETERS * d.max():
+    if dx_min < CELL_DIAMETERS * d.max() * (1 - 1e-9):
         warnings.append(f"smallest cell {dx_min:.3g} m is {dx_min / d.max():.2f} particle diameters "
                         f"(< {CELL_DIAMETERS:g}): void fraction and drag of the unresolved model are "
                         f"inaccurate; use void_fraction = 'divided' or 'smoothed'"

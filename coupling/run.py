@@ -268,6 +268,11 @@ def run_case(case_dir, out=None, *, transport=None, end_time=None, restart=False
     (out / "checkpoints").mkdir(exist_ok=True)
 
     proc = fc.start_solver(out, nprocs=cfg.gas_processes, solver=exe)
+    if cfg.solver_nice:
+        try:  # a woken solver then does not preempt the DEM (the critical path) on busy cores
+            os.setpriority(os.PRIO_PROCESS, proc.pid, cfg.solver_nice)
+        except OSError:
+            pass
     ex.peer_process = proc
     timer = iface.timer
     step = i0
@@ -277,6 +282,7 @@ def run_case(case_dir, out=None, *, transport=None, end_time=None, restart=False
     try:
         with timer("gas_wait"):
             fluid = ex.receive(i0)
+        _grow_socket_buffers(ex, mesh.n_cells)
         for s in range(1, n_steps + 1):
             step = i0 + s
             frame = iface.prepare(fluid, dt)
@@ -336,6 +342,22 @@ def run_case(case_dir, out=None, *, transport=None, end_time=None, restart=False
     if not quiet:
         log(_format_timings(summ))
     return summ
+
+
+def _grow_socket_buffers(ex, n_cells):
+    """Let one whole frame fit the kernel's socket buffer: the send then returns at once
+    instead of waiting for the solver to drain it (it may be descheduled on busy cores)."""
+    import socket
+    sock = getattr(ex, "_sock", None)
+    if sock is None:
+        return
+    need = 2 * (64 + 8 * 8 * n_cells) + 65536
+    for opt in (socket.SO_SNDBUF, socket.SO_RCVBUF):
+        try:
+            if sock.getsockopt(socket.SOL_SOCKET, opt) < need:
+                sock.setsockopt(socket.SOL_SOCKET, opt, need)
+        except OSError:
+            pass
 
 
 def _coupling_state(iface, step, t):

@@ -6,6 +6,9 @@ The kernel is one cached Numba function with integer model switches (contact law
 rolling model) rather than code generated per scene: the switch is a perfectly
 predicted branch (no measurable cost), and every scene reuses the same cached machine
 code, so a new scene starts in about a second instead of recompiling.
+The force loop is compiled with the fast-math flags that reorder and contract arithmetic
+(nsz, arcp, contract, afn, reassoc: 12 % faster on the shared 10k bed) but not with
+nnan/ninf, so infinities (unbounded walls) and the NaN guards keep their meaning.
 Parts a scene does not enable are skipped: no rolling history arrays without a rolling
 model, no wall loop without walls, no heat terms without a thermal section
 (see dem.thermal.kernel for the heat part).
@@ -58,7 +61,7 @@ def empty_thermal(nwalls=1):
             np.zeros(8), np.zeros(max(nwalls, 1)), np.zeros((0, 3)), np.zeros((1, 1)))
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", fastmath={"nsz", "arcp", "contract", "afn", "reassoc"})
 def _pair_law(model, delta, vn, vtx, vty, vtz, hx, hy, hz, rstar, mstar, estar, gstar,
               damp, mu, dt, lin_kn, vchar, kt_ratio):
     if model == 0:
@@ -92,7 +95,7 @@ def _rotate_history(h, i, s, nx, ny, nz):
     return 0.0, 0.0, 0.0
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", fastmath={"nsz", "arcp", "contract", "afn", "reassoc"})
 def compute_forces(n, x, v, w, r, m, mat, f, tq, fext, nb, nnb, hist, rhist,
                    wf, wi, wnb, wnn, whist, wrhist, tab, ip, fp, lo, hi, periodic, t,
                    age, Hd, Hi, rnear, TH):

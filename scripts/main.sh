@@ -8,7 +8,7 @@ bash scripts/setup.sh
 PY="${PYTHON:-python3}"
 OUT="${OUT:-out/main}"
 if [ -f openfoam_cases/fluidized_bed_heating/coupling.toml ] && [ "${MAIN_JOB:-coupled}" = coupled ]; then
-    "$PY" -m coupling.run run openfoam_cases/fluidized_bed_heating --out "$OUT/fluidized_bed" --quick
+    "$PY" -m coupling.run run openfoam_cases/fluidized_bed_heating --out "$OUT/fluidized_bed" --end-time "${MAIN_END_TIME:-0.2}"
     echo "main job done: $OUT/fluidized_bed"
 else
     "$PY" -m dem.cli check examples/settle_box.toml

@@ -20,7 +20,7 @@ import math
 from numba import njit
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", fastmath={"nsz", "arcp", "contract", "afn", "reassoc"})
 def hertz_mindlin(delta, vn, vtx, vty, vtz, hx, hy, hz,
                   rstar, mstar, estar, gstar, damp_a, mu, dt):
     """Hertz-Mindlin pair force.
