@@ -115,6 +115,7 @@ class CouplingInterface:
         self.last = {}
         self.n_lost = 0
         self._mapped = None
+        self._map_cache = None        # (positions, radii, stencil, eps) of the last mapping
 
     def map_particles(self) -> None:
         """Locate the particles and build the stencil / void fraction now (e.g. right after
@@ -128,15 +129,22 @@ class CouplingInterface:
         st = self.sim.state
         n = st.n_owned
         pos, rad = st.position[:n], st.radius[:n]
+        prev = self._map_cache
+        if (prev is not None and prev[0].shape == pos.shape and np.array_equal(prev[0], pos)
+                and np.array_equal(prev[1], rad)):
+            # particles have not moved (held bed, mechanics = false): same stencil, exactly
+            return prev[2], prev[3]
         with self.timer("locate"):
             cells = self.mesh.locate(pos, hint=self.hint)
         with self.timer("void_fraction"):
-            pw = vf.compute_weights(self.mesh, pos, rad, self.void_fraction, cell_hint=cells,
-                                    n_satellites=self.n_satellites)
+            pw = vf.compute_weights(self.mesh, pos, rad, self.void_fraction, located=cells,
+                                    n_satellites=self.n_satellites,
+                                    out=prev[2] if prev is not None else None)
             eps = 1.0 - vf.solid_volume(pw, rad) / self.V
             eps = np.maximum(eps, self.eps_min)
         self.hint = pw.centre_cell
         self.n_lost = pw.n_lost
+        self._map_cache = (pos.copy(), rad.copy(), pw, eps)
         return pw, eps
 
     def initial_void_fraction(self) -> np.ndarray:
@@ -149,6 +157,7 @@ class CouplingInterface:
     def reset_hints(self):
         """Call after the DEM reordered its particles (sim.sort_particles)."""
         self.hint = None
+        self._map_cache = None
 
     def _relax(self, old, new, dt):
         if old is None or self.smoothing_time <= 0.0:

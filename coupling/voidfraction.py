@@ -244,20 +244,106 @@ def _smoothed_kernel(pos, cc, cell_centres, cell_volumes, nb_off, nb_cells, widt
     return cells, weights
 
 
+@njit(cache=True)
+def _kernel_hh(cell_volumes, width):
+    """(width V_c^(1/3))^2 per cell, the same arithmetic as in _smoothed_kernel."""
+    nc = cell_volumes.shape[0]
+    out = np.empty(nc)
+    for c in range(nc):
+        h = width * cell_volumes[c] ** (1.0 / 3.0)
+        out[c] = h * h
+    return out
+
+
+@njit(cache=True)
+def _smoothed_weights_into(pos, cc, cell_centres, cell_volumes, hh, nb_off, nb_cells, cells, weights):
+    """_smoothed_kernel with the per-cell h^2 precomputed (``_kernel_hh``), writing into
+    preallocated (n, kmax) arrays. Bitwise equal to _smoothed_kernel. Serial on purpose:
+    it runs right after the (serial) DEM interval, when numba's worker threads sleep and,
+    on a busy machine, the second core is taken by the gas solver or other jobs (a
+    prange loop then waits for a descheduled thread)."""
+    n = pos.shape[0]
+    kmax = cells.shape[1]
+    for p in range(n):
+        for j in range(kmax):
+            cells[p, j] = -1
+            weights[p, j] = 0.0
+        c0 = cc[p]
+        if c0 < 0:
+            continue
+        h2 = hh[c0]
+        tot = 0.0
+        k = 0
+        for s in range(nb_off[c0], nb_off[c0 + 1]):
+            c = nb_cells[s]
+            d2 = 0.0
+            for d in range(3):
+                t = cell_centres[c, d] - pos[p, d]
+                d2 += t * t
+            q2 = d2 / h2
+            if q2 < 1.0:
+                t = 1.0 - q2
+                w = cell_volumes[c] * t * t * t
+                cells[p, k] = c
+                weights[p, k] = w
+                tot += w
+                k += 1
+        if tot > 0.0:
+            for j in range(k):
+                weights[p, j] /= tot
+        else:  # degenerate (very skewed cell): fall back to centre
+            cells[p, 0] = c0
+            weights[p, 0] = 1.0
+
+
+@njit(cache=True)
+def _scatter1(cells, weights, values, n_cells):
+    """_scatter for one quantity (same summation order: particle, then slot)."""
+    out = np.zeros(n_cells)
+    n, k = cells.shape
+    for p in range(n):
+        v = values[p]
+        for j in range(k):
+            c = cells[p, j]
+            if c >= 0:
+                out[c] += weights[p, j] * v
+    return out
+
+
 _SAT_CACHE: dict = {}
+
+
+def _smoothed_tables(mesh: PolyMesh, kernel_width: float):
+    """(nb_off, nb_cells, kmax, h^2 per cell) of the smoothed model, cached on the mesh."""
+    cache = mesh.__dict__.setdefault("_smoothed_cache", {})
+    t = cache.get(kernel_width)
+    if t is None:
+        off, nbrs = mesh.point_neighbours()
+        kmax = int(np.diff(off).max())
+        hh = _kernel_hh(np.ascontiguousarray(mesh.cell_volumes, np.float64), float(kernel_width))
+        t = cache[kernel_width] = (off, nbrs, kmax, hh)
+    return t
 
 
 def compute_weights(mesh: PolyMesh, positions, radii, model: str = "divided",
                     cell_hint=None, n_satellites: int = 29,
-                    kernel_width: float = 1.5) -> ParticleWeights:
+                    kernel_width: float = 1.5, located=None, out=None) -> ParticleWeights:
     """Build the particle -> cell stencil for ``model`` in
     ('centre', 'divided', 'smoothed').  ``cell_hint`` = previous centre cells
-    (speeds up location)."""
+    (speeds up location); ``located`` = the centre cells already located
+    (``mesh.locate(positions)``: skips locating again).  ``out`` = a previous
+    ParticleWeights of the same model and shape whose arrays may be overwritten
+    (smoothed model; saves the allocation)."""
     if model not in MODELS:
         raise ValueError(f"unknown void fraction model {model!r}; valid: {', '.join(MODELS)}")
     pos = np.ascontiguousarray(np.asarray(positions, np.float64).reshape(-1, 3))
     rad = np.ascontiguousarray(np.broadcast_to(np.asarray(radii, np.float64), (len(pos),)))
-    cc = mesh.locate(pos, hint=cell_hint)
+    if located is not None:
+        cc = np.ascontiguousarray(located, dtype=np.int64)
+        if cc.shape != (len(pos),):
+            raise ValueError("located must have one entry per particle")
+    else:
+        cc = mesh.locate(pos, hint=cell_hint)
     n = len(pos)
     if model == "centre":
         cells = cc.reshape(n, 1).copy()
@@ -271,10 +357,14 @@ def compute_weights(mesh: PolyMesh, positions, radii, model: str = "divided",
                                          mesh.cf_normal, mesh.cf_nbr, mesh.cell_lo,
                                          mesh.cell_hi, o, h, d, boff, bcells, mesh.tol, 64)
     else:
-        off, nbrs = mesh.point_neighbours()
-        kmax = int(np.diff(off).max())
-        cells, weights = _smoothed_kernel(pos, cc, mesh.cell_centres, mesh.cell_volumes,
-                                          off, nbrs, float(kernel_width), kmax)
+        off, nbrs, kmax, hh = _smoothed_tables(mesh, float(kernel_width))
+        if (out is not None and out.model == "smoothed" and out.cells.shape == (n, kmax)
+                and out.n_cells == mesh.n_cells):
+            cells, weights = out.cells, out.weights
+        else:
+            cells, weights = np.empty((n, kmax), np.int64), np.empty((n, kmax))
+        _smoothed_weights_into(pos, cc, mesh.cell_centres, mesh.cell_volumes, hh, off, nbrs,
+                               cells, weights)
     return ParticleWeights(model, cells, weights, cc, mesh.n_cells)
 
 
@@ -315,11 +405,13 @@ def particle_volumes(radii) -> np.ndarray:
     return (4.0 / 3.0) * np.pi * np.asarray(radii, np.float64) ** 3
 
 
-def solid_volume(pw: ParticleWeights, radii) -> np.ndarray:
+def solid_volume(pw: ParticleWeights, radii, volumes=None) -> np.ndarray:
     """Per-cell solid volume [m^3] (sum equals the total particle volume of
-    the mapped particles to round-off)."""
-    vp = np.broadcast_to(particle_volumes(radii), (len(pw.cells),))
-    return accumulate(pw, vp)
+    the mapped particles to round-off).  ``volumes`` = the particle volumes
+    (``particle_volumes(radii)``) if already known."""
+    vp = particle_volumes(radii) if volumes is None else volumes
+    vp = np.ascontiguousarray(np.broadcast_to(np.asarray(vp, np.float64), (len(pw.cells),)))
+    return _scatter1(pw.cells, pw.weights, vp, pw.n_cells)
 
 
 def void_fraction(mesh: PolyMesh, positions, radii, model: str = "divided",

@@ -22,7 +22,7 @@ from .contact.linear import linear_spring_dashpot
 from .contact.rolling import constant_torque, epsd
 from .contact.walls import wall_distance, wall_velocity, WMAT
 from .neighbors import build_half_list
-from .thermal.contact_radius import (contact_radius_pw, hertz_force, hertz_overlap, geometric_pp,
+from .thermal.contact_radius import (contact_radius_pw, hertz_force, hertz_overlap, geometric_pp_inv,
                                      apply_correction, HERTZ_FORCE, HERTZ_OVERLAP)
 from .thermal.direct import direct_pp, direct_pw, batchelor_obrien_keff
 from .thermal.registry import DIRECT_BATCHELOR_OBRIEN
@@ -271,7 +271,7 @@ def compute_forces(n, x, v, w, r, m, mat, f, tq, fext, nb, nnb, hist, rhist,
                 elif crm == HERTZ_FORCE:
                     rc = hertz_force(fel, rstar, tab[T_ESTAR, mi, mj])
                 else:
-                    rc = geometric_pp(ri, rj, d)
+                    rc = geometric_pp_inv(ri, rj, d, invd)
                 if crc != 0:
                     rc = apply_correction(crm, crc, rc, rstar, fel, tab[T_ESTAR, mi, mj], ereal[mi, mj])
                 if bo:  # Batchelor & O'Brien with the tabulated series conductivity

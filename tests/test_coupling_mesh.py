@@ -226,6 +226,33 @@ def test_void_fraction_conserves_volume(model):
                                rtol=1e-12, atol=1e-18)
 
 
+def test_smoothed_fast_path_bitwise_equal_to_reference():
+    """compute_weights' smoothed stencil (precomputed h^2 per cell, preallocated buffers,
+    located= skipping the second locate) and the one-quantity scatter of solid_volume are
+    bitwise equal to the reference kernel + accumulate (no change of results)."""
+    m = mesh_from_X(distorted_X(perturb=0.2))
+    pos, r = particles(m, 800, 0.03, 11)
+    cells = m.locate(pos)
+    off, nbrs = m.point_neighbours()
+    kmax = int(np.diff(off).max())
+    c_ref, w_ref = VF._smoothed_kernel(pos, cells, m.cell_centres, m.cell_volumes, off, nbrs, 1.5, kmax)
+    ref = VF.ParticleWeights("smoothed", c_ref, w_ref, cells, m.n_cells)
+    vs_ref = VF.accumulate(ref, np.broadcast_to(VF.particle_volumes(r), (len(r),)))
+    pw = VF.compute_weights(m, pos, r, "smoothed", located=cells)
+    assert np.array_equal(pw.cells, c_ref)
+    assert np.array_equal(pw.weights.view(np.uint64), w_ref.view(np.uint64))
+    assert np.array_equal(VF.solid_volume(pw, r).view(np.uint64), vs_ref.view(np.uint64))
+    # buffer reuse: overwritten in place, still the same result for other positions
+    pos2, r2 = particles(m, 800, 0.03, 12)
+    c2 = m.locate(pos2)
+    pw2 = VF.compute_weights(m, pos2, r2, "smoothed", located=c2, out=pw)
+    assert pw2.cells is pw.cells
+    c_ref2, w_ref2 = VF._smoothed_kernel(pos2, c2, m.cell_centres, m.cell_volumes, off, nbrs, 1.5, kmax)
+    assert np.array_equal(pw2.cells, c_ref2) and np.array_equal(pw2.weights, w_ref2)
+    with pytest.raises(ValueError, match="located"):
+        VF.compute_weights(m, pos, r, "smoothed", located=cells[:-1])
+
+
 @pytest.mark.parametrize("model", ["centre", "divided"])
 def test_sphere_inside_cell_exact(model):
     m = mesh_from_X(distorted_X(perturb=0.1))

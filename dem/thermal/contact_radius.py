@@ -95,6 +95,20 @@ def hertz_overlap(Rstar, delta):
 
 
 @numba.njit(cache=True, error_model="numpy")
+def geometric_pp_inv(Ri, Rj, d, inv_d):
+    """geometric_pp with 1/d given (the force loop has it): no division."""
+    if d >= Ri + Rj:
+        return 0.0
+    if d <= abs(Ri - Rj):
+        return min(Ri, Rj)
+    t = d * d - Rj * Rj + Ri * Ri
+    v = 4.0 * d * d * Ri * Ri - t * t
+    if v <= 0.0:
+        return 0.0
+    return 0.5 * math.sqrt(v) * inv_d
+
+
+@numba.njit(cache=True, error_model="numpy")
 def geometric_pp(Ri, Rj, d):
     """Radius [m] of the intersection circle of two spheres at centre distance d.
 

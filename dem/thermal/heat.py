@@ -64,6 +64,15 @@ def heat_step(n, dt, t, T, cinv, Q, v, r, x, mat, nb, nnb, Hd, Hi, rnear, wnb, w
     conv = thi[TI_CONV]
     rad = thi[TI_RAD]
     fused = thi[TI_FUSED] == 1
+    if (fused and integ == 0 and conv < 0 and rad < 0 and qgen.shape[0] != n and qsrc.shape[0] != n
+            and srcbox.shape[0] == 0):
+        # conduction only, already summed in the force loop: one pass
+        bad = -1
+        for i in range(n):
+            T[i] += dt * Q[i] * cinv[i]
+            if not (T[i] > 0.0) or not math.isfinite(T[i]):
+                bad = i
+        return bad
     for i in range(n):
         work[i, 0] = T[i]
         if not fused:
