@@ -56,6 +56,26 @@ def cmd_run(args):
     return 0
 
 
+def cmd_compile(args):
+    """Fill Numba's cache with the step kernel (one kernel serves every scene)."""
+    from .simulation import Simulation
+    t0 = time.perf_counter()
+    mat = dict(name="m", density=2500.0, youngs_modulus=1e7, poisson_ratio=0.3, restitution=0.5,
+               friction=0.3, thermal_conductivity=1.0, heat_capacity=840.0)
+    base = {"simulation": {"time_step": 1e-5, "end_time": 1e-4},
+            "domain": {"min": [-0.01] * 3, "max": [0.01] * 3}, "materials": [mat],
+            "particles": [{"material": "m", "positions": [[0, 0, 0], [0.00199, 0, 0]], "radius": 1e-3}],
+            "walls": [{"type": "plane", "point": [0, 0, -0.001], "normal": [0, 0, 1], "material": "m"}]}
+    Simulation.from_dict(base).run(progress=False)
+    thermal = dict(base, thermal={"direct": "batchelor_obrien", "initial_temperature": 300.0})
+    Simulation.from_dict(thermal).run(progress=False)
+    frozen = dict(thermal, simulation={"time_step": 1e-5, "end_time": 2.0, "mechanics": False},
+                  thermal={"direct": "batchelor_obrien", "initial_temperature": 300.0, "time_step": 1.0})
+    Simulation.from_dict(frozen).run(progress=False)
+    print(f"kernels compiled and cached in {time.perf_counter() - t0:.1f} s")
+    return 0
+
+
 def cmd_render(args):
     from .render import render
     path = render(args.out_dir, args.png, color=args.color)
@@ -74,6 +94,7 @@ def main(argv=None):
     r.add_argument("--quiet", action="store_true", help="no progress display")
     c = sub.add_parser("check", help="validate a scene and print derived quantities")
     c.add_argument("scene")
+    sub.add_parser("compile", help="compile and cache the kernels (done by scripts/setup.sh)")
     d = sub.add_parser("render", help="render the last output of a run to PNG")
     d.add_argument("out_dir")
     d.add_argument("--png", default=None)
@@ -82,7 +103,7 @@ def main(argv=None):
     from .scene import SceneError
     from .simulation import SimulationError
     try:
-        return {"run": cmd_run, "check": cmd_check, "render": cmd_render}[args.cmd](args)
+        return {"run": cmd_run, "check": cmd_check, "render": cmd_render, "compile": cmd_compile}[args.cmd](args)
     except SceneError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -32,4 +32,6 @@ if [ "${THERMODEM_NO_OPENFOAM:-0}" != 1 ]; then
     log "building the gas solver (cached)"
     bash scripts/build_openfoam_solver.sh >/dev/null
 fi
+log "compiling the DEM kernels into Numba's cache (about 30 s the first time, then instant)"
+"$PY" -m dem.cli compile >&2
 log "ready"
