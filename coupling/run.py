@@ -190,8 +190,23 @@ def plot(out: Path, title: str) -> Path | None:
 
 # --------------------------------------------------------------------------- run
 
+class _ExternalSolver:
+    """Stand-in for the solver process when the user starts it by hand (second terminal)."""
+
+    pid = None
+
+    def poll(self):
+        return 0
+
+    def wait(self, timeout=None):
+        return 0
+
+    def kill(self):
+        pass
+
+
 def run_case(case_dir, out=None, *, transport=None, end_time=None, restart=False,
-             quiet=False, solver=None, log=print):
+             quiet=False, solver=None, log=print, external_solver=False):
     """Run a coupled case; returns a summary dict. Raises CouplingError / CaseConfigError /
     SimulationError / CouplingRunError (``main`` maps them to exit codes)."""
     from . import foam_case as fc
@@ -267,13 +282,21 @@ def run_case(case_dir, out=None, *, transport=None, end_time=None, restart=False
     diag = Diagnostics(out / "coupling.csv", mesh, case.gas, keep)
     (out / "checkpoints").mkdir(exist_ok=True)
 
-    proc = fc.start_solver(out, nprocs=cfg.gas_processes, solver=exe)
-    if cfg.solver_nice:
+    if external_solver:
+        par = (f"mpirun --allow-run-as-root -np {cfg.gas_processes} " if cfg.gas_processes > 1 else "")
+        log("coupling: start the gas solver yourself, in a second terminal:\n"
+            f"  . {Path(__file__).resolve().parent.parent / 'scripts' / 'foam_env.sh'} && "
+            f"{par}{exe} -case {out}{' -parallel' if cfg.gas_processes > 1 else ''}\n"
+            f"coupling: waiting up to {cfg.timeout:g} s for it ({cfg.transport} transport)")
+        proc = _ExternalSolver()
+    else:
+        proc = fc.start_solver(out, nprocs=cfg.gas_processes, solver=exe)
+    if cfg.solver_nice and proc.pid:
         try:  # a woken solver then does not preempt the DEM (the critical path) on busy cores
             os.setpriority(os.PRIO_PROCESS, proc.pid, cfg.solver_nice)
         except OSError:
             pass
-    ex.peer_process = proc
+    ex.peer_process = proc if not external_solver else None
     timer = iface.timer
     step = i0
     t = t_start
@@ -475,6 +498,9 @@ def main(argv=None) -> int:
     r.add_argument("--end-time", type=float, default=None)
     r.add_argument("--restart", action="store_true", help="continue the run in --out")
     r.add_argument("--quiet", action="store_true")
+    r.add_argument("--external-solver", action="store_true",
+                   help="do not start thermoDemFoam: print the command to run it by hand in a second "
+                        "terminal and wait for it")
     args = ap.parse_args(argv)
 
     nranks = _mpi_size()
