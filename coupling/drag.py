@@ -61,7 +61,7 @@ _PI = math.pi
 # --------------------------------------------------------------------------
 # Single-sphere drag coefficients
 # --------------------------------------------------------------------------
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def schiller_naumann_cd(re):
     """Schiller & Naumann (1933): C_d = 24/Re (1 + 0.15 Re^0.687) for
     Re < 1000, 0.44 above (the form used inside Wen & Yu / Gidaspow)."""
@@ -70,7 +70,7 @@ def schiller_naumann_cd(re):
     return 0.44
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def dallavalle_cd(re):
     """Dallavalle (1948): C_d = (0.63 + 4.8 / sqrt(Re))^2, the single
     particle law used by Di Felice (1994, eq. 4)."""
@@ -80,7 +80,7 @@ def dallavalle_cd(re):
 # --------------------------------------------------------------------------
 # Correlations
 # --------------------------------------------------------------------------
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def di_felice_1994(d, eps, rho_f, mu_f, ur):
     """Di Felice (1994).
 
@@ -110,7 +110,7 @@ def di_felice_1994(d, eps, rho_f, mu_f, ur):
     return 0.5 * cd_ur * rho_f * (_PI * d * d / 4.0) * eps ** (2.0 - chi)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def ergun_beta(d, eps, rho_f, mu_f, ur):
     """Ergun (1952) momentum-exchange coefficient per unit mixture volume as
     used by Gidaspow (1994, ch. 5):
@@ -120,7 +120,7 @@ def ergun_beta(d, eps, rho_f, mu_f, ur):
     return 150.0 * es * es * mu_f / (eps * d * d) + 1.75 * es * rho_f * ur / d
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def wen_yu_beta(d, eps, rho_f, mu_f, ur):
     """Wen & Yu (1966) coefficient per unit mixture volume (Gidaspow 1994):
     beta = 3/4 C_d eps (1-eps) rho_f ur / d * eps^-2.65,
@@ -134,13 +134,13 @@ def wen_yu_beta(d, eps, rho_f, mu_f, ur):
     return 0.75 * cd_ur * eps * (1.0 - eps) * rho_f / d * eps ** -2.65
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _beta_vol_to_particle(beta, d, eps):
     vp = _PI * d ** 3 / 6.0
     return beta * vp / (1.0 - eps)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def gidaspow_1994(d, eps, rho_f, mu_f, ur):
     """Gidaspow (1994): Ergun for eps < 0.8, Wen & Yu for eps >= 0.8.
 
@@ -164,7 +164,7 @@ def gidaspow_1994(d, eps, rho_f, mu_f, ur):
     return _beta_vol_to_particle(b, d, eps)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def huilin_gidaspow_2003(d, eps, rho_f, mu_f, ur):
     """Huilin & Gidaspow (2003) smooth blend of Ergun and Wen-Yu.
 
@@ -178,7 +178,7 @@ def huilin_gidaspow_2003(d, eps, rho_f, mu_f, ur):
     return _beta_vol_to_particle(b, d, eps)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def beetstra_2007(d, eps, rho_f, mu_f, ur):
     """Beetstra, van der Hoef & Kuipers (2007), monodisperse arrays.
 
@@ -245,7 +245,7 @@ def drag_model_id(name) -> int:
                      + ", ".join(DRAG_MODELS) + " (aliases: " + ", ".join(sorted(_ALIASES)) + ")")
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def drag_coefficient(model_id, d, eps, rho_f, mu_f, ur):
     """beta_p of model ``model_id`` (see DRAG_MODELS) for one particle."""
     if model_id == 0:
@@ -259,7 +259,7 @@ def drag_coefficient(model_id, d, eps, rho_f, mu_f, ur):
     return np.nan
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def drag_coefficients(model_id, d, eps, rho_f, mu_f, ur):
     """Vectorised drag_coefficient over particles (arrays d, eps, ur;
     scalar fluid properties rho_f, mu_f)."""
@@ -273,7 +273,7 @@ def drag_coefficients(model_id, d, eps, rho_f, mu_f, ur):
 # --------------------------------------------------------------------------
 # Other forces
 # --------------------------------------------------------------------------
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def pressure_gradient_force(d, grad_p):
     """F = -V_p grad p  [N]  (grad_p: length-3 array at the particle)."""
     vp = _PI * d ** 3 / 6.0
@@ -283,7 +283,7 @@ def pressure_gradient_force(d, grad_p):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def buoyancy_force(d, rho_f, g):
     """Archimedes force F = -rho_f V_p g [N]; use only when the pressure
     gradient passed to pressure_gradient_force excludes the hydrostatic part

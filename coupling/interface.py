@@ -226,7 +226,7 @@ class CouplingInterface:
 
 # --------------------------------------------------------------------------- kernels
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _gather_cell(scells, sweights, cells, U, gradp, T, eps):
     """Cell values of U, grad p, T at the particles (centre cell) and the stencil-weighted
     void fraction eps_p (what the gas sees where the particle's volume went)."""
@@ -255,7 +255,7 @@ def _gather_cell(scells, sweights, cells, U, gradp, T, eps):
     return uf, gp, tg, ep
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _particle_forces(model_id, model_b, rad, vel, uf, gradp, eps_p, rho, mu, g, cells):
     """beta_p (drag law; /eps for model B) and the fluid force on each particle:
     A: beta (u_f - u_p) - V_p grad p;  B: beta (u_f - u_p) - rho V_p g."""
@@ -286,7 +286,7 @@ def _particle_forces(model_id, model_b, rad, vel, uf, gradp, eps_p, rho, mu, g, 
     return force, beta
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _scatter_terms(scells, sweights, beta, vel, hA, Tp, V):
     """Ksl = sum w beta / V, Us = sum w beta u_p / sum w beta (volume-free beta-weighted
     mean), Simp = sum w hA / V, Sexp = sum w hA T_p / V, with the same stencil."""

@@ -31,7 +31,7 @@ __all__ = ["interpolate", "cell_gradient", "lsq_matrices", "METHODS"]
 METHODS = ("cell", "idw", "linear")
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _lsq_matrices(cc, nb_off, nb):
     n = cc.shape[0]
     out = np.zeros((n, 3, 3))

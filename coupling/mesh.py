@@ -118,7 +118,7 @@ def _numbers(body: str, path: str) -> np.ndarray:
         raise ValueError(f"{path}: unexpected token in list: {exc}") from None
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _unflatten_faces(flat, start, n_faces):
     """flat = [..., n0, i.., n1, i.., ...] from position start -> CSR."""
     offsets = np.empty(n_faces + 1, np.int64)
@@ -381,7 +381,7 @@ def _split_faces(q, idx, n, c_lo, c_hi, faces_int, own_int, nei_int, b_lo, b_hi)
 # --------------------------------------------------------------------------
 # Geometry kernels (OpenFOAM primitiveMesh decomposition)
 # --------------------------------------------------------------------------
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _face_geometry(points, face_offsets, face_points):
     nf = face_offsets.shape[0] - 1
     fc = np.zeros((nf, 3))
@@ -436,7 +436,7 @@ def _face_geometry(points, face_offsets, face_points):
     return fc, fa
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _cell_geometry(fc, fa, owner, neighbour, n_cells):
     n_int = neighbour.shape[0]
     nf = owner.shape[0]
@@ -477,7 +477,7 @@ def _cell_geometry(fc, fa, owner, neighbour, n_cells):
     return cc, cv
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _cell_bboxes(points, face_offsets, face_points, owner, neighbour, n_cells):
     lo = np.full((n_cells, 3), np.inf)
     hi = np.full((n_cells, 3), -np.inf)
@@ -503,7 +503,7 @@ def _cell_bboxes(points, face_offsets, face_points, owner, neighbour, n_cells):
 # --------------------------------------------------------------------------
 # Bucket grid
 # --------------------------------------------------------------------------
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _bucket_range(lo, hi, origin, h, dims, pad, c, i0, i1):
     for d in range(3):
         a = int(np.floor((lo[c, d] - pad - origin[d]) / h[d]))
@@ -512,7 +512,7 @@ def _bucket_range(lo, hi, origin, h, dims, pad, c, i0, i1):
         i1[d] = min(max(b, 0), dims[d] - 1)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _build_buckets(lo, hi, origin, h, dims, pad):
     nb = dims[0] * dims[1] * dims[2]
     counts = np.zeros(nb + 1, np.int64)
@@ -559,7 +559,7 @@ def _max_violation(x0, x1, x2, c, cf_off, cf_centre, cf_normal):
     return dmax, kbest
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _locate_one(x0, x1, x2, hint, cf_off, cf_centre, cf_normal, cf_nbr,
                 cell_lo, cell_hi, b_origin, b_h, b_dims, b_off, b_cells, tol, max_walk):
     # 1. hint + walk
@@ -635,7 +635,7 @@ def _locate_uniform(pts, origin, h, dims, lattice, tol):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _brute_force_locate(pts, cf_off, cf_centre, cf_normal, tol):
     """Reference implementation: first cell whose inside test passes."""
     n = pts.shape[0]
@@ -860,7 +860,7 @@ class PolyMesh:
                 f"{'uniform grid ' + str(tuple(ug.dims)) if ug is not None else 'general'}")
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _point_neighbour_csr(face_offsets, face_points, owner, neighbour, n_cells, n_points):
     n_int = neighbour.shape[0]
     # point -> cells (with duplicates), then dedupe per cell row with a marker

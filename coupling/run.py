@@ -288,6 +288,7 @@ def run_case(case_dir, out=None, *, transport=None, end_time=None, restart=False
             f"  . {Path(__file__).resolve().parent.parent / 'scripts' / 'foam_env.sh'} && "
             f"{par}{exe} -case {out}{' -parallel' if cfg.gas_processes > 1 else ''}\n"
             f"coupling: waiting up to {cfg.timeout:g} s for it ({cfg.transport} transport)")
+        sys.stdout.flush()
         proc = _ExternalSolver()
     else:
         proc = fc.start_solver(out, nprocs=cfg.gas_processes, solver=exe)
@@ -482,7 +483,7 @@ def cmd_check(args) -> int:
 
 def cmd_run(args) -> int:
     run_case(args.case, args.out, transport=args.transport, end_time=args.end_time,
-             restart=args.restart, quiet=args.quiet)
+             restart=args.restart, quiet=args.quiet, external_solver=args.external_solver)
     return 0
 
 

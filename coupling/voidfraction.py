@@ -161,7 +161,7 @@ class ParticleWeights:
         return int(np.sum(self.weights.sum(axis=1) == 0.0))
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _divided_kernel(pos, rad, cc, sat, cf_off, cf_centre, cf_normal, cf_nbr, cell_lo,
                     cell_hi, b_origin, b_h, b_dims, b_off, b_cells, tol, max_walk):
     n = pos.shape[0]
@@ -209,7 +209,7 @@ def _divided_kernel(pos, rad, cc, sat, cf_off, cf_centre, cf_normal, cf_nbr, cel
     return cells, weights
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _smoothed_kernel(pos, cc, cell_centres, cell_volumes, nb_off, nb_cells, width, kmax):
     n = pos.shape[0]
     cells = np.full((n, kmax), -1, np.int64)
@@ -244,7 +244,7 @@ def _smoothed_kernel(pos, cc, cell_centres, cell_volumes, nb_off, nb_cells, widt
     return cells, weights
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _kernel_hh(cell_volumes, width):
     """(width V_c^(1/3))^2 per cell, the same arithmetic as in _smoothed_kernel."""
     nc = cell_volumes.shape[0]
@@ -255,7 +255,7 @@ def _kernel_hh(cell_volumes, width):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _smoothed_weights_into(pos, cc, cell_centres, cell_volumes, hh, nb_off, nb_cells, cells, weights):
     """_smoothed_kernel with the per-cell h^2 precomputed (``_kernel_hh``), writing into
     preallocated (n, kmax) arrays. Bitwise equal to _smoothed_kernel. Serial on purpose:
@@ -296,7 +296,7 @@ def _smoothed_weights_into(pos, cc, cell_centres, cell_volumes, hh, nb_off, nb_c
             weights[p, 0] = 1.0
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _scatter1(cells, weights, values, n_cells):
     """_scatter for one quantity (same summation order: particle, then slot)."""
     out = np.zeros(n_cells)
@@ -371,7 +371,7 @@ def compute_weights(mesh: PolyMesh, positions, radii, model: str = "divided",
 # --------------------------------------------------------------------------
 # Accumulation (scatter) - same stencil for every quantity
 # --------------------------------------------------------------------------
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _scatter(cells, weights, values, n_cells):
     n, k = cells.shape
     m = values.shape[1]
