@@ -21,6 +21,19 @@ def _min_image(d, length, periodic):
 
 
 @njit(cache=True, error_model="numpy")
+def pair_distance(x, i, j, lo, hi, periodic):
+    """Centre distance of particles i and j (minimum image on periodic axes)."""
+    d2 = 0.0
+    for k in range(3):
+        d = x[j, k] - x[i, k]
+        if periodic[k]:
+            L = hi[k] - lo[k]
+            d -= L * math.floor(d / L + 0.5)
+        d2 += d * d
+    return math.sqrt(d2)
+
+
+@njit(cache=True, error_model="numpy")
 def cell_index(x, lo, inv_cell, ncell, n):
     """Cell of each particle (clamped into the grid) and the flat index."""
     out = np.empty(n, np.int64)

@@ -1,7 +1,7 @@
 """Diagnostics computed at output time (not in the step)."""
-import math
 from numba import njit
 from .contact.walls import wall_distance
+from .neighbors import pair_distance
 
 
 @njit(cache=True, error_model="numpy")
@@ -11,16 +11,10 @@ def max_overlap_ratio(n, x, r, nb, nnb, lo, hi, periodic, wf, wi, nwalls, t):
     for i in range(n):
         for s in range(nnb[i]):
             j = nb[i, s]
-            d2 = 0.0
-            for k in range(3):
-                d = x[j, k] - x[i, k]
-                if periodic[k]:
-                    L = hi[k] - lo[k]
-                    d -= L * math.floor(d / L + 0.5)
-                d2 += d * d
+            d = pair_distance(x, i, j, lo, hi, periodic)
             rs = r[i] + r[j]
-            if d2 < rs * rs:
-                ov = (rs - math.sqrt(d2)) / min(r[i], r[j])
+            if d < rs:
+                ov = (rs - d) / min(r[i], r[j])
                 if ov > best:
                     best = ov
         for w in range(nwalls):

@@ -76,6 +76,24 @@ def _pair_law(model, delta, vn, vtx, vty, vtz, hx, hy, hz, rstar, mstar, estar, 
 
 
 @njit(cache=True, error_model="numpy")
+def _contact_age(age, i, s, vn, dt):
+    """Time since the contact in slot (i, s) began and its normal speed at impact
+    (zhou_2008_collisional); the slot is reset when the contact opens."""
+    if age[i, s, 0] == 0.0:
+        age[i, s, 1] = vn
+    age[i, s, 0] += dt
+    return age[i, s, 0], age[i, s, 1]
+
+
+@njit(cache=True, error_model="numpy")
+def _contact_heat(fric, mu, thf, vtx, vty, vtz, ftx, fty, ftz, fn, vn):
+    """Heat generated at a contact (W) by the friction model ``fric`` (dem.thermal.generation)."""
+    vtm = math.sqrt(vtx * vtx + vty * vty + vtz * vtz)
+    ftv = abs(ftx * vtx + fty * vty + ftz * vtz)
+    return friction_heat(fric, mu, thf[TF_CHI], vtm, fn, ftv, thf[TF_CT], thf[TF_CN], ftv, abs(fn * vn))
+
+
+@njit(cache=True, error_model="numpy")
 def _rotate_history(h, i, s, nx, ny, nz):
     """Project a stored spring onto the current tangent plane, keeping its length."""
     hx = h[i, s, 0]
@@ -256,14 +274,7 @@ def compute_forces(n, x, v, w, r, m, mat, f, tq, fext, nb, nnb, hist, rhist,
             hist[i, s, 1] = hy
             hist[i, s, 2] = hz
             if heat:
-                tc = 0.0
-                vimp = 0.0
-                if use_age:
-                    if age[i, s, 0] == 0.0:
-                        age[i, s, 1] = vn
-                    age[i, s, 0] += dt
-                    tc = age[i, s, 0]
-                    vimp = age[i, s, 1]
+                tc, vimp = _contact_age(age, i, s, vn, dt) if use_age else (0.0, 0.0)
                 fel = (2.0 / 3.0) * kn * delta if model == 0 else kn * delta
                 # contact radius (the dispatcher of dem.thermal.contact_radius, with R* at hand)
                 if crm == HERTZ_OVERLAP:
@@ -296,10 +307,7 @@ def compute_forces(n, x, v, w, r, m, mat, f, tq, fext, nb, nnb, hist, rhist,
                 if radon:
                     rnear[i, s] = 1
                 if fric >= 0:
-                    vtm = math.sqrt(vtx * vtx + vty * vty + vtz * vtz)
-                    ftv = abs(ftx * vtx + fty * vty + ftz * vtz)
-                    qf = friction_heat(fric, tab[T_MU, mi, mj], thf[TF_CHI], vtm, fn, ftv,
-                                       thf[TF_CT], thf[TF_CN], ftv, abs(fn * vn))
+                    qf = _contact_heat(fric, tab[T_MU, mi, mj], thf, vtx, vty, vtz, ftx, fty, ftz, fn, vn)
                     psi = partition(pmodel, mi, mj, tmat)
                     qgen[i] += psi * qf
                     qgen[j] += (1.0 - psi) * qf
@@ -412,14 +420,7 @@ def compute_forces(n, x, v, w, r, m, mat, f, tq, fext, nb, nnb, hist, rhist,
             if heat:
                 cond = wth[wl, WT_COND]
                 fel = (2.0 / 3.0) * kn * delta if model == 0 else kn * delta
-                tc = 0.0
-                vimp = 0.0
-                if use_age:
-                    if wage[i, wl, 0] == 0.0:
-                        wage[i, wl, 1] = vn
-                    wage[i, wl, 0] += dt
-                    tc = wage[i, wl, 0]
-                    vimp = wage[i, wl, 1]
+                tc, vimp = _contact_age(wage, i, wl, vn, dt) if use_age else (0.0, 0.0)
                 hw = 0.0
                 if cond != 0.0:
                     rc = contact_radius_pw(crm, crc, ri, dist, fel, tab[T_ESTAR, mi, mw], ereal[mi, mw])
@@ -443,10 +444,7 @@ def compute_forces(n, x, v, w, r, m, mat, f, tq, fext, nb, nnb, hist, rhist,
                 else:
                     Hw[i, q] = hw
                 if fric >= 0:
-                    vtm = math.sqrt(vtx * vtx + vty * vty + vtz * vtz)
-                    ftv = abs(ftx * vtx + fty * vty + ftz * vtz)
-                    qf = friction_heat(fric, tab[T_MU, mi, mw], thf[TF_CHI], vtm, fn, ftv,
-                                       thf[TF_CT], thf[TF_CN], ftv, abs(fn * vn))
+                    qf = _contact_heat(fric, tab[T_MU, mi, mw], thf, vtx, vty, vtz, ftx, fty, ftz, fn, vn)
                     qgen[i] += partition(pmodel, mi, mw, tmat) * qf
             f[i, 0] += -fn * nx + ftx
             f[i, 1] += -fn * ny + fty

@@ -31,16 +31,6 @@ RHO, NU, CP, K = 1.2, 1.5e-5, 1005.0, 0.0262
 MU = RHO * NU
 
 
-@pytest.fixture(scope="session")
-def solver() -> Path:
-    r = subprocess.run(["bash", str(ROOT / "scripts" / "install_openfoam.sh")],
-                       capture_output=True, text=True)
-    assert r.returncode == 0, f"install_openfoam.sh failed:\n{r.stderr[-3000:]}"
-    exe = fc.build_solver()
-    assert exe.is_file() and os.access(exe, os.X_OK)
-    return exe
-
-
 def copy_case(name: str, dest: Path) -> Path:
     shutil.copytree(CASES / name, dest, ignore=shutil.ignore_patterns("README.md"))
     return dest

@@ -32,16 +32,6 @@ MU = RHO * NU
 
 # --------------------------------------------------------------------------- fixtures
 
-@pytest.fixture(scope="session")
-def solver() -> Path:
-    r = subprocess.run(["bash", str(ROOT / "scripts" / "install_openfoam.sh")],
-                       capture_output=True, text=True)
-    assert r.returncode == 0, f"install_openfoam.sh failed:\n{r.stderr[-3000:]}"
-    exe = fc.build_solver()
-    assert exe.is_file() and os.access(exe, os.X_OK)
-    return exe
-
-
 def make_case(tmp_path: Path, template: str, *, n_steps: int, dt: float,
               name: str | None = None, g=None) -> tuple[Path, np.ndarray, np.ndarray]:
     case = fc.copy_template(template, tmp_path / (name or template))

@@ -115,15 +115,9 @@ def geometric_pp(Ri, Rj, d):
     rc = sqrt(4 d^2 Ri^2 - (d^2 - Rj^2 + Ri^2)^2) / (2 d) (ref 002 App. A,
     Musser 2011). 0 if apart; min(Ri, Rj) if one sphere contains the other.
     """
-    if d >= Ri + Rj:
-        return 0.0
-    if d <= abs(Ri - Rj):
+    if d <= 0.0:
         return min(Ri, Rj)
-    t = d * d - Rj * Rj + Ri * Ri
-    v = 4.0 * d * d * Ri * Ri - t * t
-    if v <= 0.0:
-        return 0.0
-    return math.sqrt(v) / (2.0 * d)
+    return geometric_pp_inv(Ri, Rj, d, 1.0 / d)
 
 
 @numba.njit(cache=True, error_model="numpy")

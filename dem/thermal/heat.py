@@ -23,6 +23,7 @@ from numba import njit
 from .convection import convection_conductance, nusselt_gas
 from .radiation import radiation_accumulate, radiation_pp_heat
 from .registry import EMISSIVITY, KF, RHO_F, MU_F, PR
+from ..neighbors import pair_distance
 
 # integer thermal parameters
 TI_HEAT, TI_DIRECT, TI_CR, TI_CORR, TI_INDIRECT, TI_CONV, TI_RAD, TI_FRIC, TI_PART, TI_INTEG, TI_AGE = range(11)
@@ -241,14 +242,7 @@ def local_porosity(n, x, r, nb, nnb, lo, hi, periodic, reach, wf, wi, wnb, wnn, 
     for i in range(n):
         for s in range(nnb[i]):
             j = nb[i, s]
-            d2 = 0.0
-            for k in range(3):
-                dd = x[j, k] - x[i, k]
-                if periodic[k]:
-                    L = hi[k] - lo[k]
-                    dd -= L * math.floor(dd / L + 0.5)
-                d2 += dd * dd
-            d = math.sqrt(d2)
+            d = pair_distance(x, i, j, lo, hi, periodic)
             vs[i] += _lens(r[i] + reach, r[j], d)
             vs[j] += _lens(r[j] + reach, r[i], d)
     for i in range(n):
