@@ -23,9 +23,12 @@ def cmd_check(args):
       f"allowed <= 0.3)")
     p(f"Hertz collision time at {rep['characteristic_velocity']:.3g} m/s: {rep['hertz_time']:.4g} s  "
       f"(dt / t_H = {rep['dt_over_hertz']:.3g}, allowed <= 0.1)")
-    for k in ("thermal_critical_step", "thermal_step", "thermal_step_ratio", "biot_max"):
-        if k in rep:
-            p(f"{k.replace('_', ' ')}: {rep[k]:.4g}")
+    if "thermal_critical_step" in rep:
+        p(f"thermal step: {rep['thermal_step']:.4g} s; thermal critical step rho c R / k: "
+          f"{rep['thermal_critical_step']:.4g} s (ratio {rep['thermal_step_ratio']:.3g}); "
+          f"euler network limit min C_i / sum H_ij: {rep['network_step_limit']:.4g} s")
+    if "biot_max" in rep:
+        p(f"largest Biot number h R / k_p: {rep['biot_max']:.3g} (lumped temperature valid below 0.1)")
     for w in rep.get("warnings", []):
         p(f"warning: {w}")
     p(f"memory: {rep['memory_bytes'] / 2**20:.2f} MiB ({rep['memory_per_particle']:.0f} B per particle)")
