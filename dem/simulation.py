@@ -305,7 +305,8 @@ class Simulation:
         self.nb, self.nnb, self.hist, self.rhist, self.age, self.Hd, self.Hi, self.rnear = res[7:15]
         self.step_count += done
         self.time = self.step_count * self.dt
-        self.last_contacts = nc
+        if self.ip[K.I_MECH]:  # frozen packings keep the contact count of their set-up
+            self.last_contacts = nc
         if status != K.OK:
             self._instability(status, who, other, value)
         return done
