@@ -20,7 +20,8 @@ def render(out_dir, png=None, color=None):
     geom = pv.Sphere(radius=1.0, theta_resolution=12, phi_resolution=12)
     glyphs = mesh.glyph(scale="radius", geom=geom, orient=False)
     pl = pv.Plotter(off_screen=True, window_size=(900, 700))
-    pl.add_mesh(glyphs, scalars=color, cmap="coolwarm" if "temp" in color else "viridis")
+    pl.add_mesh(glyphs, scalars=color, cmap="coolwarm" if "temp" in color else "viridis",
+                scalar_bar_args={"fmt": "%.2f", "title": color})
     pl.view_isometric()
     png = png or os.path.join(out_dir, "render.png")
     pl.screenshot(png)
