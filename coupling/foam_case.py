@@ -31,6 +31,7 @@ SOLVER_NAME = "thermoDemFoam"
 REQUIRED_FIELDS = ("U", "p", "T", "eps")
 REQUIRED_FILES = (
     "constant/transportProperties",
+    "constant/turbulenceProperties",
     "constant/g",
     "system/controlDict",
     "system/fvSchemes",
@@ -44,6 +45,12 @@ __all__ = [
     "set_entries", "write_coupling_dict", "start_solver", "check_case", "patch_names",
     "cell_proc_addressing",
 ]
+
+
+# constant/turbulenceProperties simulationType (OpenFOAM's incompressible turbulence models)
+SIMULATION_TYPES = ("laminar", "RAS", "LES")
+# fields of the turbulence models checked for boundary conditions when present in 0/
+TURBULENCE_FIELDS = ("nut", "k", "epsilon", "omega", "nuTilda")
 
 
 class CaseError(ValueError):
@@ -503,13 +510,20 @@ def check_case(case, *, coupled: bool = True) -> None:
     """Check an OpenFOAM case for thermoDemFoam; raise :class:`CaseError` naming the file.
 
     Checks: required files/fields, every patch has a boundary condition in every field
-    (and no unknown patch), gas properties physical (nu, rho, cp > 0; k >= 0 or Pr > 0),
+    (and no unknown patch), gas properties physical (transportModel Newtonian; nu, rho,
+    cp > 0; k >= 0 or Pr > 0; Prt > 0), constant/turbulenceProperties (required, as by
+    OpenFOAM's turbulence framework: simulationType laminar | RAS | LES; RAS/LES need
+    0/nut; the turbulence fields present in 0/ are checked like U, p, T, eps),
     modelType A/B, couplingDict transport, eps within (0, 1]."""
     case = Path(case)
     if not case.is_dir():
         raise CaseError(case, "case directory does not exist")
     for rel in REQUIRED_FILES:
         if not (case / rel).exists():
+            if rel == "constant/turbulenceProperties":
+                raise CaseError(case / rel, "missing (thermoDemFoam reads it through OpenFOAM's "
+                                "turbulence framework; for laminar gas write "
+                                "'simulationType laminar;')")
             raise CaseError(case / rel, "missing")
     for fld in REQUIRED_FIELDS:
         if not (case / "0" / fld).exists():
@@ -517,6 +531,13 @@ def check_case(case, *, coupled: bool = True) -> None:
 
     tp_path = case / "constant" / "transportProperties"
     tp = parse_foam_dict(tp_path)
+    tm = tp.get("transportModel")
+    if tm is None:
+        raise CaseError(tp_path, "entry 'transportModel' missing (add 'transportModel Newtonian;' "
+                        "for OpenFOAM's singlePhaseTransportModel)")
+    if tm != "Newtonian":
+        raise CaseError(tp_path, f"transportModel {tm!r} not supported (use Newtonian: the drag "
+                        "correlations of the DEM use the constant viscosity rho*nu)")
     nu, rho = _float(tp_path, tp, "nu"), _float(tp_path, tp, "rho")
     cp = _float(tp_path, tp, "cp") if "cp" in tp else 1005.0
     for name, v in (("nu", nu), ("rho", rho), ("cp", cp)):
@@ -530,8 +551,24 @@ def check_case(case, *, coupled: bool = True) -> None:
         pr = _float(tp_path, tp, "Pr")
         if not np.isfinite(pr) or pr <= 0:
             raise CaseError(tp_path, f"non-physical gas property Pr = {pr} (must be > 0)")
+    if "Prt" in tp:
+        prt = _float(tp_path, tp, "Prt")
+        if not np.isfinite(prt) or prt <= 0:
+            raise CaseError(tp_path, f"non-physical turbulent Prandtl number Prt = {prt} (must be > 0)")
     if nu > 1e-2:
         raise CaseError(tp_path, f"nu = {nu} m^2/s is not a gas kinematic viscosity")
+
+    turb_path = case / "constant" / "turbulenceProperties"
+    sim_type = parse_foam_dict(turb_path).get("simulationType")
+    if sim_type not in SIMULATION_TYPES:
+        raise CaseError(turb_path, f"simulationType {sim_type!r} unknown (use "
+                        + ", ".join(SIMULATION_TYPES) + ")")
+    fields = list(REQUIRED_FIELDS)
+    if sim_type != "laminar":
+        if not (case / "0" / "nut").exists():
+            raise CaseError(case / "0" / "nut", f"missing field 'nut' (needed by simulationType "
+                            f"{sim_type}, with e.g. nutkWallFunction on walls)")
+        fields += [f for f in TURBULENCE_FIELDS if (case / "0" / f).exists()]
 
     cpp = case / "constant" / "couplingProperties"
     if cpp.exists():
@@ -548,7 +585,7 @@ def check_case(case, *, coupled: bool = True) -> None:
             raise CaseError(cd, f"transport {tr!r} unknown (use file, socket or none)")
 
     patches = set(patch_names(case))
-    for fld in REQUIRED_FIELDS:
+    for fld in fields:
         p = case / "0" / fld
         d = parse_foam_dict(p)
         bf = d.get("boundaryField")

@@ -17,7 +17,9 @@ CACHE_ROOT="${THERMODEM_CACHE:-$HOME/.cache/thermodem}"
 SRC_CACHE="$CACHE_ROOT/openfoam-src"
 TREE_NAME="openfoam-OpenFOAM-v1912.200626"
 TREE="$SRC_CACHE/$TREE_NAME"
-STAMP="$TREE/.thermodem-prepared-v3"   # bump when the preparation changes
+STAMP="$TREE/.thermodem-prepared-v4"   # bump when the preparation changes
+# v4: thermoDemFoam uses the incompressible turbulence framework: the TurbulenceModels /
+#     transportModels headers and the Debian libraries are verified below
 
 log() { echo "[install_openfoam] $*" >&2; }
 die() { echo "[install_openfoam] ERROR: $*" >&2; exit 1; }
@@ -89,6 +91,8 @@ else
 fi
 
 # ---------------------------------------------------------------- 3. extract
+# TurbulenceModels + transportModels: thermoDemFoam's turbulence option
+# (incompressible::turbulenceModel, singlePhaseTransportModel)
 libs="OpenFOAM OSspecific finiteVolume meshTools fvOptions sampling surfMesh fileFormats
       TurbulenceModels transportModels dynamicMesh dynamicFvMesh"
 members="$TREE_NAME/META-INFO $TREE_NAME/bin $TREE_NAME/etc $TREE_NAME/wmake"
@@ -117,8 +121,23 @@ tar -xf "$orig" -C "$SRC_CACHE" $members
     for d in "$FOAM_SRC"/TurbulenceModels/* "$FOAM_SRC"/transportModels/*; do
         if [ -f "$d/Make/files" ]; then wmakeLnInclude -u "$d" >&2 || exit 1; fi
     done
+    # headers included by thermoDemFoam (see its Make/options)
+    for h in TurbulenceModels/turbulenceModels/lnInclude/turbulenceModel.H \
+             TurbulenceModels/incompressible/lnInclude/turbulentTransportModel.H \
+             transportModels/incompressible/singlePhaseTransportModel/singlePhaseTransportModel.H
+    do
+        [ -f "$FOAM_SRC/$h" ] || { echo "missing header $FOAM_SRC/$h" >&2; exit 1; }
+    done
     exit 0
 ) || die "wmake tools / lnInclude failed"
+
+# Debian's libraries linked by thermoDemFoam's Make/options (in /usr/lib or a subfolder)
+for l in finiteVolume fvOptions meshTools sampling turbulenceModels \
+         incompressibleTurbulenceModels incompressibleTransportModels; do
+    found=$(ls /usr/lib/lib$l.so /usr/lib/*/lib$l.so /usr/lib/openfoam*/lib$l.so \
+               /usr/lib/openfoam*/*/lib$l.so 2>/dev/null | head -n1 || true)
+    [ -n "$found" ] || die "lib$l.so not found under /usr/lib (is Debian's openfoam package complete?)"
+done
 
 touch "$STAMP"
 log "source tree ready: $TREE"

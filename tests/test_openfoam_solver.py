@@ -136,6 +136,25 @@ def test_check_case_names_file(tmp_path):
     (case / "0" / "T").write_text((case / "0" / "T").read_text().replace("xWalls", "sideWalls"))
     with pytest.raises(fc.CaseError, match=r"0/T: missing boundary condition for patch\(es\) \['xWalls'\]"):
         fc.check_case(case)
+    # turbulence: the file is required (laminar by default); RAS needs 0/nut
+    case = fc.copy_template("ergun", tmp_path / "f")
+    fc.write_coupling_dict(case, "file")
+    turb = case / "constant" / "turbulenceProperties"
+    text = turb.read_text()
+    turb.unlink()
+    with pytest.raises(fc.CaseError, match=r"turbulenceProperties: missing .*simulationType laminar"):
+        fc.check_case(case)
+    turb.write_text(text.replace("simulationType  laminar;", "simulationType  turbulent;"))
+    with pytest.raises(fc.CaseError, match=r"turbulenceProperties: simulationType 'turbulent' unknown"):
+        fc.check_case(case)
+    turb.write_text(text.replace("simulationType  laminar;", "simulationType  RAS;"))
+    with pytest.raises(fc.CaseError, match=r"0/nut: missing field 'nut'"):
+        fc.check_case(case)
+    tp = case / "constant" / "transportProperties"
+    turb.write_text(text)
+    tp.write_text(tp.read_text().replace("transportModel  Newtonian;", ""))
+    with pytest.raises(fc.CaseError, match=r"transportProperties: entry 'transportModel' missing"):
+        fc.check_case(case)
 
 
 # --------------------------------------------------------------------------- (a) plain flow
@@ -179,6 +198,84 @@ def test_a_empty_channel_reproduces_pimpleFoam(tmp_path, solver):
     assert np.abs(p_our - p_ref).max() < 1e-8 * np.abs(p_ref).max()
     # developing laminar flow: no-slip side walls slow the gas near them
     assert U_our[:, 2].max() > 2.0 > U_our[:, 2].min()
+
+
+def _turbulence_field(cls: str, obj: str, dims: str, value: float, patches: dict) -> str:
+    bcs = "\n".join(f"    {name}\n    {{\n        {bc}\n    }}" for name, bc in patches.items())
+    return (
+        "FoamFile { version 2.0; format ascii; class " + cls + "; location \"0\"; object "
+        + obj + "; }\n"
+        f"dimensions {dims};\ninternalField uniform {value!r};\nboundaryField\n{{\n{bcs}\n}}\n")
+
+
+def set_k_epsilon(case: Path, k_in: float, eps_in: float) -> None:
+    """Switch the fluidized_bed_heating template to RAS kEpsilon with wall functions."""
+    (case / "constant" / "turbulenceProperties").write_text(
+        "FoamFile { version 2.0; format ascii; class dictionary; object turbulenceProperties; }\n"
+        "simulationType RAS;\nRAS\n{\n    RASModel kEpsilon;\n    turbulence on;\n"
+        "    printCoeffs on;\n}\n")
+    z = "zeroGradient"
+    (case / "0" / "k").write_text(_turbulence_field(
+        "volScalarField", "k", "[0 2 -2 0 0 0 0]", k_in, {
+            "inlet": f"type fixedValue; value uniform {k_in!r};",
+            "outlet": f"type inletOutlet; inletValue uniform {k_in!r}; value uniform {k_in!r};",
+            "xWalls": f"type kqRWallFunction; value uniform {k_in!r};",
+            "yWalls": f"type {z};"}))
+    (case / "0" / "epsilon").write_text(_turbulence_field(
+        "volScalarField", "epsilon", "[0 2 -3 0 0 0 0]", eps_in, {
+            "inlet": f"type fixedValue; value uniform {eps_in!r};",
+            "outlet": f"type inletOutlet; inletValue uniform {eps_in!r}; value uniform {eps_in!r};",
+            "xWalls": f"type epsilonWallFunction; value uniform {eps_in!r};",
+            "yWalls": f"type {z};"}))
+    (case / "0" / "nut").write_text(_turbulence_field(
+        "volScalarField", "nut", "[0 2 -1 0 0 0 0]", 0.0, {
+            "inlet": "type calculated; value uniform 0;",
+            "outlet": "type calculated; value uniform 0;",
+            "xWalls": "type nutkWallFunction; value uniform 0;",
+            "yWalls": "type calculated; value uniform 0;"}))
+    fv = case / "system" / "fvSchemes"
+    fv.write_text(fv.read_text().replace(
+        "div(phi,T)", "div(phi,k)   Gauss limitedLinear 1;\n"
+        "    div(phi,epsilon) Gauss limitedLinear 1;\n    div(phi,T)"))
+    fs = case / "system" / "fvSolution"
+    fs.write_text(fs.read_text().replace(
+        '    "T(Final)?"',
+        '    "(k|epsilon)(Final)?"\n    {\n        solver smoothSolver;\n'
+        '        smoother symGaussSeidel;\n        tolerance 1e-10;\n        relTol 0;\n    }\n\n'
+        '    "T(Final)?"', 1))
+
+
+def test_a_empty_channel_k_epsilon(tmp_path, solver):
+    """simulationType RAS (kEpsilon, wall functions): runs, nut > 0, mass is conserved."""
+    n_steps, dt = 20, 1e-3
+    case, C, V = make_case(tmp_path, "fluidized_bed_heating", n_steps=n_steps, dt=dt,
+                           name="channel_kEpsilon", g=(0, 0, 0))
+    n = len(V)
+    # inlet: 5 % turbulence intensity at 2 m/s, mixing length 5 mm
+    k_in = 1.5 * (0.05 * 2.0) ** 2
+    eps_in = 0.09 ** 0.75 * k_in ** 1.5 / 5e-3
+    set_k_epsilon(case, k_in, eps_in)
+
+    out = run_coupled(case, solver, n_steps, lambda s, fl: zero_inputs(n), send_velocity="flux")
+
+    log = (case / "log.thermoDemFoam").read_text()
+    assert "Selecting RAS turbulence model kEpsilon" in log
+    levels, lay = layers(C)
+    dz = levels[1] - levels[0]
+    area = V / dz
+    inflow = 2.0 * area[lay[0]].sum()
+    for fl in out[1:]:
+        assert all(np.all(np.isfinite(a)) for a in fl.values())
+        for idx in (lay[0], lay[len(lay) // 2], lay[-1]):
+            q = (fl["U"][idx, 2] * area[idx]).sum()
+            assert q == pytest.approx(inflow, rel=1e-7)
+    tname = f"{n_steps * dt:g}"
+    nut = fc.read_internal_field(case / tname / "nut", n)
+    k = fc.read_internal_field(case / tname / "k", n)
+    assert np.all(nut > 0) and np.all(k > 0)
+    assert nut.max() > NU          # the eddy viscosity matters: nuEff = nu + nut
+    U = fc.read_internal_field(case / tname / "U", n)
+    assert U[:, 2].max() > 2.0 > U[:, 2].min()
 
 
 # --------------------------------------------------------------------------- (b) Ergun

@@ -6,11 +6,14 @@ Description
     Gas phase of an unresolved CFD-DEM coupling (OpenFOAM v1912) for the
     thermodem Python/Numba DEM code.
 
-    Volume-averaged, incompressible, laminar gas with void fraction eps:
+    Volume-averaged, incompressible gas with void fraction eps:
       d(eps)/dt + div(eps U) = 0
-      d(eps U)/dt + div(eps U U) - div(eps nu grad U)
+      d(eps U)/dt + div(eps U U) - div(eps nuEff (grad U + dev2 grad U^T))
           = epsP (g - grad p) - Ksl/rho (U - Us)
-      eps rho cp (dT/dt + U.grad T) = div(eps k grad T) + Sexp - Simp T
+      eps rho cp (dT/dt + U.grad T) = div(eps k_eff grad T) + Sexp - Simp T
+    Laminar by default; OpenFOAM's incompressible turbulence models (RAS, LES)
+    are selected in constant/turbulenceProperties: nuEff = nu + nut,
+    k_eff = k + rho cp nut/Prt (Prt in transportProperties, default 0.85).
     epsP = eps (Zhou et al. 2010, set II, model A; default) or 1 (model B),
     chosen by 'modelType' in constant/couplingProperties.
 
@@ -22,6 +25,8 @@ Description
 \*---------------------------------------------------------------------------*/
 
 #include "fvCFD.H"
+#include "singlePhaseTransportModel.H"
+#include "turbulentTransportModel.H"
 #include "pimpleControl.H"
 #include "fvOptions.H"
 #include "fixedFluxPressureFvPatchScalarField.H"
@@ -85,6 +90,8 @@ int main(int argc, char *argv[])
     #include "createMesh.H"
     #include "createPimpleControl.H"
     #include "createFields.H"
+
+    turbulence->validate();
 
     scalar cumulativeContErr = 0;
 
@@ -206,6 +213,12 @@ int main(int argc, char *argv[])
             while (pimple.correct())
             {
                 #include "pEqn.H"
+            }
+
+            if (pimple.turbCorr())
+            {
+                laminarTransport.correct();
+                turbulence->correct();
             }
         }
 

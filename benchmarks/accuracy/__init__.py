@@ -1,0 +1,1 @@
+"""Work-precision benchmarks of the DEM and thermal settings (see run.py)."""
