@@ -27,6 +27,8 @@ def cmd_check(args):
         p(f"thermal step: {rep['thermal_step']:.4g} s; thermal critical step rho c R / k: "
           f"{rep['thermal_critical_step']:.4g} s (ratio {rep['thermal_step_ratio']:.3g}); "
           f"euler network limit min C_i / sum H_ij: {rep['network_step_limit']:.4g} s")
+    if "radiation_step_limit" in rep:
+        p(f"euler radiation limit C / (4 eps sigma A T_max^3): {rep['radiation_step_limit']:.4g} s")
     if "biot_max" in rep:
         p(f"largest Biot number h R / k_p: {rep['biot_max']:.3g} (lumped temperature valid below 0.1)")
     for w in rep.get("warnings", []):

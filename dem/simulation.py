@@ -325,9 +325,13 @@ class Simulation:
             msg = (f"particle id {pid} got a non-finite velocity {where}: the run is unstable. "
                    f"Lower time_step (now {self.dt:g} s; see `dem check`), or check forces and properties")
         elif status == K.BAD_TEMPERATURE:
-            msg = (f"particle id {pid} reached temperature {value:.6g} K {where}: the heat step is unstable. "
-                   f"Use thermal.integrator = \"exponential\" or a smaller step (see `dem check`: "
-                   f"network step limit), or check the heat sources and wall fluxes")
+            integ = self.thermal.cfg["integrator"] if self.thermal is not None else "euler"
+            advice = ("use thermal.integrator = \"exponential\" or a step below the network and "
+                      "radiation limits printed by `dem check`" if integ == "euler" else
+                      "lower the thermal step: heat sources, fixed wall fluxes or friction heat are "
+                      "explicit and outrun the particle's heat capacity")
+            msg = (f"particle id {pid} reached temperature {value:.6g} K {where}: the heat step "
+                   f"({integ}, dt = {self.dt:g} s) is unstable; {advice}")
         else:
             msg = (f"particle id {pid} left the domain {where} at {pos} (domain {self.lo.tolist()} to "
                    f"{self.hi.tolist()}). Add walls, enlarge [domain], or make the axis periodic")

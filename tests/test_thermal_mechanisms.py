@@ -158,3 +158,33 @@ def test_packed_bed_effective_conductivity(packing):
     print(f"porosity {eps:.3f}: k_eff DEM {k_eff:.4f} W/(m K), Zehner-Schlunder {zs:.4f} W/(m K), "
           f"ratio {k_eff / zs:.2f}")
     assert 0.5 < k_eff / zs < 2.0
+
+
+def test_exponential_update_with_radiation_is_bounded_and_steady():
+    """A particle on a 1500 K wall radiating to 300 K surroundings: the exponential update
+    treats walls and radiation as one exact relaxation, so a 20 s step stays inside
+    [300, 1500] K and reaches the same steady temperature as a 0.1 s step (flux balance
+    H_w (T_w - T) = eps sigma A (T^4 - T_env^4))."""
+    def final(dt, end=400.0):
+        sc = scene([{"material": "p", "positions": [[0, 0, R - 2e-5]], "radius": R, "temperature": 300.0}],
+                   {"direct": "batchelor_obrien", "radiation": "zhou_2009", "porosity": "global",
+                    "integrator": "exponential", "time_step": dt},
+                   walls=[{"type": "plane", "point": [0, 0, 0], "normal": [0, 0, 1], "material": "p",
+                           "thermal": {"condition": "fixed_temperature", "temperature": 1500.0}}],
+                   gas={"conductivity": 0.026, "temperature": 300.0, "porosity": 1.0}, end=end)
+        sim = Simulation.from_dict(sc)
+        sim.run(progress=False)
+        return sim
+    fine = final(0.1)
+    coarse = final(20.0)
+    T = coarse.state.temperature[0]
+    assert 300.0 < T < 1500.0
+    assert T == pytest.approx(fine.state.temperature[0], rel=1e-3)
+    # steady flux balance
+    Hw = fine.thermal.Hw[fine.thermal.Hw > 0][0]
+    Tf = fine.state.temperature[0]
+    A = 4 * math.pi * R ** 2
+    assert Hw * (1500.0 - Tf) == pytest.approx(0.8 * SIGMA * A * (Tf ** 4 - 300.0 ** 4), rel=1e-3)
+    # energy bookkeeping: wall in = stored + radiated
+    C = 1 / fine.state.inv_heat_capacity[0]
+    assert fine.thermal.wtot[0] + fine.thermal.tot[3] == pytest.approx(C * (Tf - 300.0), rel=1e-9)

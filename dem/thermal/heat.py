@@ -11,9 +11,10 @@ the temperatures with either
 * ``exponential``: each pair (and each particle-reservoir link: fixed-temperature
   wall, convection) is advanced with its exact two-body solution
   dT = (T_j - T_i)(1 - exp(-H (1/C_i + 1/C_j) dt)) in sequence; explicit terms
-  (radiation, generation, sources, fixed flux) are added after. Every update is a
+  (generation, sources, fixed flux) are added after. Every update is a
   convex combination, so it is stable for any step, conserves sum(C T) exactly, and is
-  exact for two bodies.
+  exact for two bodies. Radiation is treated the same way, as an exact relaxation towards
+  its environment temperature with the secant conductance eps sigma A (Te^2+T^2)(Te+T).
 """
 import math
 
@@ -21,7 +22,7 @@ import numpy as np
 from numba import njit
 
 from .convection import convection_conductance, nusselt_gas
-from .radiation import radiation_accumulate, radiation_pp_heat
+from .radiation import SIGMA_SB, radiation_accumulate, radiation_env_temperature, radiation_pp_heat
 from .registry import EMISSIVITY, KF, RHO_F, MU_F, PR
 from ..neighbors import pair_distance
 
@@ -87,63 +88,7 @@ def heat_step(n, dt, t, T, cinv, Q, v, r, x, mat, nb, nnb, Hd, Hi, rnear, wnb, w
             _pair_sweep(n, dt, T, cinv, Q, nb, nnb, Hd, Hi, has_ind, 0, 1, tot)
         else:
             _pair_sweep(n, 0.5 * dt, T, cinv, Q, nb, nnb, Hd, Hi, has_ind, 1, 1, tot)
-    # ---- walls
-    for i in range(n if not fused else 0):
-        for q in range(wnn[i]):
-            h = Hw[i, q]
-            if h <= 0.0:
-                continue
-            w = wnb[i, q]
-            cond = wth[w, WT_COND]
-            if cond == 1.0:
-                tw = wall_temperature(wth, wtab, w, t)
-                if integ == 0:
-                    qq = h * (tw - T[i])
-                    Q[i] += qq
-                    e = qq * dt
-                else:
-                    tn = tw + (T[i] - tw) * math.exp(-h * cinv[i] * dt)
-                    e = (tn - T[i]) / cinv[i]
-                    T[i] = tn
-            elif cond == 2.0:
-                qq = h * wth[w, WT_Q]
-                Q[i] += qq
-                e = qq * dt
-            else:
-                e = 0.0
-            wtot[w] += e
-            tot[E_WALL] += e
-    # ---- convection with the gas at the particle
-    if conv >= 0:
-        kf = gas[KF]
-        rho = gas[RHO_F]
-        mu = gas[MU_F]
-        pr = gas[PR]
-        ec = 0.0
-        for i in range(n):
-            ux = uf[i, 0] - v[i, 0]
-            uy = uf[i, 1] - v[i, 1]
-            uz = uf[i, 2] - v[i, 2]
-            ur = math.sqrt(ux * ux + uy * uy + uz * uz)
-            re = por[i] * rho * ur * 2.0 * r[i] / mu
-            nu = nusselt_gas(conv, re, pr, por[i], gas)
-            h = convection_conductance(r[i], kf, nu)
-            if integ == 0:
-                qq = h * (tf[i] - T[i])
-                Q[i] += qq
-                ec += qq * dt
-            else:
-                tn = tf[i] + (T[i] - tf[i]) * math.exp(-h * cinv[i] * dt)
-                ec += (tn - T[i]) / cinv[i]
-                T[i] = tn
-        tot[E_CONV] += ec
-    if not fused and integ != 0:
-        _pair_sweep(n, 0.5 * dt, T, cinv, Q, nb, nnb, Hd, Hi, has_ind, 1, -1, tot)
-    # ---- explicit terms: radiation, generation, sources (added to Q)
-    if integ != 0:
-        for i in range(n):
-            work[i, 2] = Q[i]  # explicit wall flux so far
-            Q[i] = 0.0
+    # ---- radiation environment (from the temperatures after the first pair half-sweep)
     if rad >= 0:
         acc0 = np.zeros(n)
         acc1 = np.zeros(n)
@@ -157,12 +102,104 @@ def heat_step(n, dt, t, T, cinv, Q, v, r, x, mat, nb, nnb, Hd, Hi, rnear, wnb, w
                     a0, a1 = radiation_accumulate(rad, acc0[j], acc1[j], T[i], tmat[mat[i], EMISSIVITY], r[i])
                     acc0[j] = a0
                     acc1[j] = a1
+    # ---- reservoir links: fixed-temperature walls, gas (convection), radiation environment.
+    # Euler: explicit rates into Q. Exponential: all links of a particle together relax it
+    # exactly towards their conductance-weighted temperature (steady state exact, bounded,
+    # any step); radiation enters with its secant conductance eps sigma A (Te^2+T^2)(Te+T).
+    expo = integ != 0
+    if expo:
+        hs = np.zeros(n)
+        hts = np.zeros(n)
+    for i in range(n if not fused else 0):
+        for q in range(wnn[i]):
+            h = Hw[i, q]
+            if h <= 0.0:
+                continue
+            w = wnb[i, q]
+            cond = wth[w, WT_COND]
+            if cond == 1.0:
+                tw = wall_temperature(wth, wtab, w, t)
+                if expo:
+                    hs[i] += h
+                    hts[i] += h * tw
+                    continue
+                qq = h * (tw - T[i])
+            elif cond == 2.0:
+                qq = h * wth[w, WT_Q]  # fixed flux: explicit in both schemes
+            else:
+                continue
+            Q[i] += qq
+            wtot[w] += qq * dt
+            tot[E_WALL] += qq * dt
+    hconv = np.zeros(n if conv >= 0 else 0)
+    if conv >= 0:
+        ec = 0.0
+        for i in range(n):
+            ux = uf[i, 0] - v[i, 0]
+            uy = uf[i, 1] - v[i, 1]
+            uz = uf[i, 2] - v[i, 2]
+            ur = math.sqrt(ux * ux + uy * uy + uz * uz)
+            re = por[i] * gas[RHO_F] * ur * 2.0 * r[i] / gas[MU_F]
+            h = convection_conductance(r[i], gas[KF], nusselt_gas(conv, re, gas[PR], por[i], gas))
+            hconv[i] = h
+            if expo:
+                hs[i] += h
+                hts[i] += h * tf[i]
+            else:
+                qq = h * (tf[i] - T[i])
+                Q[i] += qq
+                ec += qq * dt
+        tot[E_CONV] += ec
+    hrad = np.zeros(n if rad >= 0 else 0)
+    tenv = np.zeros(n if rad >= 0 else 0)
+    if rad >= 0:
         er = 0.0
         for i in range(n):
-            qq = radiation_pp_heat(rad, tmat[mat[i], EMISSIVITY], r[i], T[i], acc0[i], acc1[i], por[i], tf[i])
-            Q[i] += qq
-            er += qq * dt
+            if expo:
+                te = radiation_env_temperature(rad, acc0[i], acc1[i], por[i], tf[i], T[i])
+                ti = T[i]
+                h = tmat[mat[i], EMISSIVITY] * SIGMA_SB * 4.0 * math.pi * r[i] * r[i] * (te * te + ti * ti) * (te + ti)
+                hrad[i] = h
+                tenv[i] = te
+                hs[i] += h
+                hts[i] += h * te
+            else:
+                qq = radiation_pp_heat(rad, tmat[mat[i], EMISSIVITY], r[i], T[i], acc0[i], acc1[i], por[i], tf[i])
+                Q[i] += qq
+                er += qq * dt
         tot[E_RAD] += er
+    if expo:
+        for i in range(n):
+            if hs[i] <= 0.0:
+                continue
+            ti = T[i]
+            tstar = hts[i] / hs[i]
+            tn = tstar + (ti - tstar) * math.exp(-hs[i] * cinv[i] * dt)
+            e = (tn - ti) / cinv[i]
+            T[i] = tn
+            # share of each link: proportional to its rate h_k (T_k - T_i) at the start
+            den = hts[i] - hs[i] * ti
+            if den == 0.0:
+                continue
+            f = e / den
+            if not fused:
+                for q in range(wnn[i]):
+                    w = wnb[i, q]
+                    if Hw[i, q] > 0.0 and wth[w, WT_COND] == 1.0:
+                        ew = f * Hw[i, q] * (wall_temperature(wth, wtab, w, t) - ti)
+                        wtot[w] += ew
+                        tot[E_WALL] += ew
+            if conv >= 0:
+                tot[E_CONV] += f * hconv[i] * (tf[i] - ti)
+            if rad >= 0:
+                tot[E_RAD] += f * hrad[i] * (tenv[i] - ti)
+    if not fused and expo:
+        _pair_sweep(n, 0.5 * dt, T, cinv, Q, nb, nnb, Hd, Hi, has_ind, 1, -1, tot)
+    # ---- explicit terms: generation, sources, fixed fluxes (Q)
+    if expo:
+        for i in range(n):
+            work[i, 2] = Q[i]  # explicit wall flux so far
+            Q[i] = 0.0
     eg = 0.0
     es = 0.0
     has_gen = qgen.shape[0] == n

@@ -204,6 +204,21 @@ class ThermalModel:
             warnings.append(f"euler thermal step {s.dt:.3g} s exceeds the network stability limit "
                             f"min C_i/sum H_ij = {lim:.3g} s: use thermal.integrator = \"exponential\" "
                             f"or a smaller step")
+        if self.thi[TI_RAD] >= 0:
+            # explicit radiation: dt < C / (4 eps sigma A T^3) at the hottest temperature in play
+            from .radiation import SIGMA_SB
+            tw = [w["temperature"] for w in self.cfg["walls"]] + [float(np.max(st.temperature))]
+            if np.isfinite(self.gas[R.T_F]):
+                tw.append(self.gas[R.T_F])
+            tmax = max(tw)
+            eps_r = self.tmat[st.material, R.EMISSIVITY]
+            C = 1.0 / st.inv_heat_capacity
+            rl = float(np.min(C / (4 * eps_r * SIGMA_SB * 4 * np.pi * st.radius ** 2 * tmax ** 3)))
+            rep["radiation_step_limit"] = rl
+            if self.cfg["integrator"] == "euler" and s.dt > rl:
+                warnings.append(f"euler thermal step {s.dt:.3g} s exceeds the radiation limit "
+                                f"C / (4 eps sigma A T^3) = {rl:.3g} s at {tmax:.0f} K: use "
+                                f"thermal.integrator = \"exponential\" or a smaller step")
         if self.thi[TI_CONV] >= 0:
             from .convection import nusselt_gas
             g = self.gas
