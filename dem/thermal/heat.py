@@ -133,15 +133,10 @@ def heat_step(n, dt, t, T, cinv, Q, v, r, x, mat, nb, nnb, Hd, Hi, rnear, wnb, w
             tot[E_WALL] += qq * dt
     hconv = np.zeros(n if conv >= 0 else 0)
     if conv >= 0:
+        convection_conductances(n, v, r, uf, por, gas, conv, hconv)
         ec = 0.0
         for i in range(n):
-            ux = uf[i, 0] - v[i, 0]
-            uy = uf[i, 1] - v[i, 1]
-            uz = uf[i, 2] - v[i, 2]
-            ur = math.sqrt(ux * ux + uy * uy + uz * uz)
-            re = por[i] * gas[RHO_F] * ur * 2.0 * r[i] / gas[MU_F]
-            h = convection_conductance(r[i], gas[KF], nusselt_gas(conv, re, gas[PR], por[i], gas))
-            hconv[i] = h
+            h = hconv[i]
             if expo:
                 hs[i] += h
                 hts[i] += h * tf[i]
