@@ -22,7 +22,8 @@ def cmd_check(args):
     p(f"Rayleigh time: {rep['rayleigh_time']:.4g} s  (dt / t_R = {rep['dt_over_rayleigh']:.3g}, "
       f"allowed <= 0.3)")
     p(f"Hertz collision time at {rep['characteristic_velocity']:.3g} m/s: {rep['hertz_time']:.4g} s  "
-      f"(dt / t_H = {rep['dt_over_hertz']:.3g}, allowed <= 0.1)")
+      f"(dt / t_H = {rep['dt_over_hertz']:.3g}, allowed <= 0.1); impact overlap "
+      f"{rep['impact_overlap_ratio']:.3g} of the radius")
     if "thermal_critical_step" in rep:
         p(f"thermal step: {rep['thermal_step']:.4g} s; thermal critical step rho c R / k: "
           f"{rep['thermal_critical_step']:.4g} s (ratio {rep['thermal_step_ratio']:.3g}); "

@@ -218,6 +218,18 @@ class Simulation:
             th = min(th, hertz_collision_time(mmin / 2, rmin / 2, estar, vchar))
             for w in sc.walls:
                 th = min(th, hertz_collision_time(mmin, rmin, self.tab[K.T_ESTAR, k, w["material"]], vchar))
+        # largest Hertz overlap of an impact at the characteristic velocity (smallest, softest particle)
+        ovmax = 0.0
+        for k, m in enumerate(sc.materials):
+            sel = st.material == k
+            if not np.any(sel):
+                continue
+            rmin = float(st.radius[sel].min())
+            mmin = 4 / 3 * math.pi * rmin ** 3 * m["density"]
+            estar = self.tab[K.T_ESTAR, k, k]
+            d = (15 * (mmin / 2) * vchar ** 2 / (16 * estar * math.sqrt(rmin / 2))) ** 0.4
+            ovmax = max(ovmax, d / rmin)
+        rep["impact_overlap_ratio"] = ovmax
         rep["rayleigh_time"] = tr
         rep["hertz_time"] = th
         rep["characteristic_velocity"] = vchar
@@ -232,8 +244,15 @@ class Simulation:
         rep["memory_per_particle"] = mem / max(st.n, 1)
         runs, skipped = self.models_report()
         rep["runs"], rep["skipped"] = runs, skipped
+        warnings = []
+        if sc.simulation["mechanics"] and ovmax > self.fp[K.F_MAXOV]:
+            warnings.append(f"a Hertz impact at the characteristic velocity {vchar:.3g} m/s overlaps "
+                            f"{ovmax:.3g} of the radius, above simulation.max_overlap_ratio = "
+                            f"{self.fp[K.F_MAXOV]:g}: the overlap guard may stop the run (raise "
+                            f"youngs_modulus, or the bound if such overlaps are acceptable)")
         if self.thermal is not None:
             rep.update(self.thermal.check())
+        rep["warnings"] = warnings + rep.get("warnings", [])
         problems = []
         if sc.simulation["mechanics"]:
             if self.dt > scene_mod.RAYLEIGH_FRACTION * tr:
