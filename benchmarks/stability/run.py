@@ -305,8 +305,8 @@ SUMMARY_PLACEHOLDER = """Findings (see the rows above):
   guard fires; past the edge every run is stopped by the overlap guard (never by NaN), within a few steps.
 * Soft particles at high speed: the Hertz overlap of the impact exceeds `max_overlap_ratio` (0.1 R)
   from about 1 m/s at E = 1e6 Pa and 2-3 m/s at E = 1e7 Pa, so the overlap guard stops runs whose step
-  is fine; `check()` does not predict it (it could compare the Hertz overlap at the characteristic
-  velocity, (15 m* V^2 / (16 E* sqrt(R*)))^(2/5), with `max_overlap_ratio`).
+  is fine; `dem check` now predicts it: it compares the Hertz overlap at the characteristic
+  velocity, (15 m* V^2 / (16 E* sqrt(R*)))^(2/5), with `max_overlap_ratio` and warns.
 * Euler heat step: stable at the network limit, unstable at twice it; the temperature guard fires
   only when a temperature becomes non-positive, several steps after the oscillation started (the
   state then already spans far outside the physical range).
