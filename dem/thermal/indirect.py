@@ -112,6 +112,18 @@ def voronoi_a_wall(R, d, r_low, kp, kf, rij):
 
 # ----------------------------------------------------------------- Voronoi model B
 @numba.njit(cache=True, error_model="numpy")
+def _voronoi_b_log(a, b, h, rij, r_low):
+    """(pi/b) ln[(a - b cos th0)/(a - b cos thc)] with cos th = h/sqrt(r^2 + h^2) at r = r_ij
+    and r = r_low (h: half the centre distance for pairs, the wall distance for walls);
+    0 where the logarithm's argument is not positive. Shared by the pair and wall forms."""
+    num = a - b * h / math.sqrt(rij * rij + h * h)
+    den = a - b * h / math.sqrt(r_low * r_low + h * h)
+    if den <= 0.0 or num <= 0.0:
+        return 0.0
+    return math.pi / b * math.log(num / den)
+
+
+@numba.njit(cache=True, error_model="numpy")
 def cheng_1999_voronoi_b(Rp, d, r_low, ki, kj, kf, rij, core):
     """Cheng, Yu & Zulli (1999) Voronoi model B, mono-size [W/K] (ref 002):
 
@@ -125,15 +137,7 @@ def cheng_1999_voronoi_b(Rp, d, r_low, ki, kj, kf, rij, core):
     rcore = core * Rp
     kbar = series_conductivity(ki, kj)
     a = (1.0 / rcore - 1.0 / Rp) / (2.0 * kbar) + 1.0 / (kf * Rp)
-    b = 2.0 / (kf * d)
-    h = 0.5 * d
-    c0 = h / math.sqrt(rij * rij + h * h)
-    c1 = h / math.sqrt(r_low * r_low + h * h)
-    num = a - b * c0
-    den = a - b * c1
-    if den <= 0.0 or num <= 0.0:
-        return 0.0
-    return math.pi / b * math.log(num / den)
+    return _voronoi_b_log(a, 2.0 / (kf * d), 0.5 * d, rij, r_low)
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -148,14 +152,7 @@ def voronoi_b_wall(R, d, r_low, kp, kf, rij, core):
         return 0.0
     rcore = core * R
     a = (1.0 / rcore - 1.0 / R) / (2.0 * kp) + 1.0 / (2.0 * kf * R)
-    b = 1.0 / (2.0 * kf * d)
-    c0 = d / math.sqrt(rij * rij + d * d)
-    c1 = d / math.sqrt(r_low * r_low + d * d)
-    num = a - b * c0
-    den = a - b * c1
-    if den <= 0.0 or num <= 0.0:
-        return 0.0
-    return math.pi / b * math.log(num / den)
+    return _voronoi_b_log(a, 1.0 / (2.0 * kf * d), d, rij, r_low)
 
 
 @numba.njit(cache=True, error_model="numpy")
