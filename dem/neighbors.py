@@ -51,10 +51,14 @@ def cell_index(x, lo, inv_cell, ncell, n):
 
 
 @njit(cache=True, error_model="numpy")
-def build_half_list(x, r, n, lo, hi, periodic, reach, skin, slots,
+def build_half_list(x, r, n, nown, lo, hi, periodic, glo, ghi, gwrap, reach, skin, slots,
                     nb_old, nnb_old, hist_old, rhist_old, age_old):
     """Build the half list and carry the history over.
 
+    Rows [nown, n) are ghosts (another rank's particles): they get no row of their own, so
+    ghost-ghost pairs are never listed. Distances use the minimum image of the domain
+    (lo, hi, periodic); the cell grid covers [glo, ghi] and wraps on the axes of ``gwrap``
+    (in a serial run the grid is the domain; a rank's grid is its box plus the halo).
     Returns (nb, nnb, hist, rhist, age, max_count). When a row overflows the slots the
     build is redone with more slots (the arrays returned are then larger).
     """
@@ -66,16 +70,18 @@ def build_half_list(x, r, n, lo, hi, periodic, reach, skin, slots,
     ncell = np.empty(3, np.int64)
     inv_cell = np.empty(3)
     length = np.empty(3)
+    glen = np.empty(3)
     for k in range(3):
         length[k] = hi[k] - lo[k]
-        nc = int(math.floor(length[k] / cut))
+        glen[k] = ghi[k] - glo[k]
+        nc = int(math.floor(glen[k] / cut))
         if nc < 1:
             nc = 1
-        if periodic[k] and nc < 3:
+        if gwrap[k] and nc < 3:
             nc = 1  # all pairs by minimum image along this axis
         ncell[k] = nc
-        inv_cell[k] = nc / length[k]
-    cidx = cell_index(x, lo, inv_cell, ncell, n)
+        inv_cell[k] = nc / glen[k]
+    cidx = cell_index(x, glo, inv_cell, ncell, n)
     ntot = ncell[0] * ncell[1] * ncell[2]
     head = np.full(ntot + 1, 0, np.int64)
     for i in range(n):
@@ -94,7 +100,7 @@ def build_half_list(x, r, n, lo, hi, periodic, reach, skin, slots,
         nb = np.empty((n, slots), np.int32)
         nnb = np.zeros(n, np.int32)
         maxc = 0
-        for i in range(n):
+        for i in range(nown):
             ci = cidx[i]
             cz = ci % ncell[2]
             cy = (ci // ncell[2]) % ncell[1]
@@ -105,7 +111,7 @@ def build_half_list(x, r, n, lo, hi, periodic, reach, skin, slots,
                 if ncell[0] == 1 and ox != 0:
                     continue
                 if ax < 0 or ax >= ncell[0]:
-                    if not periodic[0]:
+                    if not gwrap[0]:
                         continue
                     ax %= ncell[0]
                 for oy in range(-1, 2):
@@ -113,7 +119,7 @@ def build_half_list(x, r, n, lo, hi, periodic, reach, skin, slots,
                     if ncell[1] == 1 and oy != 0:
                         continue
                     if ay < 0 or ay >= ncell[1]:
-                        if not periodic[1]:
+                        if not gwrap[1]:
                             continue
                         ay %= ncell[1]
                     for oz in range(-1, 2):
@@ -121,7 +127,7 @@ def build_half_list(x, r, n, lo, hi, periodic, reach, skin, slots,
                         if ncell[2] == 1 and oz != 0:
                             continue
                         if az < 0 or az >= ncell[2]:
-                            if not periodic[2]:
+                            if not gwrap[2]:
                                 continue
                             az %= ncell[2]
                         c = (ax * ncell[1] + ay) * ncell[2] + az

@@ -137,6 +137,7 @@ class Simulation:
         ip[K.I_ROLLING] = ROLLING_MODELS[sc.contact["rolling"]]
         ip[K.I_NWALLS] = self.nwalls
         ip[K.I_MECH] = 1 if sc.simulation["mechanics"] else 0
+        ip[K.I_NOWN] = self.state.n_owned
         fp = np.zeros(K.NFP)
         fp[K.F_DT] = self.dt
         fp[K.F_GX:K.F_GZ + 1] = sc.simulation["gravity"]
@@ -176,7 +177,8 @@ class Simulation:
         slots = 12
         for _ in range(2):  # second pass sizes the slots tightly (max count + 2)
             self.nb, self.nnb, self.hist, self.rhist, self.age, maxc = build_half_list(
-                st.position, st.radius, n, self.lo, self.hi, self.periodic, self.reach,
+                st.position, st.radius, n, n, self.lo, self.hi, self.periodic, self.lo, self.hi,
+                self.periodic, self.reach,
                 self.fp[K.F_SKIN], slots, nb0, np.zeros(0, np.int32), np.zeros((0, 1, 3)),
                 np.zeros((0, 1, 3)), np.zeros((0, 1, 2)))
             if maxc + 2 >= slots:
@@ -302,7 +304,7 @@ class Simulation:
             self.lo, self.hi, self.periodic, self.time, self.age, self.Hd, self.Hi, self.rnear, self.TH)
         if self.thermal is not None:
             self.thermal.tot[:], self.thermal.wtot[:] = saved
-        self.last_contacts = nc
+        self.last_contacts = nc // 2
         return maxov
 
     def _fext(self):
@@ -325,7 +327,7 @@ class Simulation:
         self.step_count += done
         self.time = self.step_count * self.dt
         if self.ip[K.I_MECH]:  # frozen packings keep the contact count of their set-up
-            self.last_contacts = nc
+            self.last_contacts = nc // 2
         if status != K.OK:
             self._instability(status, who, other, value)
         return done

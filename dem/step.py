@@ -34,7 +34,7 @@ from .thermal.heat import (heat_step, local_porosity, TI_HEAT, TI_DIRECT, TI_CR,
                            E_DIRECT, E_INDIRECT, E_WALL, wall_temperature)
 
 # integer parameters
-I_CONTACT, I_ROLLING, I_NWALLS, I_MECH = 0, 1, 2, 3
+I_CONTACT, I_ROLLING, I_NWALLS, I_MECH, I_NOWN = 0, 1, 2, 3, 4  # I_NOWN: owned rows (the rest are ghosts)
 NIP = 8
 # float parameters
 F_DT, F_GX, F_GY, F_GZ, F_SKIN, F_REACH, F_VCHAR, F_KTRATIO, F_LINKN, F_ETAR, F_MAXOV, F_VWALL, F_TBUILD = range(13)
@@ -119,7 +119,10 @@ def compute_forces(n, x, v, w, r, m, mat, f, tq, fext, nb, nnb, hist, rhist,
                    age, Hd, Hi, rnear, TH):
     """Contact + wall + body forces, and (when heat is on) the conductances of every
     neighbour slot and wall candidate for the heat step: Hd, Hi, Hw, the radiation
-    neighbour flags and the friction heat. Returns (max overlap ratio, i, j (-1-wall), contacts)."""
+    neighbour flags and the friction heat. Returns (max overlap ratio, i, j (-1-wall),
+    2 x contacts): rows >= ip[I_NOWN] are ghosts (copies of another rank's particles, no
+    pairs of their own); a pair with a ghost is computed on both ranks, so it counts 1 (of 2)
+    and half its exchanged heat goes into the totals here."""
     thi = TH[H_THI]
     heat = thi[TI_HEAT] != 0
     dmodel = thi[TI_DIRECT]
@@ -176,6 +179,7 @@ def compute_forces(n, x, v, w, r, m, mat, f, tq, fext, nb, nnb, hist, rhist,
     py = periodic[1]
     pz = periodic[2]
     has_ext = fext.shape[0] == n
+    nown = ip[I_NOWN]
     for i in range(n):
         f[i, 0] = m[i] * gx
         f[i, 1] = m[i] * gy
@@ -199,6 +203,7 @@ def compute_forces(n, x, v, w, r, m, mat, f, tq, fext, nb, nnb, hist, rhist,
         mi = mat[i]
         for s in range(nnb[i]):
             j = nb[i, s]
+            wgt = 1.0 if j < nown else 0.5
             dx = x[j, 0] - xi0
             dy = x[j, 1] - xi1
             dz = x[j, 2] - xi2
@@ -232,13 +237,13 @@ def compute_forces(n, x, v, w, r, m, mat, f, tq, fext, nb, nnb, hist, rhist,
                                 qq = hind * (T[j] - T[i])
                                 Q[i] += qq
                                 Q[j] -= qq
-                                e_ind += abs(qq)
+                                e_ind += wgt * abs(qq)
                             else:
                                 Hi[i, s] = hind
                         if radon:
                             rnear[i, s] = 1 if d < radrange * max(ri, r[j]) else 0
                 continue
-            ncont += 1
+            ncont += 2 if j < nown else 1
             d = math.sqrt(d2)
             delta = rs - d
             invd = 1.0 / d
@@ -298,8 +303,8 @@ def compute_forces(n, x, v, w, r, m, mat, f, tq, fext, nb, nnb, hist, rhist,
                     qi = hind * dtij
                     Q[i] += qd + qi
                     Q[j] -= qd + qi
-                    e_dir += abs(qd)
-                    e_ind += abs(qi)
+                    e_dir += wgt * abs(qd)
+                    e_ind += wgt * abs(qi)
                 else:
                     Hd[i, s] = hdir
                     if imodel >= 0:
@@ -387,7 +392,7 @@ def compute_forces(n, x, v, w, r, m, mat, f, tq, fext, nb, nnb, hist, rhist,
                     else:
                         Hw[i, q] = hw
                 continue
-            ncont += 1
+            ncont += 2
             delta = ri - dist
             ov = delta / ri
             if ov > maxov:
@@ -501,6 +506,68 @@ def build_wall_list(x, r, n, wf, wi, nwalls, reach, t, wnb, wnn, whist, wrhist):
 
 
 @njit(cache=True, error_model="numpy")
+def heat_slot_arrays(n, slots, Hd, Hi, rnear):
+    """Per-slot heat arrays sized for n rows of ``slots`` (reallocated only when needed)."""
+    if Hd.shape[1] != slots or Hd.shape[0] != n:
+        Hd = np.zeros((n, slots))
+        if Hi.shape[0] > 0:
+            Hi = np.zeros((n, slots))
+        if rnear.shape[0] > 0:
+            rnear = np.zeros((n, slots), np.uint8)
+    return Hd, Hi, rnear
+
+
+@njit(cache=True, error_model="numpy")
+def kick_drift(n, x, v, w, f, tq, inv_m, inv_i, xb, lo, hi, periodic, dt):
+    """First half of velocity Verlet for rows [0, n): half kick, drift, periodic wrap.
+    Returns the largest squared displacement since the last neighbour build."""
+    half = 0.5 * dt
+    L0 = hi[0] - lo[0]
+    L1 = hi[1] - lo[1]
+    L2 = hi[2] - lo[2]
+    maxd2 = 0.0
+    for i in range(n):
+        for k in range(3):
+            v[i, k] += half * f[i, k] * inv_m[i]
+            w[i, k] += half * tq[i, k] * inv_i[i]
+            x[i, k] += dt * v[i, k]
+        if periodic[0]:
+            x[i, 0] -= L0 * math.floor((x[i, 0] - lo[0]) / L0)
+        if periodic[1]:
+            x[i, 1] -= L1 * math.floor((x[i, 1] - lo[1]) / L1)
+        if periodic[2]:
+            x[i, 2] -= L2 * math.floor((x[i, 2] - lo[2]) / L2)
+        ddx = x[i, 0] - xb[i, 0]
+        ddy = x[i, 1] - xb[i, 1]
+        ddz = x[i, 2] - xb[i, 2]
+        if periodic[0]:
+            ddx -= L0 * math.floor(ddx / L0 + 0.5)
+        if periodic[1]:
+            ddy -= L1 * math.floor(ddy / L1 + 0.5)
+        if periodic[2]:
+            ddz -= L2 * math.floor(ddz / L2 + 0.5)
+        d2 = ddx * ddx + ddy * ddy + ddz * ddz
+        if d2 > maxd2:
+            maxd2 = d2
+    return maxd2
+
+
+@njit(cache=True, error_model="numpy")
+def kick(n, v, w, f, tq, inv_m, inv_i, dt):
+    """Second half kick for rows [0, n); returns a row with a non-finite velocity, or -1."""
+    half = 0.5 * dt
+    bad = -1
+    for i in range(n):
+        for k in range(3):
+            v[i, k] += half * f[i, k] * inv_m[i]
+            w[i, k] += half * tq[i, k] * inv_i[i]
+        if not (math.isfinite(v[i, 0] + v[i, 1] + v[i, 2])
+                and math.isfinite(w[i, 0] + w[i, 1] + w[i, 2])):
+            bad = i
+    return bad
+
+
+@njit(cache=True, error_model="numpy")
 def advance(nsteps, t0, n, x, v, w, r, m, inv_m, inv_i, mat, f, tq, fext, xb,
             nb, nnb, hist, rhist, age, wf, wi, wnb, wnn, whist, wrhist, tab, ip, fp, lo, hi, periodic,
             Hd, Hi, rnear, TH):
@@ -513,12 +580,8 @@ def advance(nsteps, t0, n, x, v, w, r, m, inv_m, inv_i, mat, f, tq, fext, xb,
     rebuilds, nb, nnb, hist, rhist, age, Hd, Hi, rnear): arrays may have been reallocated.
     """
     dt = fp[F_DT]
-    half = 0.5 * dt
     skin = fp[F_SKIN]
     maxov_bound = fp[F_MAXOV]
-    L0 = hi[0] - lo[0]
-    L1 = hi[1] - lo[1]
-    L2 = hi[2] - lo[2]
     nreb = 0
     ncont = 0
     nwalls = ip[I_NWALLS]
@@ -529,30 +592,7 @@ def advance(nsteps, t0, n, x, v, w, r, m, inv_m, inv_i, mat, f, tq, fext, xb,
     for step in range(nsteps):
         t = t0 + (step + 1) * dt
         if mech:
-            maxd2 = 0.0
-            for i in range(n):
-                for k in range(3):
-                    v[i, k] += half * f[i, k] * inv_m[i]
-                    w[i, k] += half * tq[i, k] * inv_i[i]
-                    x[i, k] += dt * v[i, k]
-                if periodic[0]:
-                    x[i, 0] -= L0 * math.floor((x[i, 0] - lo[0]) / L0)
-                if periodic[1]:
-                    x[i, 1] -= L1 * math.floor((x[i, 1] - lo[1]) / L1)
-                if periodic[2]:
-                    x[i, 2] -= L2 * math.floor((x[i, 2] - lo[2]) / L2)
-                ddx = x[i, 0] - xb[i, 0]
-                ddy = x[i, 1] - xb[i, 1]
-                ddz = x[i, 2] - xb[i, 2]
-                if periodic[0]:
-                    ddx -= L0 * math.floor(ddx / L0 + 0.5)
-                if periodic[1]:
-                    ddy -= L1 * math.floor(ddy / L1 + 0.5)
-                if periodic[2]:
-                    ddz -= L2 * math.floor(ddz / L2 + 0.5)
-                d2 = ddx * ddx + ddy * ddy + ddz * ddz
-                if d2 > maxd2:
-                    maxd2 = d2
+            maxd2 = kick_drift(n, x, v, w, f, tq, inv_m, inv_i, xb, lo, hi, periodic, dt)
             if math.sqrt(maxd2) + fp[F_VWALL] * (t - fp[F_TBUILD]) > 0.5 * skin:
                 for i in range(n):
                     for k in range(3):
@@ -560,16 +600,11 @@ def advance(nsteps, t0, n, x, v, w, r, m, inv_m, inv_i, mat, f, tq, fext, xb,
                             return (step + 1, LEFT_DOMAIN, i, -1, x[i, k], ncont, nreb,
                                     nb, nnb, hist, rhist, age, Hd, Hi, rnear)
                 nb, nnb, hist, rhist, age, _ = build_half_list(
-                    x, r, n, lo, hi, periodic, fp[F_REACH], skin, nb.shape[1],
+                    x, r, n, n, lo, hi, periodic, lo, hi, periodic, fp[F_REACH], skin, nb.shape[1],
                     nb, nnb, hist, rhist, age)
                 build_wall_list(x, r, n, wf, wi, nwalls, fp[F_REACH] + skin, t, wnb, wnn, whist, wrhist)
                 if heat:
-                    if Hd.shape[1] != nb.shape[1]:
-                        Hd = np.zeros((n, nb.shape[1]))
-                        if Hi.shape[0] == n:
-                            Hi = np.zeros((n, nb.shape[1]))
-                        if rnear.shape[0] == n:
-                            rnear = np.zeros((n, nb.shape[1]), np.uint8)
+                    Hd, Hi, rnear = heat_slot_arrays(n, nb.shape[1], Hd, Hi, rnear)
                     if local_por:
                         local_porosity(n, x, r, nb, nnb, lo, hi, periodic, fp[F_REACH], wf, wi, wnb, wnn,
                                        t, TH[H_POR], 0.2)
@@ -580,20 +615,13 @@ def advance(nsteps, t0, n, x, v, w, r, m, inv_m, inv_i, mat, f, tq, fext, xb,
                 n, x, v, w, r, m, mat, f, tq, fext, nb, nnb, hist, rhist,
                 wf, wi, wnb, wnn, whist, wrhist, tab, ip, fp, lo, hi, periodic, t,
                 age, Hd, Hi, rnear, TH)
-            bad = -1
-            for i in range(n):
-                for k in range(3):
-                    v[i, k] += half * f[i, k] * inv_m[i]
-                    w[i, k] += half * tq[i, k] * inv_i[i]
-                if not (math.isfinite(v[i, 0] + v[i, 1] + v[i, 2])
-                        and math.isfinite(w[i, 0] + w[i, 1] + w[i, 2])):
-                    bad = i
+            bad = kick(n, v, w, f, tq, inv_m, inv_i, dt)
             if bad >= 0:
                 return (step + 1, NONFINITE, bad, -1, 0.0, ncont, nreb, nb, nnb, hist, rhist, age, Hd, Hi, rnear)
             if maxov > maxov_bound:
                 return (step + 1, OVERLAP, wi_, wj_, maxov, ncont, nreb, nb, nnb, hist, rhist, age, Hd, Hi, rnear)
         if heat:
-            badt = heat_step(n, dt, t, TH[H_T], TH[H_CINV], TH[H_Q], v, r, x, mat, nb, nnb, Hd, Hi, rnear,
+            badt = heat_step(n, n, dt, t, TH[H_T], TH[H_CINV], TH[H_Q], v, r, x, mat, nb, nnb, Hd, Hi, rnear,
                              wnb, wnn, TH[H_HW], TH[H_WTH], TH[H_WTAB], TH[H_TF], TH[H_UF], TH[H_POR],
                              TH[H_QGEN], TH[H_QSRC], TH[H_SRCBOX], TH[H_TMAT], TH[H_GAS], thi,
                              TH[H_TOT], TH[H_WTOT], TH[H_WORK])

@@ -58,9 +58,16 @@ def wall_temperature(wth, wtab, w, t):
 
 
 @njit(cache=True, error_model="numpy")
-def heat_step(n, dt, t, T, cinv, Q, v, r, x, mat, nb, nnb, Hd, Hi, rnear, wnb, wnn, Hw, wth, wtab,
+def heat_step(n, nown, dt, t, T, cinv, Q, v, r, x, mat, nb, nnb, Hd, Hi, rnear, wnb, wnn, Hw, wth, wtab,
               tf, uf, por, qgen, qsrc, srcbox, tmat, gas, thi, tot, wtot, work):
-    """Advance temperatures by dt. Q receives the net heat rate of each particle (W)."""
+    """Advance the temperatures of rows [0, nown) by dt (rows [nown, n) are ghosts: another
+    rank advances them). Q receives the net heat rate of each particle (W).
+
+    A pair with a ghost is on two ranks: Euler takes its rate from the temperatures at the
+    start of the step on both (antisymmetric, so conservative, as in a serial run); the
+    exponential update treats the ghost as a reservoir at its start-of-step temperature in
+    the particle's exact relaxation (bounded for any step; the two sides then agree to
+    O((H dt / C)^2) instead of exactly)."""
     integ = thi[TI_INTEG]
     has_ind = Hi.shape[0] == n
     conv = thi[TI_CONV]
@@ -70,7 +77,7 @@ def heat_step(n, dt, t, T, cinv, Q, v, r, x, mat, nb, nnb, Hd, Hi, rnear, wnb, w
             and srcbox.shape[0] == 0):
         # conduction only, already summed in the force loop: one pass
         bad = -1
-        for i in range(n):
+        for i in range(nown):
             T[i] += dt * Q[i] * cinv[i]
             if not (T[i] > 0.0) or not math.isfinite(T[i]):
                 bad = i
@@ -83,11 +90,17 @@ def heat_step(n, dt, t, T, cinv, Q, v, r, x, mat, nb, nnb, Hd, Hi, rnear, wnb, w
     # update sweeps the pairs forward over dt/2 and backward over dt/2 around the
     # particle-reservoir links (Strang splitting: second order, so the steady state of a
     # conduction chain is off by O(dt^2) only; Euler's steady state is exact).
+    expo = integ != 0
+    if expo:
+        hs = np.zeros(n)
+        hts = np.zeros(n)
+        if nown < n and not fused:
+            _ghost_links(nown, T, nb, nnb, Hd, Hi, has_ind, hs, hts)
     if not fused:
         if integ == 0:
-            _pair_sweep(n, dt, T, cinv, Q, nb, nnb, Hd, Hi, has_ind, 0, 1, tot)
+            _pair_sweep(nown, dt, T, cinv, Q, nb, nnb, Hd, Hi, has_ind, 0, 1, tot)
         else:
-            _pair_sweep(n, 0.5 * dt, T, cinv, Q, nb, nnb, Hd, Hi, has_ind, 1, 1, tot)
+            _pair_sweep(nown, 0.5 * dt, T, cinv, Q, nb, nnb, Hd, Hi, has_ind, 1, 1, tot)
     # ---- radiation environment (from the temperatures after the first pair half-sweep)
     if rad >= 0:
         acc0 = np.zeros(n)
@@ -106,11 +119,7 @@ def heat_step(n, dt, t, T, cinv, Q, v, r, x, mat, nb, nnb, Hd, Hi, rnear, wnb, w
     # Euler: explicit rates into Q. Exponential: all links of a particle together relax it
     # exactly towards their conductance-weighted temperature (steady state exact, bounded,
     # any step); radiation enters with its secant conductance eps sigma A (Te^2+T^2)(Te+T).
-    expo = integ != 0
-    if expo:
-        hs = np.zeros(n)
-        hts = np.zeros(n)
-    for i in range(n if not fused else 0):
+    for i in range(nown if not fused else 0):
         for q in range(wnn[i]):
             h = Hw[i, q]
             if h <= 0.0:
@@ -133,9 +142,9 @@ def heat_step(n, dt, t, T, cinv, Q, v, r, x, mat, nb, nnb, Hd, Hi, rnear, wnb, w
             tot[E_WALL] += qq * dt
     hconv = np.zeros(n if conv >= 0 else 0)
     if conv >= 0:
-        convection_conductances(n, v, r, uf, por, gas, conv, hconv)
+        convection_conductances(nown, v, r, uf, por, gas, conv, hconv)
         ec = 0.0
-        for i in range(n):
+        for i in range(nown):
             h = hconv[i]
             if expo:
                 hs[i] += h
@@ -149,7 +158,7 @@ def heat_step(n, dt, t, T, cinv, Q, v, r, x, mat, nb, nnb, Hd, Hi, rnear, wnb, w
     tenv = np.zeros(n if rad >= 0 else 0)
     if rad >= 0:
         er = 0.0
-        for i in range(n):
+        for i in range(nown):
             if expo:
                 te = radiation_env_temperature(rad, acc0[i], acc1[i], por[i], tf[i], T[i])
                 ti = T[i]
@@ -164,7 +173,7 @@ def heat_step(n, dt, t, T, cinv, Q, v, r, x, mat, nb, nnb, Hd, Hi, rnear, wnb, w
                 er += qq * dt
         tot[E_RAD] += er
     if expo:
-        for i in range(n):
+        for i in range(nown):
             if hs[i] <= 0.0:
                 continue
             ti = T[i]
@@ -188,11 +197,13 @@ def heat_step(n, dt, t, T, cinv, Q, v, r, x, mat, nb, nnb, Hd, Hi, rnear, wnb, w
                 tot[E_CONV] += f * hconv[i] * (tf[i] - ti)
             if rad >= 0:
                 tot[E_RAD] += f * hrad[i] * (tenv[i] - ti)
+            if nown < n and not fused:
+                _ghost_link_totals(i, nown, f, ti, T, nb, nnb, Hd, Hi, has_ind, tot, work)
     if not fused and expo:
-        _pair_sweep(n, 0.5 * dt, T, cinv, Q, nb, nnb, Hd, Hi, has_ind, 1, -1, tot)
+        _pair_sweep(nown, 0.5 * dt, T, cinv, Q, nb, nnb, Hd, Hi, has_ind, 1, -1, tot)
     # ---- explicit terms: generation, sources, fixed fluxes (Q)
     if expo:
-        for i in range(n):
+        for i in range(nown):
             work[i, 2] = Q[i]  # explicit wall flux so far
             Q[i] = 0.0
     eg = 0.0
@@ -200,7 +211,7 @@ def heat_step(n, dt, t, T, cinv, Q, v, r, x, mat, nb, nnb, Hd, Hi, rnear, wnb, w
     has_gen = qgen.shape[0] == n
     has_src = qsrc.shape[0] == n
     nbox = srcbox.shape[0]
-    for i in range(n):
+    for i in range(nown):
         if has_gen:
             Q[i] += qgen[i]
             eg += qgen[i] * dt
@@ -216,14 +227,14 @@ def heat_step(n, dt, t, T, cinv, Q, v, r, x, mat, nb, nnb, Hd, Hi, rnear, wnb, w
     tot[E_GEN] += eg
     tot[E_SRC] += es
     if integ == 0:
-        for i in range(n):
+        for i in range(nown):
             T[i] += dt * Q[i] * cinv[i]
     else:
-        for i in range(n):
+        for i in range(nown):
             T[i] += dt * (Q[i] + work[i, 2]) * cinv[i]
             Q[i] = (T[i] - work[i, 0]) / (cinv[i] * dt)
     # guard: report the first non-finite or non-positive temperature
-    for i in range(n):
+    for i in range(nown):
         if not (T[i] > 0.0) or not math.isfinite(T[i]):
             return i
     return -1
@@ -232,7 +243,10 @@ def heat_step(n, dt, t, T, cinv, Q, v, r, x, mat, nb, nnb, Hd, Hi, rnear, wnb, w
 @njit(cache=True, error_model="numpy")
 def _pair_sweep(n, dt, T, cinv, Q, nb, nnb, Hd, Hi, has_ind, integ, direction, tot):
     """Pair conduction over dt: Euler (into Q) or exact two-body exponential updates of T
-    in particle order (direction 1) or reverse order (-1)."""
+    in particle order (direction 1) or reverse order (-1), over the rows [0, n) of owned
+    particles. Pairs with a ghost (j >= n): Euler counts half their heat in the totals (the
+    other rank counts the other half); the exponential update leaves them to the
+    reservoir relaxation (_ghost_links)."""
     ed = 0.0
     ei = 0.0
     for k in range(n):
@@ -251,7 +265,11 @@ def _pair_sweep(n, dt, T, cinv, Q, nb, nnb, Hd, Hi, has_ind, integ, direction, t
                 Q[i] += q
                 Q[j] -= q
                 e = abs(q) * dt
+                if j >= n:
+                    e *= 0.5
             else:
+                if j >= n:
+                    continue
                 a = cinv[i] + cinv[j]
                 e = (T[j] - T[i]) * (-math.expm1(-h * a * dt)) / a
                 T[i] += e * cinv[i]
@@ -261,6 +279,35 @@ def _pair_sweep(n, dt, T, cinv, Q, nb, nnb, Hd, Hi, has_ind, integ, direction, t
             ei += e * hi / h
     tot[E_DIRECT] += ed
     tot[E_INDIRECT] += ei
+
+
+@njit(cache=True, error_model="numpy")
+def _ghost_links(nown, T, nb, nnb, Hd, Hi, has_ind, hs, hts):
+    """Pairs of an owned particle with a ghost, as reservoir links of the exponential
+    update: the ghost is held at its start-of-step temperature."""
+    for i in range(nown):
+        for s in range(nnb[i]):
+            j = nb[i, s]
+            if j < nown:
+                continue
+            h = Hd[i, s] + (Hi[i, s] if has_ind else 0.0)
+            if h > 0.0:
+                hs[i] += h
+                hts[i] += h * T[j]
+
+
+@njit(cache=True, error_model="numpy")
+def _ghost_link_totals(i, nown, f, ti, T, nb, nnb, Hd, Hi, has_ind, tot, work):
+    """Direct / indirect totals of particle i's ghost links (half each: the other rank
+    counts the other half)."""
+    for s in range(nnb[i]):
+        j = nb[i, s]
+        if j < nown:
+            continue
+        hd = Hd[i, s]
+        hi = Hi[i, s] if has_ind else 0.0
+        tot[E_DIRECT] += 0.5 * abs(f * hd * (T[j] - ti))
+        tot[E_INDIRECT] += 0.5 * abs(f * hi * (T[j] - ti))
 
 
 @njit(cache=True, error_model="numpy")
