@@ -56,9 +56,12 @@ def cmd_run(args):
     sim.run(end_time=args.end_time, out_dir=out, restart=args.restart, progress=not args.quiet)
     wall = time.perf_counter() - t0
     steps = sim.step_count
-    print(f"done: t = {sim.time:.6g} s, {steps} steps, {sim.state.n} particles, wall {wall:.2f} s "
-          f"(kernels compile/load {c:.2f} s), {sim.state.n * max(steps, 1) / max(sim.wall_seconds, 1e-9):.3g} "
-          f"particle-steps/s; output in {out}")
+    n = sim.n_particles
+    if sim.is_root:
+        ranks = f" on {sim.par.size} ranks ({sim.par.describe()})" if sim.par is not None else ""
+        print(f"done: t = {sim.time:.6g} s, {steps} steps, {n} particles{ranks}, wall {wall:.2f} s "
+              f"(kernels compile/load {c:.2f} s), {n * max(steps, 1) / max(sim.wall_seconds, 1e-9):.3g} "
+              f"particle-steps/s; output in {out}")
     return 0
 
 
@@ -108,13 +111,17 @@ def main(argv=None):
     args = ap.parse_args(argv)
     from .scene import SceneError
     from .simulation import SimulationError
+    from .parallel.domain import ParallelError
+    root = os.environ.get("OMPI_COMM_WORLD_RANK", os.environ.get("PMI_RANK", "0")) == "0"
     try:
         return {"run": cmd_run, "check": cmd_check, "render": cmd_render, "compile": cmd_compile}[args.cmd](args)
-    except SceneError as exc:
-        print(f"error: {exc}", file=sys.stderr)
+    except (SceneError, ParallelError) as exc:
+        if root:  # every rank found the same problem: say it once
+            print(f"error: {exc}", file=sys.stderr)
         return 2
     except SimulationError as exc:
-        print(f"error: {exc}", file=sys.stderr)
+        if root:
+            print(f"error: {exc}", file=sys.stderr)
         return 3
 
 

@@ -140,8 +140,9 @@ WALL_KEYS = {"type", "material", "point", "normal", "extent", "u_axis", "axis", 
 CONTACT_KEYS = {"model", "rolling", "damping", "normal_stiffness", "tangential_stiffness_ratio",
                 "characteristic_velocity", "rolling_damping"}
 OUTPUT_KEYS = {"vtk"}
+PARALLEL_KEYS = {"decomposition", "slab_axis", "balance_threshold", "pair_weight"}
 TOP_KEYS = {"simulation", "domain", "materials", "particles", "walls", "contact", "output",
-            "thermal", "gas"}
+            "thermal", "gas", "parallel"}
 
 # Time-step limits (documented in docs/models.md): dt <= 0.3 t_Rayleigh and
 # dt <= t_Hertz / 10 at the characteristic impact velocity, unless [simulation] force = true.
@@ -490,11 +491,17 @@ def parse(data, file="<dict>", base_dir="."):
         walls.append(W)
     o = v.table(data.get("output", {}), "output", OUTPUT_KEYS)
     output = dict(vtk=v.boolean(o, "vtk", "output", default=True))
+    pa = v.table(data.get("parallel", {}), "parallel", PARALLEL_KEYS)
+    parallel = dict(
+        decomposition=v.string(pa, "decomposition", "parallel", default="rcb", choices=("rcb", "slabs")),
+        slab_axis=v.string(pa, "slab_axis", "parallel", default="auto", choices=("auto", "x", "y", "z")),
+        balance_threshold=v.num(pa, "balance_threshold", "parallel", default=1.1, lo=1.0),
+        pair_weight=v.num(pa, "pair_weight", "parallel", default=1.0, lo=0.0))
     if sim["neighbor_skin"] is None:
         sim["neighbor_skin"] = 0.2 * float(r.max())
     sc = Scene(file=file, base_dir=base_dir, simulation=sim, domain=dict(min=lo, max=hi, periodic=periodic),
                materials=materials, material_index=names, contact=contact, walls=walls, output=output,
-               id=ids, position=x, radius=r, velocity=np.ascontiguousarray(np.concatenate(P["v"])),
+               parallel=parallel, id=ids, position=x, radius=r, velocity=np.ascontiguousarray(np.concatenate(P["v"])),
                angular_velocity=np.ascontiguousarray(np.concatenate(P["w"])),
                material=np.concatenate(P["mat"]), group=group,
                temperature=P["T"], raw=data, thermal=None)

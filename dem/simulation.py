@@ -19,6 +19,7 @@ from .neighbors import build_half_list, sort_permutation
 from .output import History, VTKSeries, save_npz
 from .state import State
 from . import step as K
+from .thermal.kernel import MECHANISMS as THERMAL_MECHANISMS
 
 
 class SimulationError(RuntimeError):
@@ -55,11 +56,23 @@ class Simulation:
             self.thermal = ThermalModel(self)
         self.reach = self.thermal.reach if self.thermal is not None else 0.0
         self.fp[K.F_REACH] = self.reach
+        self.rmax = float(self.state.radius.max(initial=0.0))
+        self.par = None
+        self._pending = None  # (code, message) of an instability found on this rank
+        self._nc2 = 0
+        from .parallel import world
+        comm = world()
+        if comm is not None:
+            from .parallel.domain import ParallelDomain
+            self.par = ParallelDomain(comm, self)
+            self.par.select_initial(self)
         self._init_neighbors()
         if self.thermal is not None:
             self.TH = self.thermal.th_tuple()
             self.Hd, self.Hi, self.rnear = self.thermal.slot_arrays(self.nb.shape[1])
             self.thermal.update_porosity()
+            if self.par is not None:
+                self.par.forward(self, motion=False, porosity=True)
         else:
             self.TH = K.empty_thermal(self.nwalls)
             self.Hd, self.Hi, self.rnear = np.zeros((0, 1)), np.zeros((0, 1)), np.zeros((0, 1), np.uint8)
@@ -168,7 +181,27 @@ class Simulation:
                 vw = max(vw, om * (w.get("radius") or float(np.max(self.hi - self.lo))))
         return max(v0, vw, math.sqrt(2 * g * h), 1e-3)
 
+    def halo(self):
+        """Ghost layer width: the longest pair reach 2 r_max + reach + skin."""
+        return 2.0 * self.rmax + self.reach + self.fp[K.F_SKIN]
+
+    def per_particle_arrays(self):
+        """Every array with one row per particle, by name (what migrates with a particle)."""
+        st = self.state
+        reg = {f"state.{f}": (st, f) for f in st.fields()}
+        for k in ("whist", "wrhist", "wnb", "wnn"):
+            reg[f"sim.{k}"] = (self, k)
+        if getattr(self, "external_force", None) is not None:
+            reg["sim.external_force"] = (self, "external_force")
+        if self.thermal is not None:
+            for k in ("Hw", "por", "qgen", "wage", "tf", "uf", "qsrc", "work"):
+                reg[f"th.{k}"] = (self.thermal, k)
+        return reg
+
     def _init_neighbors(self):
+        if self.par is not None:
+            self._par_rebuild(self.time, initial=True)
+            return
         st = self.state
         n = st.n
         rolling = self.ip[K.I_ROLLING] == 2
@@ -200,7 +233,7 @@ class Simulation:
         above the documented fraction and the scene does not say force = true."""
         sc = self.scene
         st = self.state
-        rep = {"particles": st.n, "walls": self.nwalls, "materials": len(sc.materials)}
+        rep = {"particles": self.n_particles, "walls": self.nwalls, "materials": len(sc.materials)}
         rep["mass_total"] = float(st.mass.sum())
         rep["mass_min"] = float(st.mass.min())
         rep["mass_max"] = float(st.mass.max())
@@ -304,6 +337,7 @@ class Simulation:
             self.lo, self.hi, self.periodic, self.time, self.age, self.Hd, self.Hi, self.rnear, self.TH)
         if self.thermal is not None:
             self.thermal.tot[:], self.thermal.wtot[:] = saved
+        self._nc2 = nc
         self.last_contacts = nc // 2
         return maxov
 
@@ -312,6 +346,8 @@ class Simulation:
         return f if f is not None else np.zeros((0, 3))
 
     def _advance(self, nsteps):
+        if self.par is not None:
+            return self._advance_parallel(nsteps)
         st = self.state
         if not self._forces_ready:
             self._compute_forces()
@@ -327,12 +363,16 @@ class Simulation:
         self.step_count += done
         self.time = self.step_count * self.dt
         if self.ip[K.I_MECH]:  # frozen packings keep the contact count of their set-up
+            self._nc2 = nc
             self.last_contacts = nc // 2
         if status != K.OK:
             self._instability(status, who, other, value)
         return done
 
     def _instability(self, status, i, j, value):
+        raise SimulationError(self._instability_message(status, i, j, value))
+
+    def _instability_message(self, status, i, j, value):
         st = self.state
         pid = int(st.id[i])
         where = f"at t = {self.time:.9g} s (step {self.step_count})"
@@ -356,11 +396,144 @@ class Simulation:
         else:
             msg = (f"particle id {pid} left the domain {where} at {pos} (domain {self.lo.tolist()} to "
                    f"{self.hi.tolist()}). Add walls, enlarge [domain], or make the axis periodic")
+        return msg
+
+    # ------------------------------------------------------------------ parallel stepping
+    def _par_rebuild(self, t, initial=False, rec=None, weights_from_list=True):
+        """Exchange particles and ghosts with the other ranks, rebuild the neighbour and
+        wall lists, bring the contact history back (dem.parallel.records)."""
+        from .parallel import records
+        from .thermal.heat import local_porosity, TI_LOCALPOR
+        par = self.par
+        st = self.state
+        weights = None
+        if not initial:
+            nown = st.n_owned
+            x = st.position[:nown]
+            out = (~self.periodic) & ((x < self.lo) | (x > self.hi))
+            if np.any(out) and self._pending is None:
+                i, k = np.argwhere(out)[0]
+                self._pending = (K.LEFT_DOMAIN, self._instability_message(K.LEFT_DOMAIN, int(i), -1,
+                                                                          float(x[i, k])))
+            if rec is None:
+                rec = records.extract(st.id, self.nb, self.nnb, self.hist, self.rhist, self.age)
+            if weights_from_list:
+                weights = 1.0 + self.scene.parallel["pair_weight"] * self.nnb[:nown]
+        resort_vor = par.sort_pending and self.thermal is not None and self.thermal.voronoi
+        rec = par.exchange(self, rec, weights)
+        n, nown = st.n, st.n_owned
+        glo, ghi, gwrap = par.grid_box(self)
+        slots = self.nb.shape[1] if not initial else 12
+        e0 = np.zeros(0, np.int32)
+        for _ in range(2):
+            nb, nnb, hist, _r, _a, maxc = build_half_list(
+                st.position, st.radius, n, nown, self.lo, self.hi, self.periodic, glo, ghi, gwrap,
+                self.reach, self.fp[K.F_SKIN], slots, np.zeros((0, 1), np.int32), e0,
+                np.zeros((0, 1, 3)), np.zeros((0, 1, 3)), np.zeros((0, 1, 2)))
+            if not initial or maxc + 2 >= slots:
+                break
+            slots = maxc + 2
+        rhist = np.zeros(hist.shape) if self.ip[K.I_ROLLING] == 2 else np.zeros((0, 1, 3))
+        needs_age = self.thermal is not None and self.thermal.needs_age
+        age = np.zeros(nb.shape + (2,)) if needs_age else np.zeros((0, 1, 2))
+        records.restore(rec, st.id, nb, nnb, hist, rhist, age, par.key_base)
+        self.nb, self.nnb, self.hist, self.rhist, self.age = nb, nnb, hist, rhist, age
+        K.build_wall_list(st.position, st.radius, nown, self.wf, self.wi, self.nwalls,
+                          self.reach + self.fp[K.F_SKIN], t, self.wnb, self.wnn, self.whist, self.wrhist)
+        self.wnn[nown:] = 0
+        st.x_build[:nown] = st.position[:nown]
+        self.fp[K.F_TBUILD] = t
+        self.ip[K.I_NOWN] = nown
+        if self.thermal is not None and not initial:
+            self.Hd, self.Hi, self.rnear = K.heat_slot_arrays(n, nb.shape[1], self.Hd, self.Hi, self.rnear)
+            th = self.thermal
+            if th.thi[TI_LOCALPOR] == 1:
+                local_porosity(n, st.position, st.radius, nb, nnb, self.lo, self.hi, self.periodic, self.reach,
+                               self.wf, self.wi, self.wnb, self.wnn, t, th.por, 0.2)
+                par.forward(self, motion=False, porosity=True)
+            elif resort_vor:
+                th.update_porosity()
+                par.forward(self, motion=False, porosity=True)
+            self.TH = th.th_tuple()
+
+    def _advance_parallel(self, nsteps):
+        """The step of dem.step.advance, one step at a time with the ghost communication
+        between the drift and the force evaluation (one Allreduce per step carries the
+        rebuild decision and the previous step's stability status)."""
+        from .thermal.heat import heat_step
+        par = self.par
+        st = self.state
+        if not self._forces_ready:
+            self._compute_forces()
+            self._forces_ready = True
+        dt = self.dt
+        fp = self.fp
+        mech = bool(self.ip[K.I_MECH])
+        heat = self.thermal is not None
+        half_skin = 0.5 * fp[K.F_SKIN]
+        done = 0
+        for _ in range(nsteps):
+            t = (self.step_count + 1) * dt
+            need = 0.0
+            if mech:
+                maxd2 = K.kick_drift(st.n_owned, st.position, st.velocity, st.angular_velocity, st.force,
+                                     st.torque, st.inv_mass, st.inv_inertia, st.x_build, self.lo, self.hi,
+                                     self.periodic, dt)
+                need = 1.0 if math.sqrt(maxd2) + fp[K.F_VWALL] * (t - fp[K.F_TBUILD]) > half_skin else 0.0
+            code, need = par.flags(self._pending[0] if self._pending else 0.0, need)
+            if code:
+                self._raise_collective()
+            if mech:
+                if need:
+                    self._par_rebuild(t)
+                else:
+                    par.forward(self, motion=True, temperature=heat)
+                TH = self.TH
+                maxov, wi_, wj_, nc = K.compute_forces(
+                    st.n, st.position, st.velocity, st.angular_velocity, st.radius, st.mass, st.material,
+                    st.force, st.torque, self._fext(), self.nb, self.nnb, self.hist, self.rhist,
+                    self.wf, self.wi, self.wnb, self.wnn, self.whist, self.wrhist, self.tab, self.ip, fp,
+                    self.lo, self.hi, self.periodic, t, self.age, self.Hd, self.Hi, self.rnear, TH)
+                self._nc2 = nc
+                bad = K.kick(st.n_owned, st.velocity, st.angular_velocity, st.force, st.torque, st.inv_mass,
+                             st.inv_inertia, dt)
+                if self._pending is None:
+                    if bad >= 0:
+                        self._pending = (K.NONFINITE, self._instability_message(K.NONFINITE, bad, -1, 0.0))
+                    elif maxov > fp[K.F_MAXOV]:
+                        self._pending = (K.OVERLAP, self._instability_message(K.OVERLAP, wi_, wj_, maxov))
+            elif heat:
+                par.forward(self, motion=False, temperature=True)
+            if heat:
+                TH = self.TH
+                badt = heat_step(st.n, st.n_owned, dt, t, TH[K.H_T], TH[K.H_CINV], TH[K.H_Q], st.velocity,
+                                 st.radius, st.position, st.material, self.nb, self.nnb, self.Hd, self.Hi,
+                                 self.rnear, self.wnb, self.wnn, TH[K.H_HW], TH[K.H_WTH], TH[K.H_WTAB],
+                                 TH[K.H_TF], TH[K.H_UF], TH[K.H_POR], TH[K.H_QGEN], TH[K.H_QSRC],
+                                 TH[K.H_SRCBOX], TH[K.H_TMAT], TH[K.H_GAS], TH[K.H_THI], TH[K.H_TOT],
+                                 TH[K.H_WTOT], TH[K.H_WORK])
+                if badt >= 0 and self._pending is None:
+                    self._pending = (K.BAD_TEMPERATURE, self._instability_message(
+                        K.BAD_TEMPERATURE, badt, -1, float(st.temperature[badt])))
+            self.step_count += 1
+            self.time = self.step_count * dt
+            done += 1
+        code, _ = par.flags(self._pending[0] if self._pending else 0.0, 0.0)
+        if code:
+            self._raise_collective()
+        return done
+
+    def _raise_collective(self):
+        msgs = self.par.comm.allgather(self._pending[1] if self._pending else None)
+        msg = next(m for m in msgs if m)
         raise SimulationError(msg)
 
     def sort_particles(self):
         """Reorder particles by cell for cache locality; neighbour rows and every history
         follow, so the physics is unchanged."""
+        if self.par is not None:  # done at the next exchange with the other ranks
+            self.par.sort_pending = True
+            return
         st = self.state
         cell = 2 * float(st.radius.max()) + self.reach + self.fp[K.F_SKIN]
         perm = sort_permutation(st.position, self.lo, self.hi, cell)
@@ -430,14 +603,50 @@ class Simulation:
         return self._advance(nsteps)
 
     # ------------------------------------------------------------------ stats / output
+    @property
+    def is_root(self):
+        """True on the rank that writes files (always in a serial run)."""
+        return self.par is None or self.par.rank == 0
+
+    @property
+    def n_particles(self):
+        """Particles in the whole run (all ranks)."""
+        return self.state.n_owned if self.par is None else self.par.allsum(self.state.n_owned)
+
     def history_row(self):
+        """One row of history.csv (collective in a parallel run: sums, minima, maxima)."""
         st = self.state
         et, er = st.kinetic_energy()
         maxov = self._overlap_stats()
-        row = dict(time=self.time, kinetic_energy=et, rotational_energy=er,
-                   contacts=self.last_contacts, max_overlap_ratio=maxov)
-        if self.thermal is not None:
-            row.update(self.thermal.history_row())
+        if self.par is None:
+            row = dict(time=self.time, kinetic_energy=et, rotational_energy=er,
+                       contacts=self.last_contacts, max_overlap_ratio=maxov)
+            if self.thermal is not None:
+                row.update(self.thermal.history_row())
+            return row
+        p = self.par
+        th = self.thermal
+        n = st.n_owned
+        vals = [et, er, float(self._nc2), float(n)]
+        if th is not None:
+            T = st.temperature[:n]
+            vals += [float(np.sum(T / st.inv_heat_capacity[:n])), float(T.sum())]
+            vals += list(th.tot[:len(THERMAL_MECHANISMS)]) + list(th.wtot[:len(self.scene.walls)])
+        tot = p.allsum(np.array(vals))
+        row = dict(time=self.time, kinetic_energy=tot[0], rotational_energy=tot[1],
+                   contacts=int(tot[2]) // 2, max_overlap_ratio=p.allmax(maxov))
+        if th is not None:
+            T = st.temperature[:n]
+            tmin = p.allmin(float(T.min()) if n else math.inf)
+            tmax = p.allmax(float(T.max()) if n else -math.inf)
+            row.update(thermal_energy=tot[4], T_mean=tot[5] / max(tot[3], 1), T_min=tmin, T_max=tmax)
+            k = 6
+            for m in THERMAL_MECHANISMS:
+                row[f"E_{m}"] = tot[k]
+                k += 1
+            for w in self.scene.walls:
+                row[f"E_wall_{w['name']}"] = tot[k]
+                k += 1
         return row
 
     def _overlap_stats(self):
@@ -461,36 +670,100 @@ class Simulation:
         if self.thermal is not None:
             f["temperature"] = st.temperature[:n]
             f["heat_rate"] = st.heat_rate[:n]
+        if self.par is not None:
+            f["rank"] = np.full(n, float(self.par.rank))
         return f
 
+    def _gather_by_id(self, arrays):
+        """Owned rows of every rank, concatenated and ordered by particle id, on the root
+        (None elsewhere); a serial run just orders its rows."""
+        parts = [arrays] if self.par is None else self.par.gather(arrays)
+        if parts is None:
+            return None
+        out = {}
+        for k in arrays:
+            vals = [p[k] for p in parts]
+            out[k] = np.concatenate(vals) if np.ndim(vals[0]) > 0 else vals[0]
+        order = np.argsort(out["id"], kind="stable")
+        return {k: (v[order] if np.ndim(v) > 0 and v.shape[0] == order.size else v) for k, v in out.items()}
+
     def final_arrays(self):
+        """Per-particle results ordered by id (collective; None on ranks other than the root)."""
         st = self.state
         n = st.n_owned
-        order = np.argsort(st.id[:n], kind="stable")
-        out = dict(id=st.id[:n][order], position=st.position[:n][order], velocity=st.velocity[:n][order],
-                   angular_velocity=st.angular_velocity[:n][order], radius=st.radius[:n][order],
-                   material=st.material[:n][order], time=np.float64(self.time))
+        out = dict(id=st.id[:n], position=st.position[:n], velocity=st.velocity[:n],
+                   angular_velocity=st.angular_velocity[:n], radius=st.radius[:n],
+                   material=st.material[:n])
         if self.thermal is not None:
-            out["temperature"] = st.temperature[:n][order]
-            out["heat_rate"] = st.heat_rate[:n][order]
+            out["temperature"] = st.temperature[:n]
+            out["heat_rate"] = st.heat_rate[:n]
+        out = self._gather_by_id(out)
+        if out is not None:
+            out["time"] = np.float64(self.time)
         return out
 
     # ------------------------------------------------------------------ checkpoints
+    @staticmethod
+    def _ck_key(name):
+        kind, attr = name.split(".", 1)
+        return {"state": "state_", "sim": "", "th": "th_"}[kind] + attr
+
     def checkpoint_arrays(self):
+        """Everything needed to continue the run. A serial checkpoint holds the neighbour
+        list and its history slots (bit-exact restart); every checkpoint also holds the
+        per-particle arrays ordered by id and the contact history as id-keyed records, so
+        that any number of ranks can continue it (collective; None off the root)."""
+        from .parallel import records
         st = self.state
-        arr = {f"state_{k}": getattr(st, k) for k in st.fields()}
-        arr.update(nb=self.nb, nnb=self.nnb, hist=self.hist, rhist=self.rhist, age=self.age,
-                   whist=self.whist, wrhist=self.wrhist, wnb=self.wnb, wnn=self.wnn,
-                   Hd=self.Hd, Hi=self.Hi, rnear=self.rnear,
-                   fp_tbuild=np.float64(self.fp[K.F_TBUILD]), step_count=np.int64(self.step_count),
-                   dt=np.float64(self.dt), forces_ready=np.bool_(self._forces_ready),
-                   scene_file=np.str_(os.path.abspath(self.scene.file)))
+        n = st.n_owned
+        rec = records.extract(st.id, self.nb, self.nnb, self.hist, self.rhist, self.age)
+        rec = {f"rec_{k}": v for k, v in rec.items() if v is not None}
+        common = dict(fp_tbuild=np.float64(self.fp[K.F_TBUILD]), step_count=np.int64(self.step_count),
+                      dt=np.float64(self.dt), forces_ready=np.bool_(self._forces_ready),
+                      scene_file=np.str_(os.path.abspath(self.scene.file)),
+                      ranks=np.int64(1 if self.par is None else self.par.size))
+        if self.par is None:
+            arr = {f"state_{k}": getattr(st, k) for k in st.fields()}
+            arr.update(nb=self.nb, nnb=self.nnb, hist=self.hist, rhist=self.rhist, age=self.age,
+                       whist=self.whist, wrhist=self.wrhist, wnb=self.wnb, wnn=self.wnn,
+                       Hd=self.Hd, Hi=self.Hi, rnear=self.rnear, **common, **rec)
+            if self.thermal is not None:
+                arr.update(self.thermal.checkpoint_arrays())
+            return arr
+        local = {}
+        empties = {}
+        for name, (obj, attr) in self.per_particle_arrays().items():
+            if name == "sim.external_force":
+                continue
+            a = getattr(obj, attr)
+            if a.shape[0] == 0:
+                empties[self._ck_key(name)] = a
+            else:
+                local[self._ck_key(name)] = a[:n]
+        local["id"] = st.id[:n]
+        parts = self.par.gather((local, rec))
+        extra = {}
         if self.thermal is not None:
-            arr.update(self.thermal.checkpoint_arrays())
+            extra = dict(th_tot=self.par.allsum(self.thermal.tot), th_wtot=self.par.allsum(self.thermal.wtot))
+        if parts is None:
+            return None
+        arr = self._gather_by_id_parts([p[0] for p in parts])
+        arr.pop("id")
+        for k in rec:
+            arr[k] = np.concatenate([p[1][k] for p in parts])
+        arr.update(empties, **common, **extra)
         return arr
 
+    @staticmethod
+    def _gather_by_id_parts(parts):
+        out = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+        order = np.argsort(out["id"], kind="stable")
+        return {k: np.ascontiguousarray(v[order]) for k, v in out.items()}
+
     def write_checkpoint(self, path):
-        save_npz(path, **self.checkpoint_arrays())
+        arr = self.checkpoint_arrays()
+        if arr is not None:
+            save_npz(path, **arr)
 
     def load_checkpoint(self, path):
         try:
@@ -502,9 +775,14 @@ class Simulation:
                 raise SimulationError(f"{path}: checkpoint was written with time_step {float(z['dt'])}, "
                                       f"the scene has {self.dt}; restart with the same time_step")
             st = self.state
-            if int(z["state_id"].size) != st.n:
+            total = self.n_particles
+            if int(z["state_id"].size) != total:
                 raise SimulationError(f"{path}: checkpoint holds {z['state_id'].size} particles, "
-                                      f"the scene {st.n}")
+                                      f"the scene {total}")
+            ranks = int(z["ranks"]) if "ranks" in z.files else 1
+            if self.par is not None or ranks != 1 or "nb" not in z.files:
+                self._load_portable(path, z)
+                return
             for k in st.fields():
                 key = f"state_{k}"
                 if key not in z.files:
@@ -519,6 +797,55 @@ class Simulation:
             if self.thermal is not None:
                 self.thermal.load_checkpoint(z)
                 self.TH = self.thermal.th_tuple()
+
+    def _load_portable(self, path, z):
+        """Continue from a checkpoint written on any number of ranks: per-particle arrays by
+        id, the neighbour list rebuilt here, the contact history restored from its records."""
+        from .parallel import records
+        st = self.state
+        pos = z["state_position"]
+        if self.par is not None:
+            rows = np.nonzero(self.par.dec.owner(pos) == self.par.rank)[0]
+        else:
+            rows = np.arange(pos.shape[0])
+        self.external_force = None
+        for name, (obj, attr) in self.per_particle_arrays().items():
+            key = self._ck_key(name)
+            if name == "th.work":  # scratch
+                obj.work = np.zeros((rows.size, 3))
+                continue
+            if key not in z.files:
+                raise SimulationError(f"{path}: checkpoint lacks {key!r} (thermal or contact settings changed?)")
+            a = z[key]
+            setattr(obj, attr, np.ascontiguousarray(a[rows]) if a.shape[0] else np.ascontiguousarray(a))
+        st.n_owned = rows.size
+        st.n_ghost = 0
+        self.ip[K.I_NOWN] = rows.size
+        rec = {k: (z[f"rec_{k}"] if f"rec_{k}" in z.files else None) for k in records.FIELDS}
+        if rec["a"] is None:
+            rec = None
+        self.step_count = int(z["step_count"])
+        self.time = self.step_count * self.dt
+        self._forces_ready = bool(z["forces_ready"])
+        th = self.thermal
+        if th is not None:
+            root = self.is_root
+            th.tot = np.ascontiguousarray(z["th_tot"]) if root else np.zeros_like(z["th_tot"])
+            th.wtot = np.ascontiguousarray(z["th_wtot"]) if root else np.zeros_like(z["th_wtot"])
+        if self.par is not None:
+            self._par_rebuild(self.time, rec=rec, weights_from_list=False)
+        else:
+            self._init_neighbors()
+            records.restore(rec, st.id, self.nb, self.nnb, self.hist, self.rhist, self.age,
+                            int(st.id.max(initial=0)) + 1)
+        if th is not None:
+            self.Hd, self.Hi, self.rnear = th.slot_arrays(self.nb.shape[1])
+            self.TH = th.th_tuple()
+            th.update_porosity()
+            if self.par is not None:
+                self.par.forward(self, motion=False, porosity=True)
+            if not self.scene.simulation["mechanics"]:
+                self._compute_forces()  # the frozen packing's conductances
 
     # ------------------------------------------------------------------ run
     def run(self, end_time=None, out_dir=None, progress=None, restart=None, log=None):
@@ -537,14 +864,16 @@ class Simulation:
             self.warmup()
         writers = None
         if out_dir is not None:
-            os.makedirs(out_dir, exist_ok=True)
             keep = self.time if restart is not None else None
-            writers = dict(hist=History(os.path.join(out_dir, "history.csv"), self.history_columns(), keep),
-                           vtk=VTKSeries(out_dir) if self.scene.output["vtk"] else None)
+            writers = dict(hist=None, vtk=None)  # the root writes; the others take part in the gathers
+            if self.is_root:
+                os.makedirs(out_dir, exist_ok=True)
+                writers = dict(hist=History(os.path.join(out_dir, "history.csv"), self.history_columns(), keep),
+                               vtk=VTKSeries(out_dir) if self.scene.output["vtk"] else None)
             if self.step_count == 0 or restart is None:
                 self._write_output(writers)
-        prog = Progress(self.step_count, end_step, self.dt, self.state.n, self.compile_seconds,
-                        enabled=progress, stream=log or sys.stderr)
+        prog = Progress(self.step_count, end_step, self.dt, self.n_particles, self.compile_seconds,
+                        enabled=progress and self.is_root, stream=log or sys.stderr)
         try:
             while self.step_count < end_step:
                 s = self.step_count
@@ -563,21 +892,31 @@ class Simulation:
                 prog.update(self.step_count)
         except SimulationError:
             if out_dir is not None:
-                save_npz(os.path.join(out_dir, "failed_state.npz"), **self.final_arrays())
+                fa = self.final_arrays()
+                if fa is not None:
+                    save_npz(os.path.join(out_dir, "failed_state.npz"), **fa)
             prog.close()
             raise
         prog.close()
         if writers is not None:
             if self.step_count % out_every != 0:
                 self._write_output(writers)
-            save_npz(os.path.join(out_dir, "final.npz"), **self.final_arrays())
+            fa = self.final_arrays()
+            if fa is not None:
+                save_npz(os.path.join(out_dir, "final.npz"), **fa)
             self.write_checkpoint(os.path.join(out_dir, "checkpoint.npz"))
         self.wall_seconds = prog.elapsed
         return self
 
     def _write_output(self, writers):
         row = self.history_row()
-        writers["hist"].add(row)
-        if writers["vtk"] is not None:
+        if writers["hist"] is not None:
+            writers["hist"].add(row)
+        if self.scene.output["vtk"]:
             st = self.state
-            writers["vtk"].write(self.time, self.step_count, st.position[:st.n_owned], self.particle_fields())
+            f = dict(self.particle_fields())
+            f["position"] = st.position[:st.n_owned]
+            f = self._gather_by_id(f)
+            if writers["vtk"] is not None:
+                pos = f.pop("position")
+                writers["vtk"].write(self.time, self.step_count, pos, f)

@@ -489,7 +489,7 @@ def compute_forces(n, x, v, w, r, m, mat, f, tq, fext, nb, nnb, hist, rhist,
 @njit(cache=True, error_model="numpy")
 def build_wall_list(x, r, n, wf, wi, nwalls, reach, t, wnb, wnn, whist, wrhist):
     """Walls within reach of each particle; histories of the others are cleared."""
-    rolling = wrhist.shape[0] == n
+    rolling = wrhist.shape[0] > 0
     for i in range(n):
         c = 0
         for wl in range(nwalls):

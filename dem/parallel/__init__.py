@@ -1,0 +1,30 @@
+"""MPI parallel layer (mpi4py): domain decomposition, ghosts, migration, reductions.
+
+A run is parallel when it is started by ``mpirun -np N`` with N > 1; mpi4py is imported
+only then (a serial run never initialises MPI). See docs/scaling.md for the design and
+the measured figures.
+"""
+import os
+
+_ENV_SIZE = ("OMPI_COMM_WORLD_SIZE", "PMI_SIZE", "PMIX_SIZE", "MPI_LOCALNRANKS", "SLURM_NTASKS")
+
+
+def launched_size():
+    """Number of ranks the launcher started (1 outside mpirun), without initialising MPI."""
+    for k in _ENV_SIZE[:3]:
+        v = os.environ.get(k)
+        if v:
+            try:
+                return int(v)
+            except ValueError:
+                pass
+    return 1
+
+
+def world():
+    """COMM_WORLD when started by mpirun with more than one rank, else None."""
+    if launched_size() <= 1:
+        return None
+    from mpi4py import MPI
+    comm = MPI.COMM_WORLD
+    return comm if comm.Get_size() > 1 else None

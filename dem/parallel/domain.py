@@ -1,0 +1,275 @@
+"""ParallelDomain: what one rank does to share a run with the others.
+
+* Ownership: each rank owns the particles inside its box (dem.parallel.decomposition).
+* Exchange (at every neighbour-list rebuild, like LAMMPS' reneighbouring): ghosts are
+  dropped, the load is measured and the boxes re-cut when the imbalance exceeds
+  [parallel] balance_threshold, particles that left their box migrate to their new owner
+  with every per-particle array and the contact history that involves them (as id-keyed
+  records), then each rank sends as ghosts its particles within one halo
+  (2 r_max + reach + skin) of a neighbour's box, shifted by the periodic image that
+  brings them next to it.
+* Forward communication (every step): positions, velocities, angular velocities (and
+  temperatures) of the ghosts, one message per neighbour rank.
+A pair of an owned particle and a ghost is computed on both ranks ("newton off" across
+ranks); forces on ghosts are discarded, so no reverse communication is needed.
+"""
+import numpy as np
+
+from .decomposition import Decomposition
+from . import records as R
+
+GHOST_FIELDS = ("state.id", "state.position", "state.velocity", "state.angular_velocity",
+                "state.radius", "state.mass", "state.inv_mass", "state.inv_inertia",
+                "state.material", "state.group", "state.temperature", "state.inv_heat_capacity",
+                "th.por")
+
+
+class ParallelError(RuntimeError):
+    pass
+
+
+class ParallelDomain:
+    def __init__(self, comm, sim):
+        self.comm = comm
+        self.rank = comm.Get_rank()
+        self.size = comm.Get_size()
+        cfg = sim.scene.parallel
+        self.cfg = cfg
+        self.dec = Decomposition(self.size, sim.lo, sim.hi, sim.periodic, cfg["decomposition"],
+                                 cfg["slab_axis"])
+        self.key_base = int(comm.allreduce(int(sim.state.id.max(initial=0)), op=_mpi().MAX)) + 1
+        self.sends = []  # (rank, rows, shift)
+        self.recvs = []  # (rank, first ghost row, count)
+        self.neigh = []
+        self.exchanges = 0
+        self.rebalances = 0
+        self.migrated = 0
+        self.sort_pending = False
+        self.imbalance = 1.0
+        self._bufs = {}
+
+    # ------------------------------------------------------------------ collectives
+    def allmax(self, x):
+        return self.comm.allreduce(x, op=_mpi().MAX)
+
+    def allmin(self, x):
+        return self.comm.allreduce(x, op=_mpi().MIN)
+
+    def allsum(self, x):
+        return self.comm.allreduce(x, op=_mpi().SUM)
+
+    def flags(self, a, b):
+        """Element-wise max over ranks of two numbers (one message per step)."""
+        buf = np.array([a, b], float)
+        out = np.empty(2)
+        self.comm.Allreduce(buf, out, op=_mpi().MAX)
+        return out[0], out[1]
+
+    def gather(self, obj):
+        return self.comm.gather(obj, root=0)
+
+    # ------------------------------------------------------------------ arrays
+    @staticmethod
+    def _take(reg, rows):
+        for name, (obj, attr) in reg.items():
+            a = getattr(obj, attr)
+            if a is None or a.shape[0] == 0:
+                continue
+            setattr(obj, attr, np.ascontiguousarray(a[rows]))
+
+    def select_initial(self, sim):
+        """Every rank holds every particle of the scene at start-up: cut the boxes on a
+        disjoint split (row % size) and keep the owned rows."""
+        st = sim.state
+        x = st.position
+        part = np.arange(self.rank, st.n, self.size)
+        self.dec.build(self.comm, x[part], np.ones(part.size))
+        halo = sim.halo()
+        w = self.dec.min_width()
+        if w < 2 * halo:
+            raise ParallelError(
+                f"{sim.scene.file}: [parallel] {self.size} ranks cut the domain into boxes {w:.4g} m wide, "
+                f"less than two halos (2 x {halo:.4g} m = 2 r_max + reach + skin): run on fewer ranks, "
+                f"or use [parallel] decomposition = \"rcb\" / another slab_axis")
+        own = np.nonzero(self.dec.owner(x) == self.rank)[0]
+        self._take(sim.per_particle_arrays(), own)
+        st.n_owned = own.size
+        st.n_ghost = 0
+        self.neigh = self.dec.neighbours(self.rank, halo)
+
+    # ------------------------------------------------------------------ exchange
+    def exchange(self, sim, rec, weights=None):
+        """Drop ghosts, re-balance if needed, migrate, sort if asked, send ghosts.
+        ``rec``: contact records of this rank (dem.parallel.records); returns the records
+        this rank needs after the exchange."""
+        st = sim.state
+        nown = st.n_owned
+        reg = sim.per_particle_arrays()
+        self._take(reg, np.arange(nown))
+        st.n_ghost = 0
+        halo = sim.halo()
+        # ---- load balance
+        if weights is None:
+            weights = np.ones(nown)
+        cost = float(weights.sum())
+        cmax = self.allmax(cost)
+        cmean = self.allsum(cost) / self.size
+        self.imbalance = cmax / max(cmean, 1e-300)
+        if self.imbalance > self.cfg["balance_threshold"]:
+            self.dec.build(self.comm, st.position, weights)
+            if self.dec.min_width() >= 2 * halo:
+                self.rebalances += 1
+                self.neigh = self.dec.neighbours(self.rank, halo)
+            else:  # keep the previous cuts: the balanced ones would be too narrow
+                self.dec = self._previous_dec
+        self._previous_dec = _copy_dec(self.dec)
+        # ---- migration
+        dest = self.dec.owner(st.position)
+        leave = dest != self.rank
+        out = [None] * self.size
+        if np.any(leave):
+            for q in np.unique(dest[leave]):
+                rows = np.nonzero(dest == q)[0]
+                pkg = {name: getattr(obj, attr)[rows] for name, (obj, attr) in reg.items()
+                       if getattr(obj, attr) is not None and getattr(obj, attr).shape[0] > 0}
+                pkg["__records"] = R.involving(rec, st.id[rows]) if rec is not None else None
+                out[q] = pkg
+        inc = self.comm.alltoall(out)
+        keep = np.nonzero(~leave)[0]
+        nmig = int(leave.sum())
+        self.migrated += nmig
+        for name, (obj, attr) in reg.items():
+            a = getattr(obj, attr)
+            if a is None or a.shape[0] == 0:
+                continue
+            parts = [a[keep]] + [p[name] for p in inc if p is not None]
+            setattr(obj, attr, np.ascontiguousarray(np.concatenate(parts)))
+        if rec is not None:
+            rec = R.concat([rec] + [p["__records"] for p in inc if p is not None])
+        nown = st.id.shape[0]
+        st.n_owned = nown
+        # ---- spatial sort of the owned rows (cache locality)
+        if self.sort_pending:
+            from ..neighbors import sort_permutation
+            cell = halo
+            self._take(reg, sort_permutation(st.position, sim.lo, sim.hi, cell))
+            self.sort_pending = False
+        # ---- ghosts
+        self.sends = []
+        out = [None] * self.size
+        for q in self.neigh:
+            d, shift = self.dec.box_distance(st.position, q)
+            rows = np.nonzero(d < halo)[0]
+            sh = np.ascontiguousarray(shift[rows])
+            self.sends.append((q, rows, sh))
+            pkg = {}
+            for name in GHOST_FIELDS:
+                if name in reg:
+                    obj, attr = reg[name]
+                    a = getattr(obj, attr)
+                    if a is not None and a.shape[0] > 0:
+                        pkg[name] = a[rows] + sh if name == "state.position" else a[rows]
+            out[q] = pkg
+        inc = self.comm.alltoall(out)
+        self.recvs = []
+        off = nown
+        got = []
+        for q in self.neigh:
+            pkg = inc[q]
+            cnt = pkg["state.id"].shape[0]
+            self.recvs.append((q, off, cnt))
+            off += cnt
+            got.append(pkg)
+        for name, (obj, attr) in reg.items():
+            a = getattr(obj, attr)
+            if a is None or a.shape[0] == 0:
+                continue
+            if name in GHOST_FIELDS:
+                parts = [a] + [p[name] for p in got]
+            else:
+                parts = [a, np.zeros((off - nown,) + a.shape[1:], a.dtype)]
+            setattr(obj, attr, np.ascontiguousarray(np.concatenate(parts)))
+        st.n_ghost = off - nown
+        self.exchanges += 1
+        self._bufs = {}
+        return rec
+
+    def grid_box(self, sim):
+        """Cell-grid box of this rank: the domain on periodic axes the box spans (the grid
+        wraps there), else the extent of its owned particles and ghosts."""
+        x = sim.state.position
+        spans = self.dec.spans(self.rank) & sim.periodic
+        glo = np.where(spans, sim.lo, x.min(axis=0) if x.shape[0] else sim.lo)
+        ghi = np.where(spans, sim.hi, x.max(axis=0) if x.shape[0] else sim.hi)
+        pad = 1e-9 * np.maximum(sim.hi - sim.lo, 1e-300)
+        ghi = np.maximum(ghi, glo + pad)
+        return np.ascontiguousarray(glo, float), np.ascontiguousarray(ghi + pad, float), \
+            np.ascontiguousarray(spans, np.bool_)
+
+    # ------------------------------------------------------------------ forward
+    def forward(self, sim, motion=True, temperature=False, porosity=False):
+        """Copy the owners' current values into the ghost rows."""
+        from mpi4py import MPI
+        st = sim.state
+        cols = []
+        if motion:
+            cols += [(st.position, 3, True), (st.velocity, 3, False), (st.angular_velocity, 3, False)]
+        if temperature:
+            cols.append((st.temperature, 1, False))
+        if porosity:
+            cols.append((sim.thermal.por, 1, False))
+        nf = sum(c[1] for c in cols)
+        if nf == 0 or not self.neigh:
+            return 0
+        key = (motion, temperature, porosity)
+        bufs = self._bufs.get(key)
+        if bufs is None:
+            bufs = ([np.empty((rows.size, nf)) for _, rows, _ in self.sends],
+                    [np.empty((cnt, nf)) for _, _, cnt in self.recvs])
+            self._bufs[key] = bufs
+        sb, rb = bufs
+        reqs = []
+        for k, (q, off, cnt) in enumerate(self.recvs):
+            reqs.append(self.comm.Irecv(rb[k], source=q, tag=11))
+        for k, (q, rows, sh) in enumerate(self.sends):
+            c = 0
+            for a, w, shifted in cols:
+                if w == 1:
+                    sb[k][:, c] = a[rows]
+                else:
+                    sb[k][:, c:c + w] = a[rows]
+                    if shifted:
+                        sb[k][:, c:c + w] += sh
+                c += w
+            reqs.append(self.comm.Isend(sb[k], dest=q, tag=11))
+        MPI.Request.Waitall(reqs)
+        for k, (q, off, cnt) in enumerate(self.recvs):
+            c = 0
+            for a, w, _ in cols:
+                if w == 1:
+                    a[off:off + cnt] = rb[k][:, c]
+                else:
+                    a[off:off + cnt] = rb[k][:, c:c + w]
+                c += w
+        return sum(b.nbytes for b in sb)
+
+    def halo_bytes(self, thermal):
+        """Bytes this rank sends per step in the forward communication."""
+        nf = 9 + (1 if thermal else 0)
+        return 8 * nf * sum(rows.size for _, rows, _ in self.sends)
+
+    def describe(self):
+        return self.dec.describe()
+
+
+def _mpi():
+    from mpi4py import MPI
+    return MPI
+
+
+def _copy_dec(d):
+    c = Decomposition(d.nranks, d.lo, d.hi, d.periodic, d.method, d.slab_axis)
+    c.blo = d.blo.copy()
+    c.bhi = d.bhi.copy()
+    c.nodes = [list(n) for n in d.nodes]
+    return c
