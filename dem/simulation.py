@@ -460,8 +460,9 @@ class Simulation:
         """The step of dem.step.advance, one step at a time with the ghost communication
         between the drift and the force evaluation (one Allreduce per step carries the
         rebuild decision and the previous step's stability status)."""
-        from .thermal.heat import heat_step
+        from .thermal.heat import heat_step, cross_rates, TI_INTEG
         par = self.par
+        self._expo_cross = self.thermal is not None and self.thermal.thi[TI_INTEG] != 0
         st = self.state
         if not self._forces_ready:
             self._compute_forces()
@@ -506,6 +507,9 @@ class Simulation:
                 par.forward(self, motion=False, temperature=True)
             if heat:
                 TH = self.TH
+                if self._expo_cross:
+                    cross_rates(st.n_owned, TH[K.H_CINV], self.nb, self.nnb, self.Hd, self.Hi, TH[K.H_WORK])
+                    par.forward(self, motion=False, rate=True)
                 badt = heat_step(st.n, st.n_owned, dt, t, TH[K.H_T], TH[K.H_CINV], TH[K.H_Q], st.velocity,
                                  st.radius, st.position, st.material, self.nb, self.nnb, self.Hd, self.Hi,
                                  self.rnear, self.wnb, self.wnn, TH[K.H_HW], TH[K.H_WTH], TH[K.H_WTAB],
@@ -751,6 +755,10 @@ class Simulation:
         arr.pop("id")
         for k in rec:
             arr[k] = np.concatenate([p[1][k] for p in parts])
+        if "rec_a" in arr:  # a pair across ranks was recorded by both: keep one
+            _, first = np.unique(arr["rec_a"] * self.par.key_base + arr["rec_b"], return_index=True)
+            for k in rec:
+                arr[k] = arr[k][first]
         arr.update(empties, **common, **extra)
         return arr
 

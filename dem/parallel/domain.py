@@ -207,7 +207,7 @@ class ParallelDomain:
             np.ascontiguousarray(spans, np.bool_)
 
     # ------------------------------------------------------------------ forward
-    def forward(self, sim, motion=True, temperature=False, porosity=False):
+    def forward(self, sim, motion=True, temperature=False, porosity=False, rate=False):
         """Copy the owners' current values into the ghost rows."""
         from mpi4py import MPI
         st = sim.state
@@ -218,10 +218,12 @@ class ParallelDomain:
             cols.append((st.temperature, 1, False))
         if porosity:
             cols.append((sim.thermal.por, 1, False))
+        if rate:  # cross-rank conductance rates of the exponential heat update
+            cols.append((sim.thermal.work[:, 1], 1, False))
         nf = sum(c[1] for c in cols)
         if nf == 0 or not self.neigh:
             return 0
-        key = (motion, temperature, porosity)
+        key = (motion, temperature, porosity, rate)
         bufs = self._bufs.get(key)
         if bufs is None:
             bufs = ([np.empty((rows.size, nf)) for _, rows, _ in self.sends],

@@ -64,10 +64,12 @@ def heat_step(n, nown, dt, t, T, cinv, Q, v, r, x, mat, nb, nnb, Hd, Hi, rnear, 
     rank advances them). Q receives the net heat rate of each particle (W).
 
     A pair with a ghost is on two ranks: Euler takes its rate from the temperatures at the
-    start of the step on both (antisymmetric, so conservative, as in a serial run); the
-    exponential update treats the ghost as a reservoir at its start-of-step temperature in
-    the particle's exact relaxation (bounded for any step; the two sides then agree to
-    O((H dt / C)^2) instead of exactly)."""
+    start of the step on both (antisymmetric, so conservative, as in a serial run). The
+    exponential update exchanges e = H (T_j - T_i) phi over such a pair from the
+    start-of-step temperatures, phi = (1 - exp(-lam dt)) / lam with lam the larger of the
+    two particles' cross-rank rates lam_i = sum_cross H / C_i (work[:, 1], filled for ghosts
+    by the caller): both ranks compute the same e (conservative), phi -> dt for small steps,
+    and for any step each particle moves by a convex combination (bounded)."""
     integ = thi[TI_INTEG]
     has_ind = Hi.shape[0] == n
     conv = thi[TI_CONV]
@@ -95,7 +97,7 @@ def heat_step(n, nown, dt, t, T, cinv, Q, v, r, x, mat, nb, nnb, Hd, Hi, rnear, 
         hs = np.zeros(n)
         hts = np.zeros(n)
         if nown < n and not fused:
-            _ghost_links(nown, T, nb, nnb, Hd, Hi, has_ind, hs, hts)
+            _cross_exchange(nown, dt, T, cinv, nb, nnb, Hd, Hi, has_ind, work, tot)
     if not fused:
         if integ == 0:
             _pair_sweep(nown, dt, T, cinv, Q, nb, nnb, Hd, Hi, has_ind, 0, 1, tot)
@@ -197,8 +199,6 @@ def heat_step(n, nown, dt, t, T, cinv, Q, v, r, x, mat, nb, nnb, Hd, Hi, rnear, 
                 tot[E_CONV] += f * hconv[i] * (tf[i] - ti)
             if rad >= 0:
                 tot[E_RAD] += f * hrad[i] * (tenv[i] - ti)
-            if nown < n and not fused:
-                _ghost_link_totals(i, nown, f, ti, T, nb, nnb, Hd, Hi, has_ind, tot, work)
     if not fused and expo:
         _pair_sweep(nown, 0.5 * dt, T, cinv, Q, nb, nnb, Hd, Hi, has_ind, 1, -1, tot)
     # ---- explicit terms: generation, sources, fixed fluxes (Q)
@@ -282,32 +282,44 @@ def _pair_sweep(n, dt, T, cinv, Q, nb, nnb, Hd, Hi, has_ind, integ, direction, t
 
 
 @njit(cache=True, error_model="numpy")
-def _ghost_links(nown, T, nb, nnb, Hd, Hi, has_ind, hs, hts):
-    """Pairs of an owned particle with a ghost, as reservoir links of the exponential
-    update: the ghost is held at its start-of-step temperature."""
+def cross_rates(nown, cinv, nb, nnb, Hd, Hi, work):
+    """lam_i = sum of the conductances of particle i's pairs with ghosts / C_i, into work[:, 1]."""
+    has_ind = Hi.shape[0] > 0
+    for i in range(nown):
+        h = 0.0
+        for s in range(nnb[i]):
+            if nb[i, s] >= nown:
+                h += Hd[i, s] + (Hi[i, s] if has_ind else 0.0)
+        work[i, 1] = h * cinv[i]
+
+
+@njit(cache=True, error_model="numpy")
+def _cross_exchange(nown, dt, T, cinv, nb, nnb, Hd, Hi, has_ind, work, tot):
+    """Exponential update of the pairs with a ghost (see heat_step), from the start-of-step
+    temperatures; half of each exchange goes into the totals (the other rank counts the rest)."""
+    dT = np.zeros(nown)
+    ed = 0.0
+    ei = 0.0
     for i in range(nown):
         for s in range(nnb[i]):
             j = nb[i, s]
             if j < nown:
                 continue
-            h = Hd[i, s] + (Hi[i, s] if has_ind else 0.0)
-            if h > 0.0:
-                hs[i] += h
-                hts[i] += h * T[j]
-
-
-@njit(cache=True, error_model="numpy")
-def _ghost_link_totals(i, nown, f, ti, T, nb, nnb, Hd, Hi, has_ind, tot, work):
-    """Direct / indirect totals of particle i's ghost links (half each: the other rank
-    counts the other half)."""
-    for s in range(nnb[i]):
-        j = nb[i, s]
-        if j < nown:
-            continue
-        hd = Hd[i, s]
-        hi = Hi[i, s] if has_ind else 0.0
-        tot[E_DIRECT] += 0.5 * abs(f * hd * (T[j] - ti))
-        tot[E_INDIRECT] += 0.5 * abs(f * hi * (T[j] - ti))
+            hd = Hd[i, s]
+            hi = Hi[i, s] if has_ind else 0.0
+            h = hd + hi
+            if h <= 0.0:
+                continue
+            lam = max(work[i, 1], work[j, 1])
+            phi = -math.expm1(-lam * dt) / lam if lam > 0.0 else dt
+            e = h * (T[j] - T[i]) * phi
+            dT[i] += e * cinv[i]
+            ed += 0.5 * abs(e) * hd / h
+            ei += 0.5 * abs(e) * hi / h
+    for i in range(nown):
+        T[i] += dT[i]
+    tot[E_DIRECT] += ed
+    tot[E_INDIRECT] += ei
 
 
 @njit(cache=True, error_model="numpy")

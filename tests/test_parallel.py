@@ -1,0 +1,156 @@
+"""MPI runs (mpirun -np 1, 2, 3; 3 ranks oversubscribe the 2 cores): the same scene gives
+the same trajectories and temperatures, restarts cross rank counts, and a particle that
+crosses every rank boundary (a periodic one included) keeps its contacts and heat balance.
+
+Tolerances: the ranks sum a particle's contact forces in another order than a serial run,
+and in dense collisions that round-off grows. A serial run of tests/scenes/par_settle.toml
+with another particle order (sort_interval 0 instead of 300) already differs by 7e-13 m in
+position, 1.7e-9 m/s in velocity, 2.1e-6 rad/s in spin and 2.4e-12 K after its 1,000 steps;
+the bounds below are about 100 times those, still 1e-7 of a radius.
+"""
+import csv
+import os
+import shutil
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+SCENES = os.path.join(HERE, "scenes")
+
+pytestmark = pytest.mark.skipif(shutil.which("mpirun") is None, reason="needs Open MPI (mpirun)")
+
+
+def mpirun(n, *args, cwd=None, check=True):
+    env = dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1",
+               OMPI_MCA_rmaps_base_oversubscribe="1", OMPI_MCA_mpi_yield_when_idle="1")
+    cmd = ["mpirun", "-np", str(n), sys.executable, "-m", "dem", *args]
+    p = subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=cwd, timeout=600)
+    if check and p.returncode != 0:
+        raise AssertionError(f"{' '.join(cmd)} failed ({p.returncode}):\n{p.stdout}\n{p.stderr}")
+    return p
+
+
+def run(n, scene, out, *extra):
+    mpirun(n, "run", os.path.join(SCENES, scene), "--out", str(out), "--quiet", *extra)
+    return np.load(os.path.join(out, "final.npz"))
+
+
+def history(out):
+    with open(os.path.join(out, "history.csv")) as fh:
+        return [{k: float(v) for k, v in r.items()} for r in csv.DictReader(fh)]
+
+
+def assert_same(a, b, pos=1e-10, vel=1e-7, spin=5e-4, temp=1e-9):
+    assert np.array_equal(a["id"], b["id"])
+    assert np.abs(a["position"] - b["position"]).max() <= pos
+    assert np.abs(a["velocity"] - b["velocity"]).max() <= vel
+    assert np.abs(a["angular_velocity"] - b["angular_velocity"]).max() <= spin
+    if "temperature" in a.files:
+        assert np.abs(a["temperature"] - b["temperature"]).max() <= temp
+
+
+@pytest.fixture(scope="module")
+def settle(tmp_path_factory):
+    d = tmp_path_factory.mktemp("settle")
+    return {n: (run(n, "par_settle.toml", d / f"np{n}"), d / f"np{n}") for n in (1, 2, 3)}
+
+
+@pytest.mark.parametrize("n", [2, 3])
+def test_settling_conducting_bed_same_on_n_ranks(settle, n):
+    """900 beads thrown onto a floor (dense collisions, rolling springs, conduction with a
+    heated floor): 1,000 steps on n ranks match the serial run."""
+    a, da = settle[1]
+    b, db = settle[n]
+    assert_same(a, b)
+    ha, hb = history(da)[-1], history(db)[-1]
+    assert hb["contacts"] > 500
+    assert abs(ha["contacts"] - hb["contacts"]) <= 2  # a contact at the threshold may open or not
+    assert hb["thermal_energy"] == pytest.approx(ha["thermal_energy"], rel=1e-12)
+    assert hb["E_direct"] == pytest.approx(ha["E_direct"], rel=1e-6)
+    assert hb["E_wall_floor"] == pytest.approx(ha["E_wall_floor"], rel=1e-9)
+
+
+def test_conducting_packed_bed_euler_same_on_3_ranks(tmp_path):
+    """Frozen 2,000-bead bed, direct + gap conduction with local porosity (read from ghosts
+    across ranks) and a heated floor: 600 Euler heat steps on 3 ranks match serial to 1e-12 K."""
+    a = run(1, "par_conduct.toml", tmp_path / "one")
+    b = run(3, "par_conduct.toml", tmp_path / "three")
+    assert np.abs(a["temperature"] - b["temperature"]).max() < 1e-11
+    assert a["temperature"].max() > 380.0  # the floor heat reached the bed
+    h = history(tmp_path / "three")
+    gain = h[-1]["thermal_energy"] - h[0]["thermal_energy"]
+    assert gain == pytest.approx(h[-1]["E_wall_heater"], rel=1e-9)
+
+
+def test_exponential_update_conservative_on_3_ranks(tmp_path):
+    """The exponential heat update across ranks: heat balance exact, temperatures within the
+    scheme's own time-step error (serial exponential vs serial Euler: 0.028 K here)."""
+    src = open(os.path.join(SCENES, "par_conduct.toml")).read()
+    src = src.replace('integrator = "euler"', 'integrator = "exponential"')
+    src = src.replace("../../examples/data", os.path.join(HERE, "..", "examples", "data"))
+    scene = tmp_path / "expo.toml"
+    scene.write_text(src)
+    outs = {}
+    for n in (1, 3):
+        mpirun(n, "run", str(scene), "--out", str(tmp_path / f"np{n}"), "--quiet")
+        outs[n] = np.load(tmp_path / f"np{n}" / "final.npz")
+    rise = outs[1]["temperature"].max() - 300.0
+    assert np.abs(outs[1]["temperature"] - outs[3]["temperature"]).max() < 1e-3 * rise
+    h = history(tmp_path / "np3")
+    gain = h[-1]["thermal_energy"] - h[0]["thermal_energy"]
+    assert gain == pytest.approx(h[-1]["E_wall_heater"], rel=1e-9)
+
+
+def test_periodic_crossing_keeps_contacts_and_heat(tmp_path):
+    """18 two-bead columns slide 35 mm along a 30 mm periodic axis cut into 3 slabs: every
+    bead crosses every rank boundary and the periodic one. All 18 bead-bead and 18 floor
+    contacts hold at every output, the contact springs equal the serial ones, heat is
+    conserved to round-off and temperatures match the serial run."""
+    a = run(1, "par_periodic.toml", tmp_path / "one")
+    b = run(3, "par_periodic.toml", tmp_path / "three")
+    assert_same(a, b, pos=1e-14, vel=1e-12, spin=1e-9, temp=1e-11)
+    hist = history(tmp_path / "three")
+    assert all(r["contacts"] == 36 for r in hist[1:])
+    e0 = hist[0]["thermal_energy"]
+    assert all(abs(r["thermal_energy"] - e0) < 1e-12 * e0 for r in hist)
+    assert hist[-1]["E_direct"] > 1e-4  # the pairs did conduct
+    assert np.all(b["velocity"][:, 0] > 3.4)  # 35 mm in 10 ms: a full period
+    ca = np.load(tmp_path / "one" / "checkpoint.npz")
+    cb = np.load(tmp_path / "three" / "checkpoint.npz")
+
+    def springs(c):
+        pair = c["rec_b"] - c["rec_a"] == 1  # the bead-bead contacts (ids 2k+1, 2k+2)
+        order = np.argsort(c["rec_a"][pair])
+        return c["rec_a"][pair][order], c["rec_hist"][pair][order]
+    ka, sa = springs(ca)
+    kb, sb = springs(cb)
+    assert ka.size == 18 and np.array_equal(ka, kb)
+    assert np.abs(sa).max() > 1e-8  # the springs are loaded (3.7e-8 m)
+    assert np.abs(sa - sb).max() <= 1e-12 * np.abs(sa).max() + 1e-18
+
+
+@pytest.mark.parametrize("first,second", [(2, 1), (1, 2)])
+def test_restart_across_rank_counts(settle, tmp_path, first, second):
+    """A checkpoint written on `first` ranks continues on `second` ranks and ends where the
+    uninterrupted serial run ends."""
+    ref, _ = settle[1]
+    run(first, "par_settle.toml", tmp_path / "a", "--end-time", "0.005")
+    b = run(second, "par_settle.toml", tmp_path / "b", "--restart", str(tmp_path / "a" / "checkpoint.npz"))
+    assert_same(ref, b)
+
+
+def test_too_many_ranks_is_refused(tmp_path):
+    """Slabs thinner than two halos are refused before any step, naming the file and key."""
+    p = mpirun(3, "run", os.path.join(SCENES, "par_periodic.toml"), "--out", str(tmp_path),
+               "--quiet", check=False)
+    assert p.returncode == 0  # 3 slabs of 30 mm are fine
+    src = open(os.path.join(SCENES, "par_periodic.toml")).read().replace('slab_axis = "x"', 'slab_axis = "z"')
+    scene = tmp_path / "thin.toml"
+    scene.write_text(src)
+    p = mpirun(3, "run", str(scene), "--out", str(tmp_path / "thin"), "--quiet", check=False)
+    assert p.returncode == 2
+    assert "thin.toml" in p.stderr and "[parallel]" in p.stderr and "fewer ranks" in p.stderr
+    assert p.stderr.count("error:") == 1
