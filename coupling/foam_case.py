@@ -84,10 +84,15 @@ def _env_cached() -> tuple[tuple[str, str], ...]:
 
 def foam_env(extra: Mapping[str, str] | None = None) -> dict[str, str]:
     """Environment with OpenFOAM set up (``scripts/foam_env.sh``)."""
-    env = dict(_env_cached())
+    env = {k: v for k, v in _env_cached() if not k.startswith(_MPI_JOB_VARS)}
     if extra:
         env.update(extra)
     return env
+
+
+# variables of the launcher that started the DEM ranks: a solver started from a DEM rank
+# (its own mpirun, blockMesh, decomposePar) must not take itself for part of that job
+_MPI_JOB_VARS = ("OMPI_", "PMIX_", "PMI_", "OPAL_", "PRTE_", "HYDRA_")
 
 
 def build_solver(force: bool = False) -> Path:

@@ -125,9 +125,24 @@ class CouplingInterface:
         self._mapped = (self.sim.step_count, pw, eps)
 
     # ------------------------------------------------------------------ particle -> mesh
+    def _allsum(self, a):
+        """Sum of a per-cell array over the DEM ranks (each rank holds its own particles)."""
+        par = self.sim.par
+        if par is None:
+            return a
+        from mpi4py import MPI
+        out = np.empty_like(a)
+        par.comm.Allreduce(np.ascontiguousarray(a), out, op=MPI.SUM)
+        return out
+
     def _stencil(self):
         st = self.sim.state
         n = st.n_owned
+        par = self.sim.par
+        if par is not None and par.exchanges != getattr(self, "_exchanges_seen", -1):
+            self.hint = None  # particles moved between ranks: rows changed
+            self._map_cache = None
+            self._exchanges_seen = par.exchanges
         pos, rad = st.position[:n], st.radius[:n]
         prev = self._map_cache
         if (prev is not None and prev[0].shape == pos.shape and np.array_equal(prev[0], pos)
@@ -140,7 +155,7 @@ class CouplingInterface:
             pw = vf.compute_weights(self.mesh, pos, rad, self.void_fraction, located=cells,
                                     n_satellites=self.n_satellites,
                                     out=prev[2] if prev is not None else None)
-            eps = 1.0 - vf.solid_volume(pw, rad) / self.V
+            eps = 1.0 - self._allsum(vf.solid_volume(pw, rad)) / self.V
             eps = np.maximum(eps, self.eps_min)
         self.hint = pw.centre_cell
         self.n_lost = pw.n_lost
@@ -212,7 +227,10 @@ class CouplingInterface:
                 sim.set_fluid(force=force)
                 hA = np.zeros(n)
                 Tp = np.zeros(n)
-            ksl_raw, us, simp, sexp = _scatter_terms(pw.cells, pw.weights, beta, vel, hA, Tp, self.V)
+            sums = _scatter_sums(pw.cells, pw.weights, beta, vel, hA, Tp, self.V.shape[0])
+            if self.sim.par is not None:
+                sums = tuple(self._allsum(a) for a in sums)
+            ksl_raw, us, simp, sexp = _finish_terms(*sums, self.V)
             ksl = self._relax(self.ksl_sent, ksl_raw, dt_cfd)
             self.ksl_sent = ksl
         self.last = dict(beta=beta, force=force, hA=hA, eps_p=eps_p, uf=uf, eps_raw=eps_raw,
@@ -287,10 +305,9 @@ def _particle_forces(model_id, model_b, rad, vel, uf, gradp, eps_p, rho, mu, g, 
 
 
 @njit(cache=True, error_model="numpy")
-def _scatter_terms(scells, sweights, beta, vel, hA, Tp, V):
-    """Ksl = sum w beta / V, Us = sum w beta u_p / sum w beta (volume-free beta-weighted
-    mean), Simp = sum w hA / V, Sexp = sum w hA T_p / V, with the same stencil."""
-    nc = V.shape[0]
+def _scatter_sums(scells, sweights, beta, vel, hA, Tp, nc):
+    """Per-cell sums over this rank's particles: sum w beta, sum w beta u_p, sum w hA,
+    sum w hA T_p (summed over the ranks, then finished by _finish_terms)."""
     ksl = np.zeros(nc)
     us = np.zeros((nc, 3))
     simp = np.zeros(nc)
@@ -308,6 +325,14 @@ def _scatter_terms(scells, sweights, beta, vel, hA, Tp, V):
             wh = w * hA[p]
             simp[c] += wh
             sexp[c] += wh * Tp[p]
+    return ksl, us, simp, sexp
+
+
+@njit(cache=True, error_model="numpy")
+def _finish_terms(ksl, us, simp, sexp, V):
+    """Ksl = sum w beta / V, Us = sum w beta u_p / sum w beta (volume-free beta-weighted
+    mean), Simp = sum w hA / V, Sexp = sum w hA T_p / V, with the same stencil."""
+    nc = V.shape[0]
     for c in range(nc):
         if ksl[c] > 0.0:
             for i in range(3):

@@ -62,6 +62,53 @@ def _scrub_mpi_env():
 
 # --------------------------------------------------------------------------- helpers
 
+class _Ranks:
+    """The DEM ranks of a coupled run: rank 0 talks to the gas solver and writes the files;
+    every rank advances its own particles and adds its share to the exchange fields."""
+
+    def __init__(self, sim):
+        self.par = sim.par
+        self.comm = sim.par.comm if sim.par is not None else None
+        self.root = self.comm is None or self.comm.Get_rank() == 0
+        self.size = 1 if self.comm is None else self.comm.Get_size()
+        self.failure_shared = False
+
+    def barrier(self):
+        if self.comm is not None:
+            self.comm.Barrier()
+
+    def bcast(self, obj):
+        return obj if self.comm is None else self.comm.bcast(obj, root=0)
+
+    def on_root(self, fn, *a, **kw):
+        """Run fn on rank 0 (result there, None elsewhere); its failure is raised on every rank."""
+        res, err = None, None
+        if self.root:
+            try:
+                res = fn(*a, **kw)
+            except Exception as e:  # noqa: BLE001
+                err = e
+        if self.comm is not None:
+            err = self.comm.bcast(err, root=0)
+        if err is not None:
+            raise err
+        return res
+
+    def everywhere(self, fn, *a, **kw):
+        """Run fn on every rank; if it fails on any, raise the first failure on all."""
+        res, err = None, None
+        try:
+            res = fn(*a, **kw)
+        except Exception as e:  # noqa: BLE001
+            err = e
+        if self.comm is not None:
+            errs = self.comm.allgather(err)
+            err = next((e for e in errs if e is not None), None)
+        if err is not None:
+            raise err
+        return res
+
+
 def _time_dirs(case: Path) -> list[tuple[float, Path]]:
     out = []
     for p in case.iterdir():
@@ -124,18 +171,38 @@ class Diagnostics:
         self.bottom = np.flatnonzero(z == self.zlev[0])
         self.top = np.flatnonzero(z == self.zlev[-1])
 
-    def row(self, t, step, sim, iface, fluid, frame, wall):
+    @staticmethod
+    def row_of(diag, t, step, sim, iface, fluid, frame, wall):
+        """Particle sums of this rank, summed over the ranks; rank 0 (diag) writes the row."""
         st = sim.state
         n = st.n_owned
+        loc = np.zeros(7)
+        if n:
+            loc[3] = float(st.position[:n, 2].sum())
+            loc[5] = float(np.sqrt((st.velocity[:n] ** 2).sum(1)).max())
+        loc[4] = n
+        loc[6] = iface.n_lost
+        if sim.thermal is not None:
+            C = 1.0 / st.inv_heat_capacity[:n]
+            loc[0] = float((C * st.temperature[:n]).sum())
+            loc[1] = float(C.sum())
+            loc[2] = float(sim.thermal.tot[2])
+        if sim.par is not None:
+            vmax = sim.par.allmax(loc[5])
+            loc = sim.par.allsum(loc)
+            loc[5] = vmax
+        if diag is not None:
+            diag.row(t, step, sim, iface, fluid, frame, wall, loc)
+
+    def row(self, t, step, sim, iface, fluid, frame, wall, sums):
         V = self.mesh.cell_volumes
         g = self.gas
         eps = frame["eps"]
         T = fluid["T"]
         if sim.thermal is not None:
-            C = 1.0 / st.inv_heat_capacity[:n]
-            Tp = float((C * st.temperature[:n]).sum() / C.sum())
-            Ep = float((C * st.temperature[:n]).sum())
-            Ec = float(sim.thermal.tot[2])
+            Ep = float(sums[0])
+            Tp = float(sums[0] / sums[1])
+            Ec = float(sums[2])
         else:
             Tp = Ep = Ec = float("nan")
         mg = g.rho * g.cp * eps * V
@@ -144,11 +211,10 @@ class Diagnostics:
         q = float(((frame["Sexp"] - frame["Simp"] * T) * V).sum())
         p = fluid["p"]
         dp = float(p[self.bottom].mean() - p[self.top].mean())
-        zb = float(st.position[:n, 2].mean()) if n else 0.0
-        vmax = float(np.sqrt((st.velocity[:n] ** 2).sum(1)).max()) if n else 0.0
+        zb = float(sums[3] / sums[4]) if sums[4] else 0.0
         self.hist.add(dict(time=t, step=step, T_particles=Tp, T_gas=Tg, E_particles=Ep, E_gas=Eg,
-                           Q_to_gas=q, E_conv_particles=Ec, dp=dp, bed_height=zb, v_max=vmax,
-                           n_outside=iface.n_lost, wall=wall))
+                           Q_to_gas=q, E_conv_particles=Ec, dp=dp, bed_height=zb, v_max=float(sums[5]),
+                           n_outside=int(sums[6]), wall=wall))
 
 
 def plot(out: Path, title: str) -> Path | None:
@@ -225,7 +291,8 @@ def run_case(case_dir, out=None, *, transport=None, end_time=None, restart=False
     out = Path(out) if out is not None else Path("out") / case.dir.name
     out = out.resolve()
     sim = case.sim
-    prepare_output(case, out, restart=restart)
+    R = _Ranks(sim)
+    R.on_root(prepare_output, case, out, restart=restart)
     mesh = read_polymesh(str(out))
     mt, eps_min_cfd = case.model_type, None
     g = np.asarray(sim.scene.simulation["gravity"], float)
@@ -239,11 +306,14 @@ def run_case(case_dir, out=None, *, transport=None, end_time=None, restart=False
     i0 = 0
     t_start = 0.0
     if restart:
-        i0, t_start = _restart(out, sim, iface, dt, log)
+        i0, t_start = _restart(out, sim, iface, dt, log if R.root else _silent, R)
     eps0 = iface.initial_void_fraction()
-    rep = check_coupled_case(case, mesh, eps0=eps0)
-    if not quiet:
+    rep = R.everywhere(check_coupled_case, case, mesh, eps0=eps0)
+    rep = R.bcast(rep)
+    if not quiet and R.root:
         log(format_report(case, rep))
+        if R.par is not None:
+            log(f"DEM: {R.size} MPI ranks, {R.par.describe()}")
     if rep["problems"] and not cfg.force:
         raise CouplingRunError(f"{case.config_file}: case refused by the checks:\n  "
                                + "\n  ".join(rep["problems"]))
@@ -251,37 +321,45 @@ def run_case(case_dir, out=None, *, transport=None, end_time=None, restart=False
     n_steps = int(round((end - t_start) / dt))
     if n_steps < 1:
         raise CouplingRunError(f"end time {end:g} s is not after the start time {t_start:g} s")
-    ctl = out / "system" / "controlDict"
-    fc.set_entries(ctl, {"endTime": repr(end), "startFrom": "latestTime"})
-    if not restart:
-        fc.write_eps(out, eps0)
-    # ---- transport
-    ex = None
-    if cfg.transport == "socket":
-        ex = SocketExchange(port=0, timeout=cfg.timeout, n_cells=mesh.n_cells)
-        fc.write_coupling_dict(out, "socket", port=ex.port, timeout=cfg.timeout,
-                               send_velocity=cfg.send_velocity)
-    else:
-        fc.write_coupling_dict(out, "file", timeout=cfg.timeout, send_velocity=cfg.send_velocity)
-        ex = FileExchange(out / "coupling", timeout=cfg.timeout, n_cells=mesh.n_cells)
-    if cfg.gas_processes > 1:
-        if restart and (out / "processor0").exists():
-            pass
+    def _setup_gas():
+        ctl = out / "system" / "controlDict"
+        fc.set_entries(ctl, {"endTime": repr(end), "startFrom": "latestTime"})
+        if not restart:
+            fc.write_eps(out, eps0)
+        # ---- transport
+        ex = None
+        if cfg.transport == "socket":
+            ex = SocketExchange(port=0, timeout=cfg.timeout, n_cells=mesh.n_cells)
+            fc.write_coupling_dict(out, "socket", port=ex.port, timeout=cfg.timeout,
+                                   send_velocity=cfg.send_velocity)
         else:
-            fc.decompose(out, cfg.gas_processes)
-    fc.check_case(out)
-    exe = Path(solver) if solver else fc.build_solver()
+            fc.write_coupling_dict(out, "file", timeout=cfg.timeout, send_velocity=cfg.send_velocity)
+            ex = FileExchange(out / "coupling", timeout=cfg.timeout, n_cells=mesh.n_cells)
+        if cfg.gas_processes > 1:
+            if restart and (out / "processor0").exists():
+                pass
+            else:
+                fc.decompose(out, cfg.gas_processes)
+        fc.check_case(out)
+        exe = Path(solver) if solver else fc.build_solver()
+        return ex, exe
+
+    ex, exe = R.on_root(_setup_gas) or (None, None)
     sim.warmup()
     # ---- output writers
     out_int = cfg.output_interval or sim.scene.simulation["output_interval"]
     out_every = max(1, int(round(out_int / dt)))
     write_every = int(round(case.control["writeInterval"])) if case.control["writeControl"] == "timeStep" else 0
     keep = t_start if restart else None
-    hist = History(str(out / "history.csv"), sim.history_columns(), keep)
-    vtk = VTKSeries(str(out)) if sim.scene.output["vtk"] else None
-    diag = Diagnostics(out / "coupling.csv", mesh, case.gas, keep)
-    (out / "checkpoints").mkdir(exist_ok=True)
-
+    hist = vtk = diag = None
+    if R.root:
+        hist = History(str(out / "history.csv"), sim.history_columns(), keep)
+        vtk = VTKSeries(str(out)) if sim.scene.output["vtk"] else None
+        diag = Diagnostics(out / "coupling.csv", mesh, case.gas, keep)
+        (out / "checkpoints").mkdir(exist_ok=True)
+    if not R.root:
+        return _follow(R, sim, iface, n_steps, i0, t_start, dt, k, out, write_every, out_every,
+                       t_wall0, restart)
     if external_solver:
         par = (f"mpirun --allow-run-as-root -np {cfg.gas_processes} " if cfg.gas_processes > 1 else "")
         log("coupling: start the gas solver yourself, in a second terminal:\n"
@@ -305,7 +383,7 @@ def run_case(case_dir, out=None, *, transport=None, end_time=None, restart=False
     frame = None
     try:
         with timer("gas_wait"):
-            fluid = ex.receive(i0)
+            fluid = _share(R, lambda: ex.receive(i0), ex)
         _grow_socket_buffers(ex, mesh.n_cells)
         for s in range(1, n_steps + 1):
             step = i0 + s
@@ -319,14 +397,12 @@ def run_case(case_dir, out=None, *, transport=None, end_time=None, restart=False
             if s < n_steps:
                 iface.map_particles()   # overlaps with the gas solve
             with timer("gas_wait"):
-                fluid = ex.receive(step)
+                fluid = _share(R, lambda: _finite(ex.receive(step), step), ex)
             if s % out_every == 0 or s == n_steps or ex.peer_final:
                 _output(hist, vtk, diag, sim, iface, fluid, frame, t, step, t_wall0, timer)
             if write_every and step % write_every == 0:
                 with timer("output"):
                     sim.write_checkpoint(str(out / "checkpoints" / f"checkpoint_{step:08d}.npz"))
-            if not np.all(np.isfinite(fluid["T"])) or not np.all(np.isfinite(fluid["U"])):
-                raise CouplingError("non-finite gas field received", peer="CFD solver", step=step)
             if ex.peer_final and s < n_steps:
                 log(f"coupling: the solver reached its endTime at step {step} (t = {t:g} s)")
                 break
@@ -341,6 +417,8 @@ def run_case(case_dir, out=None, *, transport=None, end_time=None, restart=False
                                 f"(log: {out / 'log.thermoDemFoam'})", peer="CFD solver", step=step)
     except (CouplingError, SimulationError, KeyboardInterrupt) as e:
         status = "failed"
+        if R.comm is not None and not isinstance(e, SimulationError) and not R.failure_shared:
+            _share_failure(R, e)
         with timer("output"):
             sim.write_checkpoint(str(out / "checkpoint.npz"))
             save_npz(str(out / "coupling_state.npz"), **_coupling_state(iface, step, t))
@@ -357,7 +435,9 @@ def run_case(case_dir, out=None, *, transport=None, end_time=None, restart=False
         (out / "timings.json").write_text(json.dumps(_timings(timer, t_wall0, sim, n_steps=step - i0, k=k),
                                                      indent=1))
     # ---- final output
-    save_npz(str(out / "final.npz"), **sim.final_arrays())
+    fa = sim.final_arrays()
+    if fa is not None:
+        save_npz(str(out / "final.npz"), **fa)
     sim.write_checkpoint(str(out / "checkpoint.npz"))
     save_npz(str(out / "coupling_state.npz"), **_coupling_state(iface, step, t))
     png = plot(out, f"{case.dir.name}: {cfg.transport} transport")
@@ -366,6 +446,80 @@ def run_case(case_dir, out=None, *, transport=None, end_time=None, restart=False
     if not quiet:
         log(_format_timings(summ))
     return summ
+
+
+def _silent(*a, **k):
+    pass
+
+
+def _share(R, receive, ex):
+    """Rank 0 receives the gas fields and passes them (or the failure) to every DEM rank."""
+    fluid, err = None, None
+    try:
+        fluid = receive()
+    except Exception as e:  # noqa: BLE001
+        err = e
+    if R.comm is not None:
+        R.comm.bcast((fluid, bool(ex.peer_final), None if err is None else repr(err)), root=0)
+        R.failure_shared = err is not None
+    if err is not None:
+        raise err
+    return fluid
+
+
+def _finite(fluid, step):
+    from .exchange import CouplingError
+    if not np.all(np.isfinite(fluid["T"])) or not np.all(np.isfinite(fluid["U"])):
+        raise CouplingError("non-finite gas field received", peer="CFD solver", step=step)
+    return fluid
+
+
+def _share_failure(R, e):
+    """Rank 0 failed outside a receive: the other ranks wait in one; tell them."""
+    try:
+        R.comm.bcast((None, True, repr(e)), root=0)
+    except Exception:  # noqa: BLE001
+        pass
+
+
+def _follow(R, sim, iface, n_steps, i0, t_start, dt, k, out, write_every, out_every, t_wall0, restart):
+    """The loop of a DEM rank other than 0: the same steps as rank 0 without the solver."""
+    from .exchange import CouplingError
+    from dem.simulation import SimulationError
+    timer = iface.timer
+    step = i0
+    t = t_start
+
+    def receive():
+        fluid, final, err = R.comm.bcast(None, root=0)
+        if err is not None:
+            raise CouplingError(f"rank 0: {err}", peer="CFD solver", step=step)
+        return fluid, final
+
+    try:
+        fluid, final = receive()
+        for s in range(1, n_steps + 1):
+            step = i0 + s
+            frame = iface.prepare(fluid, dt)
+            if s == 1 and not restart:
+                _output(None, None, None, sim, iface, fluid, frame, t, step - 1, t_wall0, timer)
+            iface.advance_dem(k)
+            t = t_start + s * dt
+            if s < n_steps:
+                iface.map_particles()
+            fluid, final = receive()
+            if s % out_every == 0 or s == n_steps or final:
+                _output(None, None, None, sim, iface, fluid, frame, t, step, t_wall0, timer)
+            if write_every and step % write_every == 0:
+                sim.write_checkpoint(str(out / "checkpoints" / f"checkpoint_{step:08d}.npz"))
+            if final and s < n_steps:
+                break
+    except (CouplingError, SimulationError):
+        sim.write_checkpoint(str(out / "checkpoint.npz"))
+        raise
+    sim.final_arrays()
+    sim.write_checkpoint(str(out / "checkpoint.npz"))
+    return {}
 
 
 def _grow_socket_buffers(ex, n_cells):
@@ -390,7 +544,7 @@ def _coupling_state(iface, step, t):
                 ksl_sent=iface.ksl_sent if iface.ksl_sent is not None else np.zeros(0))
 
 
-def _restart(out: Path, sim, iface, dt, log):
+def _restart(out: Path, sim, iface, dt, log, R):
     """Load the DEM checkpoint of the latest OpenFOAM time that has one; remove later
     gas time directories. Returns (step index, time)."""
     cks = {int(m.group(1)): p for p in (out / "checkpoints").glob("checkpoint_*.npz")
@@ -408,13 +562,15 @@ def _restart(out: Path, sim, iface, dt, log):
                                f"(checkpoints/checkpoint_<step>.npz); gas times: "
                                f"{[p.name for _, p in gas_times]}, DEM checkpoints: {sorted(cks)}")
     idx, tv, p = best
-    for tv2, p2 in gas_times:
-        if tv2 > tv + 1e-12:
-            shutil.rmtree(p2)
-    for proc in out.glob("processor*"):
-        for tv2, p2 in _time_dirs(proc):
+    R.barrier()  # every rank has chosen the same restart point before rank 0 prunes
+    if R.root:
+        for tv2, p2 in gas_times:
             if tv2 > tv + 1e-12:
                 shutil.rmtree(p2)
+        for proc in out.glob("processor*"):
+            for tv2, p2 in _time_dirs(proc):
+                if tv2 > tv + 1e-12:
+                    shutil.rmtree(p2)
     sim.load_checkpoint(str(cks[idx]))
     if abs(sim.time - tv) > 1e-9 * max(1.0, tv):
         raise CouplingRunError(f"{cks[idx]}: DEM time {sim.time} does not match the gas time {tv}")
@@ -423,22 +579,30 @@ def _restart(out: Path, sim, iface, dt, log):
 
 
 def _output(hist, vtk, diag, sim, iface, fluid, frame, t, step, t_wall0, timer):
+    """history.csv, VTK and coupling.csv rows (collective over the DEM ranks; rank 0 writes)."""
     with timer("output"):
-        hist.add(sim.history_row())
-        if vtk is not None:
+        row = sim.history_row()
+        if hist is not None:
+            hist.add(row)
+        if sim.scene.output["vtk"]:
             st = sim.state
-            f = sim.particle_fields()
+            f = dict(sim.particle_fields())
             f["fluid_force"] = np.ascontiguousarray(iface.last.get("force", np.zeros((st.n_owned, 3))))
-            vtk.write(sim.time, sim.step_count, st.position[:st.n_owned], f)
-        diag.row(t, step, sim, iface, fluid, frame, time.perf_counter() - t_wall0)
+            f["position"] = st.position[:st.n_owned]
+            f = sim._gather_by_id(f)
+            if vtk is not None:
+                pos = f.pop("position")
+                vtk.write(sim.time, sim.step_count, pos, f)
+        Diagnostics.row_of(diag, t, step, sim, iface, fluid, frame, time.perf_counter() - t_wall0)
 
 
 def _timings(timer, t_wall0, sim, n_steps, k):
     wall = time.perf_counter() - t_wall0
     loop = sum(v for p, v in timer.total.items())
     d = {"wall_total": wall, "loop": loop, "phases": dict(timer.total),
-         "coupling_steps": n_steps, "dem_steps": n_steps * k, "particles": sim.state.n_owned}
-    d["particle_steps_per_s"] = sim.state.n_owned * n_steps * k / loop if loop > 0 else 0.0
+         "coupling_steps": n_steps, "dem_steps": n_steps * k, "particles": sim.n_particles,
+         "dem_ranks": 1 if sim.par is None else sim.par.size}
+    d["particle_steps_per_s"] = sim.n_particles * n_steps * k / loop if loop > 0 else 0.0
     return d
 
 
@@ -505,13 +669,12 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
 
     nranks = _mpi_size()
-    if nranks > 1:
-        print(f"coupling: error: {nranks} DEM MPI ranks requested; the coupled run supports one DEM "
-              f"process for now (not yet: domain-decomposed DEM). Use mpirun -np 1 or no mpirun; "
-              f"the gas solver's ranks are set by coupling.gas_processes", file=sys.stderr)
-        return EXIT_CHECK
-    if any(k.startswith("OMPI_") or k.startswith("PMIX_") for k in os.environ):
-        _scrub_mpi_env()
+    if nranks == 1 and any(k.startswith("OMPI_") or k.startswith("PMIX_") for k in os.environ):
+        _scrub_mpi_env()  # mpirun -np 1: a serial DEM; nothing of the job must reach the solver
+    root = os.environ.get("OMPI_COMM_WORLD_RANK", os.environ.get("PMI_RANK", "0")) == "0"
+    if not root:  # the DEM ranks other than 0 say nothing; rank 0 reports for all
+        sys.stdout = open(os.devnull, "w")
+        sys.stderr = open(os.devnull, "w")
 
     from .case import CaseConfigError
     from .exchange import CouplingError

@@ -57,6 +57,7 @@ class Simulation:
         self.reach = self.thermal.reach if self.thermal is not None else 0.0
         self.fp[K.F_REACH] = self.reach
         self.rmax = float(self.state.radius.max(initial=0.0))
+        self.n_total = self.state.n_owned  # every rank holds the whole scene at this point
         self.par = None
         self._pending = None  # (code, message) of an instability found on this rank
         self._nc2 = 0
@@ -574,27 +575,31 @@ class Simulation:
             self.external_force = np.ascontiguousarray(self.external_force[perm])
 
     def set_fluid(self, force=None, velocity=None, temperature=None, porosity=None):
-        """Fluid data at each particle (current order of ``state``) for the next steps of a
+        """Fluid data at each owned particle (rows of ``state``) for the next steps of a
         coupled run: force (N, drag + pressure gradient + buoyancy, added every step),
         gas velocity (m/s) and temperature (K) for convection, void fraction (replaces the
         locally measured porosity in the heat models)."""
         n = self.state.n
+        k = self.state.n_owned
         if force is not None:
-            if getattr(self, "external_force", None) is None:
+            if getattr(self, "external_force", None) is None or self.external_force.shape[0] != n:
                 self.external_force = np.zeros((n, 3))
-            self.external_force[:] = force
+            self.external_force[:k] = force
+            self.external_force[k:] = 0.0
         th = self.thermal
         if th is None:
             return
         if velocity is not None:
-            th.uf[:] = velocity
+            th.uf[:k] = velocity
         if temperature is not None:
-            th.tf[:] = temperature
+            th.tf[:k] = temperature
         if porosity is not None:
-            th.por[:] = porosity
+            th.por[:k] = porosity
             th.local_porosity = False
             from .thermal.heat import TI_LOCALPOR
             th.thi[TI_LOCALPOR] = 0  # the CFD void fraction is used instead
+            if self.par is not None:
+                self.par.forward(self, motion=False, porosity=True)
 
     def warmup(self):
         """Compile (or load from Numba's cache) the kernels; returns seconds spent."""
@@ -614,8 +619,8 @@ class Simulation:
 
     @property
     def n_particles(self):
-        """Particles in the whole run (all ranks)."""
-        return self.state.n_owned if self.par is None else self.par.allsum(self.state.n_owned)
+        """Particles in the whole run (all ranks; constant: no particle is added or removed)."""
+        return self.n_total
 
     def history_row(self):
         """One row of history.csv (collective in a parallel run: sums, minima, maxima)."""
