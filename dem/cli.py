@@ -57,8 +57,14 @@ def cmd_run(args):
     wall = time.perf_counter() - t0
     steps = sim.step_count
     n = sim.n_particles
+    stats = sim.par.stats(sim) if sim.par is not None else None
     if sim.is_root:
         ranks = f" on {sim.par.size} ranks ({sim.par.describe()})" if sim.par is not None else ""
+        if stats:
+            print(f"parallel: {stats['ghosts']} ghosts ({100 * stats['ghosts'] / max(n, 1):.1f} % of the particles), "
+                  f"halo traffic {stats['halo_bytes'] / 1024:.1f} KiB per step in {stats['messages']} messages, "
+                  f"{stats['exchanges']} exchanges, {stats['migrated']} migrations, {stats['rebalances']} "
+                  f"re-balancings, load imbalance {stats['imbalance']:.3f}")
         print(f"done: t = {sim.time:.6g} s, {steps} steps, {n} particles{ranks}, wall {wall:.2f} s "
               f"(kernels compile/load {c:.2f} s), {n * max(steps, 1) / max(sim.wall_seconds, 1e-9):.3g} "
               f"particle-steps/s; output in {out}")

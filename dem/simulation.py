@@ -318,6 +318,11 @@ class Simulation:
             skipped.append("walls: none in the scene")
         if not sc.simulation["mechanics"]:
             runs[0] = "mechanics frozen (simulation.mechanics = false): contacts computed once"
+        if self.par is not None:
+            runs.append(f"parallel: {self.par.describe()}, ghosts within {self.halo():.4g} m, "
+                        f"re-balanced above {self.scene.parallel['balance_threshold']:g}")
+        else:
+            skipped.append("parallel decomposition: one process (mpirun -np N dem run ... splits the domain)")
         if self.thermal is None:
             skipped.append("heat transfer: no [thermal] section (no thermal arrays, no thermal cost)")
         else:

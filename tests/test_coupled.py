@@ -430,7 +430,27 @@ def test_bad_cases_refused(tmp_path, capsys):
     assert rc == 2 and "dem.toml" in err and "outside the OpenFOAM mesh" in err
 
 
-def test_mpi_ranks_not_yet(monkeypatch, capsys, tmp_path):
-    monkeypatch.setenv("OMPI_COMM_WORLD_SIZE", "2")
-    rc = coupling_main(["run", str(CASES / "single_particle_heating"), "--out", str(tmp_path)])
-    assert rc == 2 and "not yet" in capsys.readouterr().err
+def test_two_dem_ranks_match_serial(tmp_path, solver):
+    """mpirun -np 2 coupling run: the DEM split over two ranks (each adds its particles' void
+    fraction, drag and heat terms; rank 0 talks to thermoDemFoam) gives the serial result
+    to round-off after 20 coupling steps (200 DEM steps) of the heated fluidized bed."""
+    if shutil.which("mpirun") is None:
+        pytest.skip("needs Open MPI")
+    s = run_case(CASES / "fluidized_bed_heating", tmp_path / "one", end_time=0.002, solver=solver, quiet=True)
+    a = np.load(Path(s["out"]) / "final.npz")
+    env = dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1",
+               OMPI_MCA_rmaps_base_oversubscribe="1")
+    p = subprocess.run(["mpirun", "-np", "2", sys.executable, "-m", "coupling.run", "run",
+                        str(CASES / "fluidized_bed_heating"), "--out", str(tmp_path / "two"),
+                        "--end-time", "0.002"], capture_output=True, text=True, env=env, timeout=900)
+    assert p.returncode == 0, p.stdout + p.stderr
+    assert "2 MPI ranks" in p.stdout
+    b = np.load(tmp_path / "two" / "final.npz")
+    assert np.array_equal(a["id"], b["id"])
+    assert np.abs(a["position"] - b["position"]).max() < 1e-13
+    assert np.abs(a["velocity"] - b["velocity"]).max() < 1e-10
+    assert np.abs(a["temperature"] - b["temperature"]).max() < 1e-10
+    assert a["temperature"].max() > 300.0
+    ca, cb = read_csv(tmp_path / "one" / "coupling.csv"), read_csv(tmp_path / "two" / "coupling.csv")
+    assert cb[-1]["Q_to_gas"] == pytest.approx(ca[-1]["Q_to_gas"], rel=1e-9)
+    assert cb[-1]["E_particles"] == pytest.approx(ca[-1]["E_particles"], rel=1e-12)

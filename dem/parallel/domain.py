@@ -263,6 +263,18 @@ class ParallelDomain:
     def describe(self):
         return self.dec.describe()
 
+    def stats(self, sim):
+        """Run totals over the ranks (collective): ghosts, forward-communication bytes and
+        messages per step, exchanges, migrations, re-balancings, current imbalance."""
+        st = sim.state
+        loc = np.array([st.n_ghost, self.halo_bytes(sim.thermal is not None), len(self.sends),
+                        self.migrated], float)
+        tot = self.allsum(loc)
+        own = np.array(self.comm.allgather(st.n_owned), float)
+        return dict(ghosts=int(tot[0]), halo_bytes=float(tot[1]), messages=int(tot[2]),
+                    migrated=int(tot[3]), exchanges=self.exchanges, rebalances=self.rebalances,
+                    imbalance=float(own.max() / max(own.mean(), 1e-300)))
+
 
 def _mpi():
     from mpi4py import MPI
