@@ -87,8 +87,30 @@ def cmd_compile(args):
     frozen = dict(thermal, simulation={"time_step": 1e-5, "end_time": 2.0, "mechanics": False},
                   thermal={"direct": "batchelor_obrien", "initial_temperature": 300.0, "time_step": 1.0})
     Simulation.from_dict(frozen).run(progress=False)
+    _compile_parallel_entry_points(Simulation.from_dict(thermal))
     print(f"kernels compiled and cached in {time.perf_counter() - t0:.1f} s")
     return 0
+
+
+def _compile_parallel_entry_points(sim):
+    """The kernels an MPI run calls one step at a time (dem.Simulation._advance_parallel)."""
+    from . import step as K
+    from .thermal.heat import heat_step, cross_rates
+    st = sim.state
+    sim.warmup()
+    K.kick_drift(st.n_owned, st.position, st.velocity, st.angular_velocity, st.force, st.torque, st.inv_mass,
+                 st.inv_inertia, st.x_build, sim.lo, sim.hi, sim.periodic, 0.0)
+    K.kick(st.n_owned, st.velocity, st.angular_velocity, st.force, st.torque, st.inv_mass, st.inv_inertia, 0.0)
+    sim.Hd, sim.Hi, sim.rnear = K.heat_slot_arrays(st.n, sim.nb.shape[1], sim.Hd, sim.Hi, sim.rnear)
+    TH = sim.TH
+    cross_rates(st.n_owned, TH[K.H_CINV], sim.nb, sim.nnb, sim.Hd, sim.Hi, TH[K.H_WORK])
+    heat_step(st.n, st.n_owned, sim.dt, 0.0, TH[K.H_T], TH[K.H_CINV], TH[K.H_Q], st.velocity, st.radius,
+              st.position, st.material, sim.nb, sim.nnb, sim.Hd, sim.Hi, sim.rnear, sim.wnb, sim.wnn,
+              TH[K.H_HW], TH[K.H_WTH], TH[K.H_WTAB], TH[K.H_TF], TH[K.H_UF], TH[K.H_POR], TH[K.H_QGEN],
+              TH[K.H_QSRC], TH[K.H_SRCBOX], TH[K.H_TMAT], TH[K.H_GAS], TH[K.H_THI], TH[K.H_TOT],
+              TH[K.H_WTOT], TH[K.H_WORK])
+
+
 
 
 def cmd_render(args):
