@@ -45,14 +45,6 @@ class CouplingRunError(RuntimeError):
     pass
 
 
-def _mpi_size() -> int:
-    for k in ("OMPI_COMM_WORLD_SIZE", "PMI_SIZE", "PMIX_SIZE", "MPI_LOCALNRANKS"):
-        v = os.environ.get(k)
-        if v and v.isdigit():
-            return int(v)
-    return 1
-
-
 def _scrub_mpi_env():
     """Started by mpirun -np 1: the solver's own mpirun must not inherit our MPI job."""
     for k in list(os.environ):
@@ -585,14 +577,9 @@ def _output(hist, vtk, diag, sim, iface, fluid, frame, t, step, t_wall0, timer):
         if hist is not None:
             hist.add(row)
         if sim.scene.output["vtk"]:
-            st = sim.state
-            f = dict(sim.particle_fields())
-            f["fluid_force"] = np.ascontiguousarray(iface.last.get("force", np.zeros((st.n_owned, 3))))
-            f["position"] = st.position[:st.n_owned]
-            f = sim._gather_by_id(f)
-            if vtk is not None:
-                pos = f.pop("position")
-                vtk.write(sim.time, sim.step_count, pos, f)
+            n = sim.state.n_owned
+            force = np.ascontiguousarray(iface.last.get("force", np.zeros((n, 3))))
+            sim.write_vtk(vtk, fluid_force=force)
         Diagnostics.row_of(diag, t, step, sim, iface, fluid, frame, time.perf_counter() - t_wall0)
 
 
@@ -668,11 +655,11 @@ def main(argv=None) -> int:
                         "terminal and wait for it")
     args = ap.parse_args(argv)
 
-    nranks = _mpi_size()
+    from dem.parallel import launched_rank, launched_size
+    nranks = launched_size()
     if nranks == 1 and any(k.startswith("OMPI_") or k.startswith("PMIX_") for k in os.environ):
         _scrub_mpi_env()  # mpirun -np 1: a serial DEM; nothing of the job must reach the solver
-    root = os.environ.get("OMPI_COMM_WORLD_RANK", os.environ.get("PMI_RANK", "0")) == "0"
-    if not root:  # the DEM ranks other than 0 say nothing; rank 0 reports for all
+    if launched_rank() != 0:  # the DEM ranks other than 0 say nothing; rank 0 reports for all
         sys.stdout = open(os.devnull, "w")
         sys.stderr = open(os.devnull, "w")
 

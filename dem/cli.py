@@ -140,7 +140,8 @@ def main(argv=None):
     from .scene import SceneError
     from .simulation import SimulationError
     from .parallel.domain import ParallelError
-    root = os.environ.get("OMPI_COMM_WORLD_RANK", os.environ.get("PMI_RANK", "0")) == "0"
+    from .parallel import launched_rank
+    root = launched_rank() == 0
     try:
         return {"run": cmd_run, "check": cmd_check, "render": cmd_render, "compile": cmd_compile}[args.cmd](args)
     except (SceneError, ParallelError) as exc:

@@ -692,14 +692,7 @@ class Simulation:
         """Owned rows of every rank, concatenated and ordered by particle id, on the root
         (None elsewhere); a serial run just orders its rows."""
         parts = [arrays] if self.par is None else self.par.gather(arrays)
-        if parts is None:
-            return None
-        out = {}
-        for k in arrays:
-            vals = [p[k] for p in parts]
-            out[k] = np.concatenate(vals) if np.ndim(vals[0]) > 0 else vals[0]
-        order = np.argsort(out["id"], kind="stable")
-        return {k: (v[order] if np.ndim(v) > 0 and v.shape[0] == order.size else v) for k, v in out.items()}
+        return None if parts is None else self._gather_by_id_parts(parts)
 
     def final_arrays(self):
         """Per-particle results ordered by id (collective; None on ranks other than the root)."""
@@ -755,7 +748,7 @@ class Simulation:
             else:
                 local[self._ck_key(name)] = a[:n]
         local["id"] = st.id[:n]
-        parts = self.par.gather((local, rec))
+        parts = self.par.gather((local, rec))  # records travel beside, not ordered by id
         extra = {}
         if self.thermal is not None:
             extra = dict(th_tot=self.par.allsum(self.thermal.tot), th_wtot=self.par.allsum(self.thermal.wtot))
@@ -931,10 +924,15 @@ class Simulation:
         if writers["hist"] is not None:
             writers["hist"].add(row)
         if self.scene.output["vtk"]:
-            st = self.state
-            f = dict(self.particle_fields())
-            f["position"] = st.position[:st.n_owned]
-            f = self._gather_by_id(f)
-            if writers["vtk"] is not None:
-                pos = f.pop("position")
-                writers["vtk"].write(self.time, self.step_count, pos, f)
+            self.write_vtk(writers["vtk"])
+
+    def write_vtk(self, vtk, **extra):
+        """One VTK output of the owned particles of every rank (collective; ``vtk`` is the
+        root's VTKSeries, None elsewhere); ``extra``: more per-particle fields."""
+        st = self.state
+        f = dict(self.particle_fields(), **extra)
+        f["position"] = st.position[:st.n_owned]
+        f = self._gather_by_id(f)
+        if vtk is not None:
+            pos = f.pop("position")
+            vtk.write(self.time, self.step_count, pos, f)

@@ -21,6 +21,15 @@ def launched_size():
     return 1
 
 
+def launched_rank():
+    """This process's rank as the launcher numbered it (0 outside mpirun), without MPI."""
+    for k in ("OMPI_COMM_WORLD_RANK", "PMI_RANK", "PMIX_RANK"):
+        v = os.environ.get(k)
+        if v and v.isdigit():
+            return int(v)
+    return 0
+
+
 def world():
     """COMM_WORLD when started by mpirun with more than one rank, else None."""
     if launched_size() <= 1:

@@ -11,11 +11,6 @@ import numpy as np
 FIELDS = ("a", "b", "hist", "rhist", "age")
 
 
-def empty(rolling, age):
-    return dict(a=np.zeros(0, np.int64), b=np.zeros(0, np.int64), hist=np.zeros((0, 3)),
-                rhist=np.zeros((0, 3)) if rolling else None, age=np.zeros((0, 2)) if age else None)
-
-
 def extract(ids, nb, nnb, hist, rhist, age):
     """Records of every slot holding history (a contact, or a rolling spring/age)."""
     S = nb.shape[1]
