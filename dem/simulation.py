@@ -272,6 +272,7 @@ class Simulation:
         rep["dt"] = self.dt
         rep["dt_over_rayleigh"] = self.dt / tr
         rep["dt_over_hertz"] = self.dt / th
+        rep["mechanics"] = bool(sc.simulation["mechanics"])
         rep["steps"] = int(round(self.end_time / self.dt))
         mem = st.memory_bytes() + self.nb.nbytes + self.nnb.nbytes + self.hist.nbytes + self.rhist.nbytes \
             + self.whist.nbytes + self.wrhist.nbytes + self.age.nbytes + self.Hd.nbytes + self.Hi.nbytes \

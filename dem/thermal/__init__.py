@@ -81,6 +81,7 @@ _GAS_SHORT = {
     "alpha_gas": "accommodation_coefficient", "porosity": "porosity", "cutoff": "cutoff",
     "layer": "layer", "min_separation": "min_separation", "core_ratio": "core_ratio",
     "k_liquid": "liquid_conductivity", "filling_angle": "filling_angle",
+    "quadrature_tolerance": "quadrature_tolerance",
 }
 
 

@@ -32,9 +32,9 @@ from .direct import gas_parameter_m, series_conductivity
 from .registry import (ACCOM, CORE_RATIO, CUTOFF, FILL_ANGLE, GAMMA_RATIO, INDIRECT_CHEN_VORONOI_B,
                        INDIRECT_CHENG_VORONOI_A, INDIRECT_CHENG_VORONOI_B, INDIRECT_GAN_VORONOI_A,
                        INDIRECT_MUSSER, INDIRECT_RONG_HORIO, INDIRECT_VARGAS_MCCARTHY, K_COND, K_LIQ, KF,
-                       LAYER, MEAN_FREE_PATH, MIN_SEP, PR)
+                       LAYER, MEAN_FREE_PATH, MIN_SEP, PR, QUAD_TOL)
 
-EPSREL = 1e-11  # quadrature tolerance (error estimate of G7-K15 is pessimistic)
+EPSREL = 1e-6  # default quadrature tolerance of the pure model functions (scene: quadrature_tolerance)
 
 
 # ----------------------------------------------------------------- Zhou 2009 estimates
@@ -52,7 +52,7 @@ def zhou_2009_face_radius(R, por):
 
 # ----------------------------------------------------------------- Voronoi model A
 @numba.njit(cache=True, error_model="numpy")
-def cheng_1999_voronoi_a(Rp, d, r_low, ki, kj, kf, rij):
+def cheng_1999_voronoi_a(Rp, d, r_low, ki, kj, kf, rij, tol=EPSREL):
     """Cheng, Yu & Zulli (1999) Voronoi model A, mono-size [W/K] (ref 002):
 
     H = int_{r_low}^{r_sf} 2 pi r dr / [ (sqrt(Rp^2 - r^2) - d r/(2 r_ij))/k_bar
@@ -65,11 +65,11 @@ def cheng_1999_voronoi_a(Rp, d, r_low, ki, kj, kf, rij):
     if rsf <= r_low:
         return 0.0
     p = (ki, kj, kf, d, Rp, Rp, 0.5 * d, 0.5 * d, rij, rij)
-    return gk_adaptive(KIND_VORONOI_A_PP, r_low, rsf, p, EPSREL)
+    return gk_adaptive(KIND_VORONOI_A_PP, r_low, rsf, p, tol)
 
 
 @numba.njit(cache=True, error_model="numpy")
-def gan_2016_voronoi_a(Ri, Rj, d, r_low, ki, kj, kf, rij):
+def gan_2016_voronoi_a(Ri, Rj, d, r_low, ki, kj, kf, rij, tol=EPSREL):
     """Gan, Zhou & Yu (2016) Voronoi model A for multi-size spheres [W/K] (ref 002):
 
     H = int_{r_low}^{r_sf} 2 pi r dr / [ (b_i - D_i r/r_i')/k_i + (b_j - D_j r/r_j')/k_j
@@ -93,11 +93,11 @@ def gan_2016_voronoi_a(Ri, Rj, d, r_low, ki, kj, kf, rij):
     if rsf <= r_low or Di <= 0.0 or Dj <= 0.0:
         return 0.0
     p = (ki, kj, kf, d, Ri, Rj, Di, Dj, rci, rcj)
-    return gk_adaptive(KIND_VORONOI_A_PP, r_low, rsf, p, EPSREL)
+    return gk_adaptive(KIND_VORONOI_A_PP, r_low, rsf, p, tol)
 
 
 @numba.njit(cache=True, error_model="numpy")
-def voronoi_a_wall(R, d, r_low, kp, kf, rij):
+def voronoi_a_wall(R, d, r_low, kp, kf, rij, tol=EPSREL):
     """Voronoi model A, particle-wall [W/K] (ref 002, interaction with walls):
 
     H = int_{r_low}^{r_sf} 2 pi r dr / [ (sqrt(R^2 - r^2) - d r/r_ij)/k_p + (d - sqrt(R^2 - r^2))/k_f ]
@@ -107,7 +107,7 @@ def voronoi_a_wall(R, d, r_low, kp, kf, rij):
     if rsf <= r_low:
         return 0.0
     p = (kp, kf, d, R, rij, 0.0, 0.0, 0.0, 0.0, 0.0)
-    return gk_adaptive(KIND_VORONOI_A_PW, r_low, rsf, p, EPSREL)
+    return gk_adaptive(KIND_VORONOI_A_PW, r_low, rsf, p, tol)
 
 
 # ----------------------------------------------------------------- Voronoi model B
@@ -231,7 +231,7 @@ def _gap_floor_radius(Ri, Rj, d, S):
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _surrounding_layer_pp(Ri, Rj, d, r_low, kf, layer, S):
+def _surrounding_layer_pp(Ri, Rj, d, r_low, kf, layer, S, tol):
     Rf = surrounding_layer_upper_radius(Ri, Rj, d, layer)
     if Rf <= r_low:
         return 0.0
@@ -242,12 +242,12 @@ def _surrounding_layer_pp(Ri, Rj, d, r_low, kf, layer, S):
     a = max(r_low, rS)
     if Rf > a:
         p = (kf, d, Ri, Rj, S, 0.0, 0.0, 0.0, 0.0, 0.0)
-        H += gk_adaptive(KIND_SURR_LAYER_PP, a, Rf, p, EPSREL)
+        H += gk_adaptive(KIND_SURR_LAYER_PP, a, Rf, p, tol)
     return H
 
 
 @numba.njit(cache=True, error_model="numpy")
-def musser_2011_surrounding_layer(Ri, Rj, d, r_low, kf, layer, S):
+def musser_2011_surrounding_layer(Ri, Rj, d, r_low, kf, layer, S, tol=EPSREL):
     """Surrounding layer model, Musser (2011) multi-size form [W/K] (ref 002, ref 003):
 
     H = k_f int_{Rc}^{R_f} 2 pi r dr / max(S, d - sqrt(Ri^2 - r^2) - sqrt(Rj^2 - r^2))
@@ -257,11 +257,11 @@ def musser_2011_surrounding_layer(Ri, Rj, d, r_low, kf, layer, S):
     Evaluated as k_f pi (r_S^2 - Rc^2)/S over the part where the gap is < S
     (r_S in closed form) plus adaptive Gauss-Kronrod quadrature of the rest.
     """
-    return _surrounding_layer_pp(Ri, Rj, d, r_low, kf, layer, S)
+    return _surrounding_layer_pp(Ri, Rj, d, r_low, kf, layer, S, tol)
 
 
 @numba.njit(cache=True, error_model="numpy")
-def rong_horio_1999_surrounding_layer(Ri, Rj, d, kf, layer, S):
+def rong_horio_1999_surrounding_layer(Ri, Rj, d, kf, layer, S, tol=EPSREL):
     """Surrounding layer model of Rong & Horio (1999) [W/K] (ref 002):
 
     H = k_f int_0^{R_f} 2 pi r dr / max(S, d - sqrt(Ri^2 - r^2) - sqrt(Rj^2 - r^2)).
@@ -273,7 +273,7 @@ def rong_horio_1999_surrounding_layer(Ri, Rj, d, kf, layer, S):
     integrand). Unlike Musser, the contact area is included (lower limit 0),
     so it should not be combined with a direct conduction model.
     """
-    return _surrounding_layer_pp(Ri, Rj, d, 0.0, kf, layer, S)
+    return _surrounding_layer_pp(Ri, Rj, d, 0.0, kf, layer, S, tol)
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -392,9 +392,9 @@ def indirect_pp(model, Ri, Rj, d, rc, mi, mj, por_i, por_j, tmat, gas):
     por = min(max(por, 0.0), 0.999)
     if model == INDIRECT_CHENG_VORONOI_A:
         Rp = 0.5 * (Ri + Rj)
-        return cheng_1999_voronoi_a(Rp, d, r_low, ki, kj, kf, zhou_2009_face_radius(Rp, por))
+        return cheng_1999_voronoi_a(Rp, d, r_low, ki, kj, kf, zhou_2009_face_radius(Rp, por), gas[QUAD_TOL])
     elif model == INDIRECT_GAN_VORONOI_A:
-        return gan_2016_voronoi_a(Ri, Rj, d, r_low, ki, kj, kf, zhou_2009_face_radius(Rmin, por))
+        return gan_2016_voronoi_a(Ri, Rj, d, r_low, ki, kj, kf, zhou_2009_face_radius(Rmin, por), gas[QUAD_TOL])
     elif model == INDIRECT_CHENG_VORONOI_B:
         Rp = 0.5 * (Ri + Rj)
         return cheng_1999_voronoi_b(Rp, d, r_low, ki, kj, kf, zhou_2009_face_radius(Rp, por),
@@ -403,9 +403,9 @@ def indirect_pp(model, Ri, Rj, d, rc, mi, mj, por_i, por_j, tmat, gas):
         return chen_2019_voronoi_b(Ri, Rj, d, r_low, ki, kj, kf, zhou_2009_face_area(Rmin, por),
                                    gas[CORE_RATIO])
     elif model == INDIRECT_RONG_HORIO:
-        return rong_horio_1999_surrounding_layer(Ri, Rj, d, kf, gas[LAYER], gas[MIN_SEP])
+        return rong_horio_1999_surrounding_layer(Ri, Rj, d, kf, gas[LAYER], gas[MIN_SEP], gas[QUAD_TOL])
     elif model == INDIRECT_MUSSER:
-        return musser_2011_surrounding_layer(Ri, Rj, d, r_low, kf, gas[LAYER], gas[MIN_SEP])
+        return musser_2011_surrounding_layer(Ri, Rj, d, r_low, kf, gas[LAYER], gas[MIN_SEP], gas[QUAD_TOL])
     elif model == INDIRECT_VARGAS_MCCARTHY:
         M = gas_parameter_m(tmat[mi, ACCOM], tmat[mj, ACCOM], gas[GAMMA_RATIO],
                             gas[MEAN_FREE_PATH], gas[PR])
@@ -429,7 +429,7 @@ def indirect_pw(model, R, d, rc, mp, mw, por, tmat, gas):
     r_low = max(rc, geometric_pw(R, d))
     por = min(max(por, 0.0), 0.999)
     if model == INDIRECT_CHENG_VORONOI_A or model == INDIRECT_GAN_VORONOI_A:
-        return voronoi_a_wall(R, d, r_low, kp, kf, zhou_2009_face_radius(R, por))
+        return voronoi_a_wall(R, d, r_low, kp, kf, zhou_2009_face_radius(R, por), gas[QUAD_TOL])
     elif model == INDIRECT_CHENG_VORONOI_B or model == INDIRECT_CHEN_VORONOI_B:
         return voronoi_b_wall(R, d, r_low, kp, kf, zhou_2009_face_radius(R, por), gas[CORE_RATIO])
     elif model == INDIRECT_RONG_HORIO:

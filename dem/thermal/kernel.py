@@ -14,6 +14,8 @@ from .heat import (NTI, NTF, NTOT, TI_HEAT, TI_DIRECT, TI_CR, TI_CORR, TI_INDIRE
                    E_GEN, E_SRC, E_WALL, local_porosity)
 
 MECHANISMS = ("direct", "indirect", "convection", "radiation", "generation", "sources")
+INTEGRAL_INDIRECT = ("cheng_1999_voronoi_a", "gan_2016_voronoi_a", "rong_horio_1999_surrounding_layer",
+                     "musser_2011_surrounding_layer")
 
 
 class ThermalModel:
@@ -249,11 +251,17 @@ class ThermalModel:
             if name != "none" and not (key == "friction_heat" and self.thi[TI_FRIC] < 0):
                 extra = ""
                 if key == "direct":
-                    extra = f" (contact radius {c['contact_radius']}, correction {c['correction']})"
+                    how = ""
+                    if c.get("correction_auto"):
+                        how = (" chosen because youngs_modulus is softened below real_youngs_modulus"
+                               if c["correction"] != "none" else " (auto: youngs_modulus not softened)")
+                    extra = f" (contact radius {c['contact_radius']}, correction {c['correction']}{how})"
                 if key in ("indirect", "convection") or (key == "radiation" and name == "zhou_2009"):
                     kind = ("Voronoi cells (scipy)" if self.voronoi else "local, measured around each particle"
                             if self.local_porosity else "global")
                     extra = f" (porosity {kind})"
+                    if key == "indirect" and name in INTEGRAL_INDIRECT:
+                        extra += f", quadrature tolerance {self.gas[R.QUAD_TOL]:g}"
                 runs.append(f"{label}: {name}{extra}")
             else:
                 why = f"thermal.{key} = 'none'"

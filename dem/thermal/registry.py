@@ -98,7 +98,8 @@ LM_EXPONENT = 16
 K_LIQ = 17
 FILL_ANGLE = 18
 RAD_RANGE = 19
-N_GAS = 20
+QUAD_TOL = 20
+N_GAS = 21
 
 # key -> (index, default, (min, max), unit, description); default None = required
 # by the models that use it (NaN when absent).
@@ -123,6 +124,11 @@ GAS_KEYS = {
     "liquid_conductivity": (K_LIQ, 0.0, (0.0, math.inf), "W/(m K)", "liquid bridge conductivity"),
     "filling_angle": (FILL_ANGLE, 0.0, (0.0, math.pi / 2), "rad", "liquid bridge filling angle (0 = dry)"),
     "radiation_range": (RAD_RANGE, 3.0, (1.0, math.inf), "-", "radius of radiative influence / R"),
+    # numerical: relative tolerance of the adaptive Gauss-Kronrod quadrature of the integral
+    # indirect models (Voronoi A, surrounding layer); default chosen from the work-precision
+    # sweep of benchmarks/accuracy (docs/benchmarks.md, "Quadrature tolerance")
+    "quadrature_tolerance": (QUAD_TOL, 1e-6, (1e-14, 0.1), "-",
+                             "relative tolerance of the integral indirect models' quadrature"),
 }
 
 # ---------------------------------------------------------------- model ids

@@ -5,10 +5,12 @@
     initial_regions = [{min = [..], max = [..], temperature = 400.0}]   # override in boxes
     direct = "batchelor_obrien"          # or "none"; see docs/models.md for all names
     contact_radius = "hertz_overlap"     # hertz_force | hertz_overlap | geometric
-    correction = "none"                  # zhou_2010 | lu_2017 | morris_2016_area | ...
+    correction = "auto"                  # lu_2017 if youngs_modulus is softened (real_youngs_modulus
+                                         # given), else none | zhou_2010 | lu_2017 | morris_2016_area | ...
     direct_factor = 1.0                  # multiplies the direct conductance
     indirect = "none"                    # voronoi_a, voronoi_b, surrounding_layer, ...
     porosity = "local"                   # local | global | voronoi (true tessellation, scipy)
+    quadrature_tolerance = 1e-6          # relative tolerance of the integral indirect models
     convection = "none"                  # ranz_marshall | whitaker | gunn | li_mason
     radiation = "none"                   # zhou_2009 | krause_2017
     friction_heat = "none"               # nguyen_2009 | rojek_2014 | impact_heat
@@ -32,7 +34,7 @@ from . import registry as R
 THERMAL_KEYS = {"initial_temperature", "direct", "contact_radius", "correction", "direct_factor",
                 "indirect", "porosity", "convection", "radiation", "friction_heat", "partition",
                 "integrator", "time_step", "sources", "impact_heat_ct", "impact_heat_cn",
-                "friction_heat_chi", "initial_regions"}
+                "friction_heat_chi", "initial_regions", "quadrature_tolerance"}
 INTEGRATORS = {"euler": 0, "exponential": 1}
 WALL_CONDITIONS = {"adiabatic": 0, "fixed_temperature": 1, "fixed_heat_flux": 2}
 
@@ -60,7 +62,19 @@ def parse_thermal(v, sc, data):
     th = {}
     th["direct"], th["direct_id"] = _model(v, t, "direct", "direct", "batchelor_obrien")
     th["contact_radius"], th["cr_id"] = _model(v, t, "contact_radius", "contact_radius", "hertz_overlap")
-    th["correction"], th["corr_id"] = _model(v, t, "correction", "correction", "none")
+    if t.get("correction", "auto") == "auto":
+        # default chosen from the softening sweep (docs/benchmarks.md, "Young's-modulus softening"):
+        # with a softened modulus (real_youngs_modulus given and larger), lu_2017 keeps the static
+        # contact conductance exact; without correction it is over-predicted (+115 % at E/10)
+        used_m = set(np.unique(sc.material).tolist())
+        soft = any(float(sc.materials[k].get("real_youngs_modulus", sc.materials[k]["youngs_modulus"]))
+                   != float(sc.materials[k]["youngs_modulus"]) for k in used_m)
+        tt = dict(t, correction="lu_2017" if (soft and t.get("direct", "batchelor_obrien") != "none") else "none")
+        th["correction"], th["corr_id"] = _model(v, tt, "correction", "correction", "none")
+        th["correction_auto"] = True
+    else:
+        th["correction"], th["corr_id"] = _model(v, t, "correction", "correction", "none")
+        th["correction_auto"] = False
     if th["corr_id"] < 0:
         th["corr_id"] = 0
     th["indirect"], th["indirect_id"] = _model(v, t, "indirect", "indirect", "none")
@@ -117,6 +131,11 @@ def parse_thermal(v, sc, data):
                 v.err(f"gas.{k}", f"missing required key, needed by convection model {th['convection']!r}")
         if "prandtl" not in gas and "heat_capacity" not in gas:
             v.err("gas.prandtl", "missing: give prandtl, or heat_capacity (Pr = mu cp / k)")
+    if "quadrature_tolerance" in t:
+        if "quadrature_tolerance" in g:
+            v.err("thermal.quadrature_tolerance", "given twice (also in [gas]); keep the one in [thermal]")
+        lo, hi = R.GAS_KEYS["quadrature_tolerance"][2]
+        gas["quadrature_tolerance"] = v.num(t, "quadrature_tolerance", "thermal", lo=lo, hi=hi)
     th["gas"] = gas
     # materials: thermal keys needed by the chosen models
     for k, m in enumerate(sc.materials):

@@ -1,0 +1,169 @@
+"""Side by side with LIGGGHTS (Debian's `liggghts`, LIGGGHTS-PUBLIC 3.8.0) on the shared scenes of
+../shared/bench: speed per core, speed on 2 processes, and the mean temperatures of the initially
+hot and cold halves after the thermal run, with our relative difference.
+
+    python benchmarks/liggghts_side_by_side.py [--quick] [--no-docs]
+
+* one core: ours in this process pinned to core 0, LIGGGHTS pinned to core 1 at the same time
+  (`taskset`), so both see the same machine state;
+* two processes: ours on 2 MPI ranks, then LIGGGHTS on 2 MPI processes (one after the other;
+  each uses both cores);
+* temperatures: after the thermal run (LIGGGHTS `fix heat/gran/conduction contact_area overlap`,
+  ours `batchelor_obrien` with the geometric contact radius and direct_factor = sqrt(pi), the
+  same conductance), read from LIGGGHTS's last thermo line (c_Thot, c_Tcold) and from ours.
+
+Sizes: 10k at 10,000 steps (the scene's timed run) and 50k at 3,000 steps (--quick: 10k at
+3,000 steps only). Loop times only: start-up (reading, Numba cache, LIGGGHTS set-up) is
+excluded on both sides. LIGGGHTS is installed with apt-get when missing (root or sudo -n);
+without it the script says so and exits with status 2. Writes the section
+"## Side by side with LIGGGHTS" of docs/benchmarks.md unless --no-docs.
+"""
+import argparse
+import os
+import platform
+import re
+import shutil
+import subprocess
+import sys
+import time
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+ROOT = os.path.dirname(HERE)
+sys.path.insert(0, HERE)
+sys.path.insert(0, ROOT)
+from shared_scene import SHARED, liggghts_cmd, ours as ours_serial, parse_loop  # noqa: E402
+from scaling import ours as ours_mpi  # noqa: E402
+
+SECTION = "## Side by side with LIGGGHTS"
+N = {"10k": 10000, "50k": 50000}
+
+
+def ensure_liggghts():
+    if shutil.which("liggghts"):
+        return True
+    sudo = [] if os.geteuid() == 0 else (["sudo", "-n"] if shutil.which("sudo") else None)
+    if sudo is None:
+        return False
+    print("installing Debian's liggghts (apt-get) ...", flush=True)
+    env = dict(os.environ, DEBIAN_FRONTEND="noninteractive")
+    subprocess.run(sudo + ["apt-get", "update", "-qq"], env=env, check=False)
+    subprocess.run(sudo + ["apt-get", "install", "-y", "-qq", "--no-install-recommends", "liggghts"], env=env,
+                   check=False)
+    return shutil.which("liggghts") is not None
+
+
+def liggghts_run(size, heat, steps, nproc, pin=None):
+    """Start LIGGGHTS (returns the Popen); its output names the work directory with log.run."""
+    cmd = liggghts_cmd(size, heat, steps, nproc)
+    if pin is not None:
+        cmd = ["taskset", "-c", str(pin)] + cmd
+    env = dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1")
+    return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
+
+
+def liggghts_result(proc):
+    text = proc.communicate()[0]
+    res = dict(loop=parse_loop(text))
+    m = re.search(r"outputs in (\S+)", text)
+    if m:
+        log = os.path.join(m.group(1), "log.run")
+        if os.path.exists(log):
+            rows = [ln.split() for ln in open(log) if re.match(r"^\s*\d+\s", ln)]
+            # thermal block: step ke rke heat Thot Tcold cpu
+            rows = [r for r in rows if len(r) == 7]
+            if rows:
+                res["T_hot"], res["T_cold"] = float(rows[-1][4]), float(rows[-1][5])
+        shutil.rmtree(m.group(1), ignore_errors=True)
+    return res
+
+
+def measure(size, steps, log=print):
+    out = []
+    for heat in (False, True):
+        # one core each, at the same time
+        p = liggghts_run(size, heat, steps, 1, pin=1)
+        os.sched_setaffinity(0, {0})
+        try:
+            o1 = ours_serial(size, heat, steps)
+        finally:
+            os.sched_setaffinity(0, set(range(os.cpu_count())))
+        l1 = liggghts_result(p)
+        # two processes, one after the other
+        o2 = ours_mpi(size, heat, steps, 2)
+        l2 = liggghts_result(liggghts_run(size, heat, steps, 2))
+        n = N[size] * steps
+        r = dict(size=size, heat=heat, steps=steps, ours1=o1["pps"], lig1=n / l1["loop"], ours2=o2["pps"],
+                 lig2=n / l2["loop"], mem=o1["mem"])
+        if heat:
+            r.update(T_hot=o1["T_hot"], T_cold=o1["T_cold"], L_hot=l1.get("T_hot"), L_cold=l1.get("T_cold"))
+        log(f"{size} heat {'on ' if heat else 'off'}: 1 core ours {r['ours1']:.3g} LIGGGHTS {r['lig1']:.3g} "
+            f"({r['ours1'] / r['lig1']:.2f}); 2 processes ours {r['ours2']:.3g} LIGGGHTS {r['lig2']:.3g} "
+            f"({r['ours2'] / r['lig2']:.2f})"
+            + (f"; T_hot {r['T_hot']:.10f}/{r['L_hot']} T_cold {r['T_cold']:.10f}/{r['L_cold']}" if heat else ""))
+        out.append(r)
+    return out
+
+
+def markdown(rows, cmd, total):
+    L = [f"```\n{cmd}\n```\n",
+         f"Measured {time.strftime('%Y-%m-%d')} on {platform.machine()} ({os.cpu_count()} cores, a shared "
+         f"virtual machine), {total:.0f} s in all. Loop time only on both sides (particle-steps per second). "
+         f"One core: ours pinned to core 0 and LIGGGHTS to core 1, running at the same time. Two processes: "
+         f"our 2 MPI ranks, then LIGGGHTS on 2 MPI processes. Ratios > 1: ours faster.\n",
+         "| N | steps | heat | ours, 1 core | LIGGGHTS, 1 core | ratio | ours, 2 ranks | LIGGGHTS, 2 processes "
+         "| ratio | ours 2/1 | LIGGGHTS 2/1 |",
+         "|---|---|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        L.append(f"| {r['size']} | {r['steps']} | {'on' if r['heat'] else 'off'} | {r['ours1']:.3g} | "
+                 f"{r['lig1']:.3g} | **{r['ours1'] / r['lig1']:.2f}** | {r['ours2']:.3g} | {r['lig2']:.3g} | "
+                 f"**{r['ours2'] / r['lig2']:.2f}** | {r['ours2'] / r['ours1']:.2f} | {r['lig2'] / r['lig1']:.2f} |")
+    L.append("")
+    L.append("Temperatures after the thermal run (mean of the initially hot and cold halves; the heat moved "
+             "is 400 K - T_hot):\n")
+    L.append("| N | steps | T_hot ours [K] | T_hot LIGGGHTS [K] | T_cold ours [K] | T_cold LIGGGHTS [K] | "
+             "heat moved, relative difference |")
+    L.append("|---|---|---|---|---|---|---|")
+    for r in rows:
+        if not r["heat"]:
+            continue
+        if r.get("L_hot") is None:
+            L.append(f"| {r['size']} | {r['steps']} | {r['T_hot']:.10f} | – | {r['T_cold']:.10f} | – | – |")
+            continue
+        d, ld = 400.0 - r["T_hot"], 400.0 - r["L_hot"]
+        L.append(f"| {r['size']} | {r['steps']} | {r['T_hot']:.10f} | {r['L_hot']:.10f} | {r['T_cold']:.10f} | "
+                 f"{r['L_cold']:.10f} | {abs(d - ld) / ld:.2e} |")
+    L.append("")
+    L.append("The scene, the conduction law and the LIGGGHTS inputs: ../shared/bench/README.md. Runs on this "
+             "shared machine vary by up to 30 % from one period to the next; the ratios, measured side by side, "
+             "vary much less (earlier periods: the sections below).")
+    return "\n".join(L)
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="10k bed, 3,000 steps")
+    ap.add_argument("--no-docs", action="store_true")
+    a = ap.parse_args(argv)
+    if not os.path.isdir(SHARED):
+        print(f"no shared scene at {SHARED}", file=sys.stderr)
+        return 2
+    if not ensure_liggghts():
+        print("LIGGGHTS is not installed and could not be installed (apt-get install liggghts needs root): "
+              "skipped", file=sys.stderr)
+        return 2
+    t0 = time.perf_counter()
+    plan = [("10k", 3000)] if a.quick else [("10k", 10000), ("50k", 3000)]
+    rows = []
+    for size, steps in plan:
+        rows += measure(size, steps)
+    total = time.perf_counter() - t0
+    md = markdown(rows, "python benchmarks/liggghts_side_by_side.py" + (" --quick" if a.quick else ""), total)
+    print(md)
+    if not a.no_docs:
+        from benchmarks.accuracy.common import replace_section
+        replace_section(os.path.join(ROOT, "docs", "benchmarks.md"), SECTION, md)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
