@@ -28,10 +28,12 @@ Layout::
 
 Checks (``check_coupled_case``), in the spirit of CFDEMcoupling's: CFD deltaT =
 coupling_interval x DEM dt; gas CFL; particle Courant number (particle displacement per
-coupling step / cell size); coupling step / particle relaxation time m/beta_p; cell
-size / particle diameter (warning under 3); gas properties of dem.toml [gas] equal to
-constant/transportProperties; particles inside the mesh; plus the DEM's own time-step
-checks (``Simulation.check``) and ``foam_case.check_case``.
+coupling step / cell size); coupling step / particle relaxation time m/beta_p (at the initial void fraction of
+the particle's cell, at most 0.4); cell size / particle diameter (warning under 3, a
+stronger warning under 1); the initial void fraction clipped at eps_min (warning, a
+problem when more than 5 % of the particle volume is clipped); gas properties of dem.toml
+[gas] equal to constant/transportProperties; particles inside the mesh; plus the DEM's own
+time-step checks (``Simulation.check``) and ``foam_case.check_case``.
 """
 from __future__ import annotations
 
@@ -59,6 +61,7 @@ PARTICLE_COURANT = (0.1, 0.5)
 GAS_CFL = (0.5, 1.0)
 RELAXATION_RATIO = (0.2, 1.0)    # CFD deltaT / (m / beta_p)
 CELL_DIAMETERS = 3.0             # warn when the cell size is below this many diameters
+CLIPPED_VOLUME = 0.05            # refuse when eps_min clipping hides more of the particle volume
 
 
 class CaseConfigError(fc.CaseError):
@@ -242,11 +245,13 @@ def _max_speed_of_field(path: Path, n_cells: int) -> float:
     return vmax
 
 
-def check_coupled_case(case: CoupledCase, mesh, *, eps0: np.ndarray | None = None) -> dict:
+def check_coupled_case(case: CoupledCase, mesh, *, eps0: np.ndarray | None = None,
+                       clip: dict | None = None) -> dict:
     """Run the coupling checks on a loaded case and its mesh. Returns a report dict with
     'values', 'warnings', 'problems'. Raises :class:`CaseConfigError` on the first hard
     error (inconsistent input); failed limits go to 'problems' (the caller refuses to run
-    unless coupling.force = true)."""
+    unless coupling.force = true). ``eps0``: initial void fraction (after clipping);
+    ``clip``: its clipping (CouplingInterface.clip)."""
     cfg, sim, gas = case.config, case.sim, case.gas
     vals, warnings, problems = {}, [], []
     cf = case.config_file
@@ -298,11 +303,29 @@ def check_coupled_case(case: CoupledCase, mesh, *, eps0: np.ndarray | None = Non
     vals["cells"] = mesh.n_cells
     vals["cell_size_min"] = dx_min
     vals["cell_over_diameter"] = dx_min / float(d.max())
-    if dx_min < CELL_DIAMETERS * d.max() * (1 - 1e-9):
+    if dx_min < d.max() * (1 - 1e-9):
+        warnings.append(f"smallest cell {dx_min:.3g} m is {dx_min / d.max():.2f} particle diameters: particles "
+                        f"larger than the cells are outside the unresolved model (void fraction clipped at "
+                        f"eps_min, drag and heat exchange inconsistent between gas and particles, with every "
+                        f"void_fraction model); use cells of at least {CELL_DIAMETERS:g} particle diameters")
+    elif dx_min < CELL_DIAMETERS * d.max() * (1 - 1e-9):
         warnings.append(f"smallest cell {dx_min:.3g} m is {dx_min / d.max():.2f} particle diameters "
                         f"(< {CELL_DIAMETERS:g}): void fraction and drag of the unresolved model are "
                         f"inaccurate; use void_fraction = 'divided' or 'smoothed'"
                         + ("" if cfg.void_fraction != "centre" else " (now 'centre')"))
+    # --- initial void fraction below eps_min (clipped: solid volume the gas does not see)
+    if clip is not None:
+        vals["eps_initial_raw_min"] = clip["eps_raw_min"]
+        vals["eps_clipped_cells"] = clip["cells"]
+        vals["eps_clipped_volume_fraction"] = clip["fraction"]
+        if clip["cells"]:
+            msg = (f"initial void fraction below coupling.eps_min = {cfg.eps_min:g} in {clip['cells']} cell(s) "
+                   f"(lowest 1 - V_solid/V_cell = {clip['eps_raw_min']:.3g}): clipping hides "
+                   f"{100 * clip['fraction']:.3g} % of the particle volume from the gas; use cells of at least "
+                   f"{CELL_DIAMETERS:g} particle diameters or void_fraction = 'divided' or 'smoothed' (now "
+                   f"'{cfg.void_fraction}')")
+            (problems if clip["fraction"] > CLIPPED_VOLUME else warnings).append(
+                msg + (f" (refused above {100 * CLIPPED_VOLUME:g} %)" if clip["fraction"] > CLIPPED_VOLUME else ""))
     vals["cell_over_particle_volume"] = float(V.min() / ((math.pi / 6) * d.max() ** 3))
     # particles in the mesh
     cells = mesh.locate(st.position[:n])
@@ -339,7 +362,9 @@ def check_coupled_case(case: CoupledCase, mesh, *, eps0: np.ndarray | None = Non
     # --- coupling step / particle relaxation time (explicit drag over one coupling step)
     if mech:
         mass = st.mass[:n]
-        eps_c = np.full(n, max(cfg.eps_min, 0.4))
+        # a dense bed (0.4), or the initial void fraction at the particle where it is lower
+        eps_c = np.full(n, 0.4) if eps0 is None else np.minimum(eps0[np.maximum(cells, 0)], 0.4)
+        eps_c = np.maximum(eps_c, cfg.eps_min)
         ur = np.full(n, max(umax, 1e-3))
         beta = drag_coefficients(drag_model_id(cfg.drag), np.ascontiguousarray(d), eps_c, gas.rho, gas.mu, ur)
         if case.model_type == "B":
@@ -349,7 +374,10 @@ def check_coupled_case(case: CoupledCase, mesh, *, eps0: np.ndarray | None = Non
         vals["coupling_over_relaxation"] = dt_cfd / tau
         if dt_cfd / tau > RELAXATION_RATIO[1]:
             problems.append(f"coupling step {dt_cfd:g} s > particle relaxation time m/beta_p = {tau:.3g} s "
-                            f"(dense bed, |u| = {ur[0]:.3g} m/s): the explicit drag overshoots; lower deltaT")
+                            f"(void fraction {float(eps_c[int(np.argmin(mass / beta))]):.3g}, |u| = {ur[0]:.3g} "
+                            f"m/s): the explicit drag overshoots; lower deltaT"
+                            + (f" or raise coupling.eps_min (now {cfg.eps_min:g})" if float(eps_c.min()) < 0.4
+                               else ""))
         elif dt_cfd / tau > RELAXATION_RATIO[0]:
             warnings.append(f"coupling step is {dt_cfd / tau:.3g} of the particle relaxation time {tau:.3g} s")
     # --- DEM checks

@@ -331,7 +331,14 @@ def read_internal_field(path, n_cells: int | None = None) -> np.ndarray:
         return np.tile(v, (n_cells, 1)) if v.ndim else np.full(n_cells, float(v))
     kind, n = m.group(3), int(m.group(4))
     start = m.end()
-    end = text.index("\n)", start)
+    if "\n" in text[m.end(4):start]:
+        end = text.index("\n)", start)
+    else:  # short lists (up to 10 entries) are written on one line: n(a b c)
+        depth, end = 1, start
+        while depth and end < len(text):
+            depth += (text[end] == "(") - (text[end] == ")")
+            end += 1
+        end -= 1
     body = text[start:end]
     if kind == "scalar":
         a = np.array(body.split(), dtype=float)

@@ -116,6 +116,19 @@ class CouplingInterface:
         self.n_lost = 0
         self._mapped = None
         self._map_cache = None        # (positions, radii, stencil, eps) of the last mapping
+        # eps_min clipping of the last mapping: cells, solid volume removed (m^3), its
+        # fraction of the particle volume, smallest unclipped eps and its cell
+        self.clip = dict(cells=0, volume=0.0, fraction=0.0, eps_raw_min=1.0, cell=-1)
+        self.eps_change = (0.0, -1)   # largest |eps_n - eps_(n-1)| sent to the gas, and its cell
+
+    def _note_clipping(self, eps_raw) -> None:
+        low = eps_raw < self.eps_min
+        c = int(np.argmin(eps_raw)) if eps_raw.size else -1
+        vol = float(((self.eps_min - eps_raw[low]) * self.V[low]).sum()) if low.any() else 0.0
+        vp = float(self._allsum(np.array([(4.0 / 3.0) * math.pi * float(
+            (self.sim.state.radius[:self.sim.state.n_owned] ** 3).sum())]))[0])
+        self.clip = dict(cells=int(low.sum()), volume=vol, fraction=vol / vp if vp > 0 else 0.0,
+                         eps_raw_min=float(eps_raw[c]) if c >= 0 else 1.0, cell=c)
 
     def map_particles(self) -> None:
         """Locate the particles and build the stencil / void fraction now (e.g. right after
@@ -156,6 +169,7 @@ class CouplingInterface:
                                     n_satellites=self.n_satellites,
                                     out=prev[2] if prev is not None else None)
             eps = 1.0 - self._allsum(vf.solid_volume(pw, rad)) / self.V
+            self._note_clipping(eps)
             eps = np.maximum(eps, self.eps_min)
         self.hint = pw.centre_cell
         self.n_lost = pw.n_lost
@@ -195,6 +209,10 @@ class CouplingInterface:
             pw, eps_raw = self._stencil()
         self._mapped = None
         eps = self._relax(self.eps_sent, eps_raw, dt_cfd)
+        if self.eps_sent is not None and eps.size:
+            de = np.abs(eps - self.eps_sent)
+            c = int(np.argmax(de))
+            self.eps_change = (float(de[c]), c)
         self.eps_sent = eps
 
         with self.timer("interpolation"):

@@ -17,7 +17,15 @@ loop (coupling.interface) and writes
 * ``timings.json`` (wall time per phase) and ``coupling.png``.
 
 If the solver dies or hangs (CouplingError) the DEM state is checkpointed first, then the
-command exits with status 3 and a message naming the peer and the coupling step.
+command exits with status 3 and a message naming the peer and the coupling step. Every gas
+frame is checked before the particles see it (``check_gas_fields``: finite U, T, grad p, p;
+T > 0; |U| below the speed of sound); a bad frame stops the run the same way
+(GasFieldError, naming the field, the cell, the time and what to change). A DEM guard
+(SimulationError: overlap, non-finite velocity, temperature, domain) checkpoints and exits
+with status 4. ``RunWatch`` warns once per run when the void fraction is clipped at eps_min
+(solid volume the gas does not see), when a cell's void fraction changes by more than 0.2
+in one coupling step, and when the gas is faster than Mach 0.3; coupling.csv records the
+smallest unclipped void fraction and the number of clipped cells of every output step.
 ``--restart`` continues a run in --out from the latest OpenFOAM time that has a DEM
 checkpoint. Under ``mpirun -np 1`` the command works as in serial; more DEM ranks are not
 supported yet.
@@ -35,6 +43,8 @@ import time
 from pathlib import Path
 
 import numpy as np
+
+from .exchange import CouplingError
 
 EXIT_CHECK = 2
 EXIT_COUPLING = 3
@@ -151,7 +161,8 @@ class Diagnostics:
     """coupling.csv rows: energies, heat rate, pressure drop, bed height, timings."""
 
     COLUMNS = ["time", "step", "T_particles", "T_gas", "E_particles", "E_gas", "Q_to_gas",
-               "E_conv_particles", "dp", "bed_height", "v_max", "n_outside", "wall"]
+               "E_conv_particles", "dp", "bed_height", "v_max", "n_outside", "eps_raw_min",
+               "eps_clipped_cells", "wall"]
 
     def __init__(self, path, mesh, gas, keep_until=None):
         from dem.output import History
@@ -206,7 +217,8 @@ class Diagnostics:
         zb = float(sums[3] / sums[4]) if sums[4] else 0.0
         self.hist.add(dict(time=t, step=step, T_particles=Tp, T_gas=Tg, E_particles=Ep, E_gas=Eg,
                            Q_to_gas=q, E_conv_particles=Ec, dp=dp, bed_height=zb, v_max=float(sums[5]),
-                           n_outside=int(sums[6]), wall=wall))
+                           n_outside=int(sums[6]), eps_raw_min=iface.clip["eps_raw_min"],
+                           eps_clipped_cells=iface.clip["cells"], wall=wall))
 
 
 def plot(out: Path, title: str) -> Path | None:
@@ -300,7 +312,7 @@ def run_case(case_dir, out=None, *, transport=None, end_time=None, restart=False
     if restart:
         i0, t_start = _restart(out, sim, iface, dt, log if R.root else _silent, R)
     eps0 = iface.initial_void_fraction()
-    rep = R.everywhere(check_coupled_case, case, mesh, eps0=eps0)
+    rep = R.everywhere(check_coupled_case, case, mesh, eps0=eps0, clip=dict(iface.clip))
     rep = R.bcast(rep)
     if not quiet and R.root:
         log(format_report(case, rep))
@@ -375,11 +387,14 @@ def run_case(case_dir, out=None, *, transport=None, end_time=None, restart=False
     frame = None
     try:
         with timer("gas_wait"):
-            fluid = _share(R, lambda: ex.receive(i0), ex)
+            fluid = _share(R, lambda: check_gas_fields(ex.receive(i0), i0, time_value=t_start, mesh=mesh,
+                                                       cfg=cfg), ex)
         _grow_socket_buffers(ex, mesh.n_cells)
+        watch = RunWatch(mesh, cfg, log)
         for s in range(1, n_steps + 1):
             step = i0 + s
             frame = iface.prepare(fluid, dt)
+            watch.after_prepare(iface, t)
             if s == 1 and not restart:
                 _output(hist, vtk, diag, sim, iface, fluid, frame, t, step - 1, t_wall0, timer)
             with timer("exchange"):
@@ -389,7 +404,9 @@ def run_case(case_dir, out=None, *, transport=None, end_time=None, restart=False
             if s < n_steps:
                 iface.map_particles()   # overlaps with the gas solve
             with timer("gas_wait"):
-                fluid = _share(R, lambda: _finite(ex.receive(step), step), ex)
+                fluid = _share(R, lambda: check_gas_fields(ex.receive(step), step, time_value=t, mesh=mesh,
+                                                           cfg=cfg, eps_change=iface.eps_change), ex)
+            watch.after_receive(fluid, t)
             if s % out_every == 0 or s == n_steps or ex.peer_final:
                 _output(hist, vtk, diag, sim, iface, fluid, frame, t, step, t_wall0, timer)
             if write_every and step % write_every == 0:
@@ -434,7 +451,7 @@ def run_case(case_dir, out=None, *, transport=None, end_time=None, restart=False
     save_npz(str(out / "coupling_state.npz"), **_coupling_state(iface, step, t))
     png = plot(out, f"{case.dir.name}: {cfg.transport} transport")
     summ = _timings(timer, t_wall0, sim, n_steps=step - i0, k=k)
-    summ.update(out=str(out), steps=step - i0, time=t, png=str(png) if png else None)
+    summ.update(out=str(out), steps=step - i0, time=t, png=str(png) if png else None, **watch.summary())
     if not quiet:
         log(_format_timings(summ))
     return summ
@@ -459,11 +476,133 @@ def _share(R, receive, ex):
     return fluid
 
 
-def _finite(fluid, step):
-    from .exchange import CouplingError
-    if not np.all(np.isfinite(fluid["T"])) or not np.all(np.isfinite(fluid["U"])):
-        raise CouplingError("non-finite gas field received", peer="CFD solver", step=step)
-    return fluid
+# gas speed above which the (incompressible) gas solution is taken as diverged: the
+# speed of sound in air at 20 C (the model is invalid far below it, above Mach ~0.3)
+GAS_SPEED_LIMIT = 343.0
+
+
+class GasFieldError(CouplingError):
+    """The gas state received from thermoDemFoam is non-physical (non-finite values,
+    T <= 0 K, or a gas speed above GAS_SPEED_LIMIT): the gas solution diverged, or a
+    sudden change of the void fraction forced it."""
+
+
+class RunWatch:
+    """Runtime warnings of a coupled run, each printed once (rank 0), the worst values kept
+    for the summary: void fraction clipped at eps_min (solid volume the gas does not see),
+    a sudden change of the void fraction between two coupling steps (the gas must displace
+    that volume within one CFD step), a gas faster than Mach 0.3 (outside the
+    incompressible model)."""
+
+    EPS_CHANGE = 0.2          # void fraction change of a cell in one coupling step
+    CLIPPED = 1e-3            # fraction of the particle volume hidden by the eps_min clipping
+    GAS_SPEED = 100.0         # m/s, about Mach 0.3 in air
+
+    def __init__(self, mesh, cfg, log):
+        self.mesh, self.cfg, self.log = mesh, cfg, log
+        self.clip = None
+        self.eps_change = 0.0
+        self.gas_speed = 0.0
+        self._said = set()
+
+    def _at(self, c):
+        return f"cell {c} at {np.array2string(self.mesh.cell_centres[c], precision=6)}"
+
+    def after_prepare(self, iface, t):
+        c = iface.clip
+        if c["cells"]:
+            if c["fraction"] >= self.CLIPPED and "clip" not in self._said:
+                self._said.add("clip")
+                self.log(f"coupling: WARNING: at t = {t:.9g} s the void fraction of {c['cells']} cell(s) is below "
+                         f"coupling.eps_min = {self.cfg.eps_min:g} (lowest 1 - V_solid/V_cell = "
+                         f"{c['eps_raw_min']:.3g} in {self._at(c['cell'])}) and is clipped: "
+                         f"{100 * c['fraction']:.3g} % of the particle volume is not seen by the gas (drag and "
+                         f"pressure drop too low there). Use cells of at least 3 particle diameters, void_fraction "
+                         f"= 'divided' or 'smoothed' (now '{self.cfg.void_fraction}'), or a lower eps_min for a "
+                         f"really dense bed")
+            if self.clip is None:
+                self.clip = dict(cells=0, fraction=0.0, eps_raw_min=1.0, first_time=t)
+            self.clip["cells"] = max(self.clip["cells"], c["cells"])
+            self.clip["fraction"] = max(self.clip["fraction"], c["fraction"])
+            self.clip["eps_raw_min"] = min(self.clip["eps_raw_min"], c["eps_raw_min"])
+        de, cell = iface.eps_change
+        self.eps_change = max(self.eps_change, de)
+        if de > self.EPS_CHANGE and "eps" not in self._said:
+            self._said.add("eps")
+            self.log(f"coupling: WARNING: at t = {t:.9g} s the void fraction of {self._at(cell)} changes by "
+                     f"{de:.3g} in one coupling step: the gas must displace that volume within one CFD step "
+                     f"(pressure and velocity spikes). Set coupling.smoothing_time to a few CFD steps (now "
+                     f"{self.cfg.smoothing_time:g} s) or lower coupling_interval")
+
+    def after_receive(self, fluid, t):
+        u = np.asarray(fluid["U"])
+        s2 = (u * u).sum(axis=1)
+        c = int(np.argmax(s2)) if s2.size else -1
+        v = float(np.sqrt(s2[c])) if c >= 0 else 0.0
+        self.gas_speed = max(self.gas_speed, v)
+        if v > self.GAS_SPEED and "speed" not in self._said:
+            self._said.add("speed")
+            self.log(f"coupling: WARNING: at t = {t:.9g} s the gas speed is {v:.3g} m/s in {self._at(c)}, above "
+                     f"{self.GAS_SPEED:g} m/s (Mach 0.3): outside the incompressible gas model"
+                     + (f"; the void fraction changed by up to {self.eps_change:.3g} in one coupling step "
+                        f"(smoothing_time now {self.cfg.smoothing_time:g} s)" if self.eps_change > self.EPS_CHANGE
+                        else ""))
+
+    def summary(self):
+        return dict(eps_clipping=self.clip, eps_change_max=self.eps_change, gas_speed_max=self.gas_speed)
+
+
+def check_gas_fields(fluid, step, *, time_value=None, mesh=None, cfg=None, eps_change=None):
+    """Guard on every gas frame received from the solver (before the DEM sees it): U, T,
+    grad p and p finite, T > 0, |U| <= GAS_SPEED_LIMIT. Raises :class:`GasFieldError`
+    naming the field, the number of bad cells, the first one (index and centre), the time
+    and what to change."""
+    bad = None
+    for name, test, what in (
+            ("U", lambda a: ~np.isfinite(a).all(axis=1), "non-finite"),
+            ("T", lambda a: ~np.isfinite(a), "non-finite"),
+            ("gradp", lambda a: ~np.isfinite(a).all(axis=1), "non-finite"),
+            ("p", lambda a: ~np.isfinite(a), "non-finite"),
+            ("T", lambda a: a <= 0.0, "at or below 0 K"),
+            ("U", lambda a: (a * a).sum(axis=1) > GAS_SPEED_LIMIT ** 2,
+             f"faster than {GAS_SPEED_LIMIT:g} m/s (the speed of sound)")):
+        a = np.asarray(fluid[name])
+        with np.errstate(invalid="ignore", over="ignore"):
+            m = test(a)
+        if np.any(m):
+            cells = np.flatnonzero(m)
+            bad = (name, what, cells)
+            break
+    if bad is None:
+        return fluid
+    name, what, cells = bad
+    c = int(cells[0])
+    val = np.asarray(fluid[name])[c]
+    where = f"cell {c}"
+    if mesh is not None:
+        where += f" at {np.array2string(mesh.cell_centres[c], precision=6)}"
+    when = f"t = {time_value:.9g} s" if time_value is not None else f"coupling step {step}"
+    jump = eps_change is not None and eps_change[0] > RunWatch.EPS_CHANGE
+    cause = "the gas solution diverged"
+    smooth = (f"set coupling.smoothing_time to a few CFD steps (now {cfg.smoothing_time:g} s) so that eps and Ksl "
+              f"change gradually" if cfg is not None else "set coupling.smoothing_time > 0")
+    lower = ("lower deltaT in system/controlDict with coupling_interval (CFD step = coupling_interval x "
+             "DEM time_step)")
+    if jump:
+        cause = (f"the void fraction of cell {eps_change[1]} changed by {eps_change[0]:.3g} in the last coupling "
+                 f"step (the gas displaces that volume within one CFD step), or the gas solution diverged")
+        advice = f"{smooth}; if particles moved that far within one step, {lower}"
+    else:
+        advice = f"{lower}, or {smooth}"
+    if cfg is not None:
+        advice += f"; raise coupling.eps_min (now {cfg.eps_min:g})"
+        if cfg.void_fraction == "centre":
+            advice += " or use void_fraction = 'divided' or 'smoothed' (now 'centre')"
+    raise GasFieldError(
+        f"gas field {name} received from the solver is {what} in {cells.size} cell(s) (first: {where}, "
+        f"{name} = {np.array2string(np.atleast_1d(val), precision=6)}) at {when}: {cause}; the field is not "
+        f"passed to the particles. Check log.thermoDemFoam; {advice}",
+        peer="CFD solver", step=step)
 
 
 def _share_failure(R, e):
@@ -624,7 +763,7 @@ def cmd_check(args) -> int:
                                   model_type=case.model_type, eps_min=cfg.eps_min,
                                   n_satellites=cfg.n_satellites, heat=cfg.heat)
         eps0 = iface.initial_void_fraction()
-        rep = check_coupled_case(case, mesh, eps0=eps0)
+        rep = check_coupled_case(case, mesh, eps0=eps0, clip=dict(iface.clip))
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     print(format_report(case, rep))

@@ -141,11 +141,13 @@ def gk_adaptive(kind, a, b, p, epsrel=1e-11, epsabs=0.0, maxint=400):
     """
     if not (b > a):
         return 0.0
+    v, e = _gk15(kind, a, b, p)
+    if e <= max(epsabs, epsrel * abs(v)) or maxint <= 1:
+        return v  # one panel is enough: return before allocating the work arrays
     lo = np.empty(maxint)
     hi = np.empty(maxint)
     val = np.empty(maxint)
     err = np.empty(maxint)
-    v, e = _gk15(kind, a, b, p)
     lo[0] = a
     hi[0] = b
     val[0] = v

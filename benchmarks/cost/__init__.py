@@ -1,0 +1,1 @@
+"""What each heat-transfer mechanism costs on the shared settled bed (see run.py)."""
