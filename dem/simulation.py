@@ -341,12 +341,20 @@ class Simulation:
             st.n, st.position, st.velocity, st.angular_velocity, st.radius, st.mass, st.material,
             st.force, st.torque, self._fext(), self.nb, self.nnb, self.hist, self.rhist,
             self.wf, self.wi, self.wnb, self.wnn, self.whist, self.wrhist, self.tab, self.ip, self.fp,
-            self.lo, self.hi, self.periodic, self.time, self.age, self.Hd, self.Hi, self.rnear, self.TH)
+            self.lo, self.hi, self.periodic, self.time, self.age, self.Hd, self.Hi, self.rnear, self.TH,
+            self._hon)
         if self.thermal is not None:
             self.thermal.tot[:], self.thermal.wtot[:] = saved
         self._nc2 = nc
         self.last_contacts = nc // 2
         return maxov
+
+    @property
+    def _hon(self):
+        """The kernels' heat switch as a type: True with a [thermal] section, None without, so
+        that Numba compiles a mechanics-only specialisation with the heat code removed
+        (docs/benchmarks.md, "Cost of each mechanism": a run-time flag alone cost ~5 %)."""
+        return True if self.thermal is not None else None
 
     def _fext(self):
         f = getattr(self, "external_force", None)
@@ -364,7 +372,7 @@ class Simulation:
                         st.material, st.force, st.torque, self._fext(), st.x_build,
                         self.nb, self.nnb, self.hist, self.rhist, self.age, self.wf, self.wi,
                         self.wnb, self.wnn, self.whist, self.wrhist, self.tab, self.ip, self.fp, self.lo, self.hi,
-                        self.periodic, self.Hd, self.Hi, self.rnear, self.TH)
+                        self.periodic, self.Hd, self.Hi, self.rnear, self.TH, self._hon)
         done, status, who, other, value, nc, nreb = res[:7]
         self.nb, self.nnb, self.hist, self.rhist, self.age, self.Hd, self.Hi, self.rnear = res[7:15]
         self.step_count += done
@@ -501,7 +509,7 @@ class Simulation:
                     st.n, st.position, st.velocity, st.angular_velocity, st.radius, st.mass, st.material,
                     st.force, st.torque, self._fext(), self.nb, self.nnb, self.hist, self.rhist,
                     self.wf, self.wi, self.wnb, self.wnn, self.whist, self.wrhist, self.tab, self.ip, fp,
-                    self.lo, self.hi, self.periodic, t, self.age, self.Hd, self.Hi, self.rnear, TH)
+                    self.lo, self.hi, self.periodic, t, self.age, self.Hd, self.Hi, self.rnear, TH, self._hon)
                 self._nc2 = nc
                 bad = K.kick(st.n_owned, st.velocity, st.angular_velocity, st.force, st.torque, st.inv_mass,
                              st.inv_inertia, dt)

@@ -116,15 +116,16 @@ def _rotate_history(h, i, s, nx, ny, nz):
 @njit(cache=True, error_model="numpy", fastmath={"nsz", "arcp", "contract", "afn", "reassoc"})
 def compute_forces(n, x, v, w, r, m, mat, f, tq, fext, nb, nnb, hist, rhist,
                    wf, wi, wnb, wnn, whist, wrhist, tab, ip, fp, lo, hi, periodic, t,
-                   age, Hd, Hi, rnear, TH):
+                   age, Hd, Hi, rnear, TH, hon):
     """Contact + wall + body forces, and (when heat is on) the conductances of every
     neighbour slot and wall candidate for the heat step: Hd, Hi, Hw, the radiation
     neighbour flags and the friction heat. Returns (max overlap ratio, i, j (-1-wall),
-    2 x contacts): rows >= ip[I_NOWN] are ghosts (copies of another rank's particles, no
-    pairs of their own); a pair with a ghost is computed on both ranks, so it counts 1 (of 2)
+    2 x contacts). ``hon``: True with heat, None without (a type, so that the mechanics-only
+    specialisation is compiled without the heat code). Rows >= ip[I_NOWN] are ghosts
+    (copies of another rank's particles, no pairs of their own); a pair with a ghost is computed on both ranks, so it counts 1 (of 2)
     and half its exchanged heat goes into the totals here."""
     thi = TH[H_THI]
-    heat = thi[TI_HEAT] != 0
+    heat = hon is not None and thi[TI_HEAT] != 0
     dmodel = thi[TI_DIRECT]
     crm = thi[TI_CR]
     crc = thi[TI_CORR]
@@ -570,7 +571,7 @@ def kick(n, v, w, f, tq, inv_m, inv_i, dt):
 @njit(cache=True, error_model="numpy")
 def advance(nsteps, t0, n, x, v, w, r, m, inv_m, inv_i, mat, f, tq, fext, xb,
             nb, nnb, hist, rhist, age, wf, wi, wnb, wnn, whist, wrhist, tab, ip, fp, lo, hi, periodic,
-            Hd, Hi, rnear, TH):
+            Hd, Hi, rnear, TH, hon):
     """Advance ``nsteps`` steps from time t0 (f, tq hold the forces at t0).
 
     Mechanics on: velocity Verlet, neighbour rebuilds, then (with heat) one heat step on
@@ -587,7 +588,7 @@ def advance(nsteps, t0, n, x, v, w, r, m, inv_m, inv_i, mat, f, tq, fext, xb,
     nwalls = ip[I_NWALLS]
     mech = ip[I_MECH] != 0
     thi = TH[H_THI]
-    heat = thi[TI_HEAT] != 0
+    heat = hon is not None and thi[TI_HEAT] != 0
     local_por = thi[TI_LOCALPOR] == 1
     for step in range(nsteps):
         t = t0 + (step + 1) * dt
@@ -614,7 +615,7 @@ def advance(nsteps, t0, n, x, v, w, r, m, inv_m, inv_i, mat, f, tq, fext, xb,
             maxov, wi_, wj_, ncont = compute_forces(
                 n, x, v, w, r, m, mat, f, tq, fext, nb, nnb, hist, rhist,
                 wf, wi, wnb, wnn, whist, wrhist, tab, ip, fp, lo, hi, periodic, t,
-                age, Hd, Hi, rnear, TH)
+                age, Hd, Hi, rnear, TH, hon)
             bad = kick(n, v, w, f, tq, inv_m, inv_i, dt)
             if bad >= 0:
                 return (step + 1, NONFINITE, bad, -1, 0.0, ncont, nreb, nb, nnb, hist, rhist, age, Hd, Hi, rnear)
