@@ -348,9 +348,9 @@ def test_surrounding_layer_upper_radius_bounded_by_smaller_sphere():
     H = th.pair_conductance("musser_2011_surrounding_layer", Ri=Ri, Rj=Rj, d=d, kf=KF, layer=layer, cutoff=10,
                             quadrature_tolerance=1e-12)
     assert H == pytest.approx(_sl_ref(Ri, Rj, d, 0.0, layer, 2.75e-8), rel=RTOL)
-    # the default tolerance (1e-6, chosen in docs/benchmarks.md) stays within 1e-6 of it
+    # the default tolerance (1e-4, chosen in docs/benchmarks.md) stays within it
     Hd = th.pair_conductance("musser_2011_surrounding_layer", Ri=Ri, Rj=Rj, d=d, kf=KF, layer=layer, cutoff=10)
-    assert Hd == pytest.approx(H, rel=1e-6)
+    assert Hd == pytest.approx(H, rel=1e-4)
     # touching equal spheres: the layer of j reaches the equator of i (at distance sqrt(5) R
     # from the centre of j) for delta >= (sqrt5 - 1) R
     assert ind.surrounding_layer_upper_radius(R, R, 2 * R, math.sqrt(5) - 1 + 1e-9) == R
@@ -587,7 +587,7 @@ def test_quadrature_tolerance_scene_key(tmp_path):
     with pytest.raises(SceneError, match="thermal.quadrature_tolerance"):
         Simulation.from_dict(sc)
     del sc["thermal"]["quadrature_tolerance"]
-    assert Simulation.from_dict(sc).thermal.gas[reg.QUAD_TOL] == 1e-6
+    assert Simulation.from_dict(sc).thermal.gas[reg.QUAD_TOL] == 1e-4
 
 
 def _pressed_pair(thermal, real=None):

@@ -34,7 +34,7 @@ from .registry import (ACCOM, CORE_RATIO, CUTOFF, FILL_ANGLE, GAMMA_RATIO, INDIR
                        INDIRECT_MUSSER, INDIRECT_RONG_HORIO, INDIRECT_VARGAS_MCCARTHY, K_COND, K_LIQ, KF,
                        LAYER, MEAN_FREE_PATH, MIN_SEP, PR, QUAD_TOL)
 
-EPSREL = 1e-6  # default quadrature tolerance of the pure model functions (scene: quadrature_tolerance)
+EPSREL = 1e-4  # default quadrature tolerance of the pure model functions (scene: quadrature_tolerance)
 
 
 # ----------------------------------------------------------------- Zhou 2009 estimates

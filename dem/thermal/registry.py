@@ -127,7 +127,7 @@ GAS_KEYS = {
     # numerical: relative tolerance of the adaptive Gauss-Kronrod quadrature of the integral
     # indirect models (Voronoi A, surrounding layer); default chosen from the work-precision
     # sweep of benchmarks/accuracy (docs/benchmarks.md, "Quadrature tolerance")
-    "quadrature_tolerance": (QUAD_TOL, 1e-6, (1e-14, 0.1), "-",
+    "quadrature_tolerance": (QUAD_TOL, 1e-4, (1e-14, 0.1), "-",
                              "relative tolerance of the integral indirect models' quadrature"),
 }
 

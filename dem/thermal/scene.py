@@ -10,7 +10,7 @@
     direct_factor = 1.0                  # multiplies the direct conductance
     indirect = "none"                    # voronoi_a, voronoi_b, surrounding_layer, ...
     porosity = "local"                   # local | global | voronoi (true tessellation, scipy)
-    quadrature_tolerance = 1e-6          # relative tolerance of the integral indirect models
+    quadrature_tolerance = 1e-4          # relative tolerance of the integral indirect models
     convection = "none"                  # ranz_marshall | whitaker | gunn | li_mason
     radiation = "none"                   # zhou_2009 | krause_2017
     friction_heat = "none"               # nguyen_2009 | rojek_2014 | impact_heat
