@@ -13,7 +13,7 @@ Runs, each as its own process (a failure is reported and the others still run):
 
 Each writes its section of docs/benchmarks.md (and its plots) unless --no-docs. Full run:
 about 15 minutes on the project's 2-core machine (856 s measured; each part's time is printed at the end);
---quick about 6 minutes. Logs: out/benchmarks/<name>.log. Exit status: 0 when every part
+--quick 3 minutes (172 s measured). Logs: out/benchmarks/<name>.log. Exit status: 0 when every part
 succeeded, 1 otherwise (a part exits 1 when, e.g., a stability run leaves NaN in its state).
 """
 import argparse
