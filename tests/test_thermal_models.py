@@ -553,9 +553,9 @@ def test_erfcinv():
 @pytest.mark.parametrize("model", ["voronoi_a", "gan_2016_voronoi_a", "musser_2011_surrounding_layer",
                                    "rong_horio_1999_surrounding_layer"])
 def test_quadrature_tolerance_bounds_the_integral_models(model):
-    """The relative quadrature tolerance controls the error of the integral indirect models:
+    """The relative quadrature tolerance bounds the error of the integral indirect models:
     near contact (the hardest integrand) each tolerance's result is within that tolerance of
-    a 1e-13 evaluation, and a coarse tolerance really changes the result of the layer models."""
+    a 1e-13 evaluation."""
     R = 1e-3
     kw = dict(Ri=R, Rj=(1.3 * R if model.startswith("gan") else R), d=2 * R - 2e-6, ki=1.0, kj=1.0, kf=KF,
               porosity=0.4)
@@ -564,8 +564,6 @@ def test_quadrature_tolerance_bounds_the_integral_models(model):
     for tol in (1e-2, 1e-4, 1e-6, 1e-9):
         H = th.pair_conductance(model, quadrature_tolerance=tol, **kw)
         assert abs(H / ref - 1) <= tol, (tol, H / ref - 1)
-    if "layer" in model:
-        assert th.pair_conductance(model, quadrature_tolerance=1e-2, **kw) != ref
 
 
 def test_quadrature_tolerance_scene_key(tmp_path):
