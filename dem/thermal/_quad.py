@@ -46,6 +46,7 @@ _WG = np.array([
 KIND_VORONOI_A_PP = 0
 KIND_VORONOI_A_PW = 1
 KIND_SURR_LAYER_PP = 2
+KIND_SURR_LAYER_PW = 3
 
 TWO_PI = 2.0 * math.pi
 
@@ -64,15 +65,10 @@ def integrand(kind, r, p):
         2 pi r / [ (b_i - D_i r/rc_i)/k_i + (b_j - D_j r/rc_j)/k_j + (d - b_i - b_j)/k_f ]
     kind 1 (Voronoi A, particle-wall), p = (kp, kf, d, R, rij, ...):
         2 pi r / [ (b - d r/rij)/k_p + (d - b)/k_f ]
-    kind 2 (surrounding layer, particle-particle, where the gap exceeds S), p = (d, Ri, Rj, ...),
-        in the variable w = ln g of the gap g = d - b_i - b_j instead of r:
-        int 2 pi r dr / g = pi int du / g (u = r^2) = pi int (du/dg) dw, and with
-        D = d - g, b_i = (D + (Ri^2 - Rj^2)/D)/2, b_j = (D - (Ri^2 - Rj^2)/D)/2 (the
-        intersection circle of the spheres brought to centre distance D, so u(g) is
-        closed-form) du/dg = 2 b_i b_j / D: the integrand returned is 2 b_i b_j / D
-        (times pi k_f by the caller). In r the integrand 1/g spans orders of magnitude
-        near contact (g ~ S = 27.5 nm against a radius); in ln g it is a smooth rational
-        function of g, so one or two G7-K15 panels reach 1e-10.
+    kind 2 (surrounding layer, particle-particle), p = (kf, d, Ri, Rj, S, ...):
+        k_f 2 pi r / max(S, d - b_i - b_j)
+    kind 3 (surrounding layer, particle-wall), p = (kf, d, R, S, ...):
+        k_f 2 pi r / max(S, d - b)
     with b = sqrt(R^2 - r^2). Path lengths are clipped at 0 (an overlapped
     fluid path contributes no resistance).
     """
@@ -100,15 +96,21 @@ def integrand(kind, r, p):
         if res <= 0.0:
             return 0.0
         return TWO_PI * r / res
-    else:  # KIND_SURR_LAYER_PP, r holds w = ln(gap)
-        d = p[0]
-        Ri = p[1]
-        Rj = p[2]
-        D = d - math.exp(r)
-        q = (Ri * Ri - Rj * Rj) / D
-        bi = max(0.5 * (D + q), 0.0)
-        bj = max(0.5 * (D - q), 0.0)
-        return 2.0 * bi * bj / D
+    elif kind == KIND_SURR_LAYER_PP:
+        kf = p[0]
+        d = p[1]
+        Ri = p[2]
+        Rj = p[3]
+        S = p[4]
+        gap = d - _sqrt_pos(Ri * Ri - r * r) - _sqrt_pos(Rj * Rj - r * r)
+        return kf * TWO_PI * r / max(S, gap)
+    else:
+        kf = p[0]
+        d = p[1]
+        R = p[2]
+        S = p[3]
+        gap = d - _sqrt_pos(R * R - r * r)
+        return kf * TWO_PI * r / max(S, gap)
 
 
 @numba.njit(cache=True, error_model="numpy")

@@ -26,7 +26,8 @@ import math
 
 import numba
 
-from ._quad import (KIND_SURR_LAYER_PP, KIND_VORONOI_A_PP, KIND_VORONOI_A_PW, gk_adaptive)
+from ._quad import KIND_VORONOI_A_PP, KIND_VORONOI_A_PW, gk_adaptive
+from ._surrounding_layer import surrounding_layer_log
 from .contact_radius import geometric_pp, geometric_pw
 from .direct import gas_parameter_m, series_conductivity
 from .registry import (ACCOM, CORE_RATIO, CUTOFF, FILL_ANGLE, GAMMA_RATIO, INDIRECT_CHEN_VORONOI_B,
@@ -241,12 +242,11 @@ def _surrounding_layer_pp(Ri, Rj, d, r_low, kf, layer, S, tol):
         H += kf * math.pi * (rS * rS - r_low * r_low) / S  # gap <= S: uniform layer S
     a = max(r_low, rS)
     if Rf > a:
-        # gap >= S on [a, R_f]: integrate in ln(gap) (smooth; see _quad.integrand kind 2)
+        # gap >= S on [a, R_f]: integrate in ln(gap), where the integrand is smooth
         ga = max(d - math.sqrt(max(Ri * Ri - a * a, 0.0)) - math.sqrt(max(Rj * Rj - a * a, 0.0)), S)
         gf = d - math.sqrt(max(Ri * Ri - Rf * Rf, 0.0)) - math.sqrt(max(Rj * Rj - Rf * Rf, 0.0))
         if gf > ga:
-            p = (d, Ri, Rj, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
-            H += kf * math.pi * gk_adaptive(KIND_SURR_LAYER_PP, math.log(ga), math.log(gf), p, tol)
+            H += kf * math.pi * surrounding_layer_log(math.log(ga), math.log(gf), d, Ri, Rj, tol)
     return H
 
 
@@ -260,8 +260,9 @@ def musser_2011_surrounding_layer(Ri, Rj, d, r_low, kf, layer, S, tol=EPSREL):
     sphere, bounded by the smaller sphere), S = minimum conduction distance.
     Evaluated as k_f pi (r_S^2 - Rc^2)/S over the part where the gap is < S
     (r_S in closed form) plus adaptive Gauss-Kronrod quadrature of the rest in the
-    variable ln(gap), where the integrand is smooth (exact change of variables; see
-    _quad.integrand kind 2): one 15-point panel gives ~1e-15.
+    variable w = ln(gap), where the integrand is smooth (exact change of variables:
+    u = r^2, du/dgap = 2 b_i b_j / (d - gap), see _surrounding_layer.py): one
+    15-point panel gives ~1e-15.
     """
     return _surrounding_layer_pp(Ri, Rj, d, r_low, kf, layer, S, tol)
 
