@@ -28,7 +28,7 @@ def cmd_check(args):
     p(f"Hertz collision time at {rep['characteristic_velocity']:.3g} m/s: {rep['hertz_time']:.4g} s  "
       f"(dt / t_H = {rep['dt_over_hertz']:.3g}, allowed <= 0.1); impact overlap "
       f"{rep['impact_overlap_ratio']:.3g} of the radius")
-    if rep.get("dt_over_hertz", 0.0) > ACCURATE_HERTZ_FRACTION and rep.get("mechanics", True):
+    if rep["mechanics"] and rep["dt_over_hertz"] > ACCURATE_HERTZ_FRACTION:
         p(f"accuracy: impacts at {rep['characteristic_velocity']:.3g} m/s resolve restitution and contact time to "
           f"1 % for dt <= {ACCURATE_HERTZ_FRACTION} t_H = {ACCURATE_HERTZ_FRACTION * rep['hertz_time']:.3g} s "
           f"(at 0.1 t_H: about 3.6 %; docs/benchmarks.md, Hertz binary impact)")

@@ -122,8 +122,9 @@ def compute_forces(n, x, v, w, r, m, mat, f, tq, fext, nb, nnb, hist, rhist,
     neighbour flags and the friction heat. Returns (max overlap ratio, i, j (-1-wall),
     2 x contacts). ``hon``: True with heat, None without (a type, so that the mechanics-only
     specialisation is compiled without the heat code). Rows >= ip[I_NOWN] are ghosts
-    (copies of another rank's particles, no pairs of their own); a pair with a ghost is computed on both ranks, so it counts 1 (of 2)
-    and half its exchanged heat goes into the totals here."""
+    (copies of another rank's particles, no pairs of their own); a pair with a ghost is
+    computed on both ranks, so it counts 1 (of 2) and half its exchanged heat goes into the
+    totals here."""
     thi = TH[H_THI]
     heat = hon is not None and thi[TI_HEAT] != 0
     dmodel = thi[TI_DIRECT]

@@ -16,23 +16,18 @@ from __future__ import annotations
 
 import math
 import re
-import shutil
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[2]
-CASES = ROOT / "openfoam_cases"
 
 
 # ----------------------------------------------------------------------------- case editing
 def copy_case(name: str, dest: Path) -> Path:
-    if dest.exists():
-        shutil.rmtree(dest)
-    shutil.copytree(CASES / name, dest, ignore=shutil.ignore_patterns("README.md"))
-    return dest
+    from coupling import foam_case as fc
+    return fc.copy_template(name, dest, overwrite=True)
 
 
 def set_toml(path: Path, section: str, **entries):
@@ -130,7 +125,8 @@ def _schumann_errors(out: Path, dt: float):
     """Max gas error over the bed cells and written times, and the solid error of every
     particle at the end, both in units of Tin - T0 (Schumann 1929 with the run's h a)."""
     import tomllib
-    from benchmarks.schumann_packed_bed import BED_HEIGHT, CP as CPG, RHO as RHOG, T0, TIN, U_S, schumann
+    from benchmarks.schumann_packed_bed import (BED_HEIGHT, CP as CPG, RHO as RHOG, T0, TIN, U_S,
+                                                ranz_marshall_ha, schumann)
     from coupling import foam_case as fc
     C = fc.read_cell_centres(out)
     n = len(C)
@@ -140,10 +136,7 @@ def _schumann_errors(out: Path, dt: float):
     rho_s_cs = float(mat["density"]) * float(mat["heat_capacity"])
     eps = 1 - math.pi / 6
     fin = np.load(out / "final.npz")
-    # h a of the bed: Ranz-Marshall with the case's superficial velocity (as the DEM uses it)
-    d = 4e-3
-    re_ = RHOG * U_S * d / MU
-    ha = (2 + 0.6 * math.sqrt(re_) * (MU * CPG / K) ** (1 / 3)) * K / d * 6 * (1 - eps) / d
+    ha = ranz_marshall_ha(eps)   # h a of the bed, as the DEM computes it
     tau_s = (1 - eps) * rho_s_cs / ha
     err_g = 0.0
     times = []
