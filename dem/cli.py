@@ -57,6 +57,8 @@ def cmd_check(args):
 def cmd_run(args):
     from .simulation import SimulationError  # noqa: F401
     sim = _load(args.scene)
+    if args.restart is not None:
+        sim.prepare_restart(args.restart)  # a bad checkpoint or a refused scene edit: exit 2 now
     sim.check()
     out = args.out or os.path.join("out", os.path.splitext(os.path.basename(args.scene))[0])
     t0 = time.perf_counter()

@@ -781,42 +781,80 @@ class Simulation:
         return {k: np.ascontiguousarray(v[order]) for k, v in out.items()}
 
     def write_checkpoint(self, path):
+        """Write a checkpoint (collective): the arrays of :meth:`checkpoint_arrays` with a
+        format version, the scene's record and a checksum (dem.checkpoint)."""
+        from . import checkpoint as ckpt
         arr = self.checkpoint_arrays()
         if arr is not None:
-            save_npz(path, **arr)
+            ckpt.write(path, arr, ckpt.scene_record(self))
+
+    def prepare_restart(self, path):
+        """Read and verify a checkpoint and plan the restart with this scene: raises
+        dem.scene.SceneError (bad file, or a refused scene edit) before any output is
+        written or any kernel compiled. :meth:`load_checkpoint` uses the result."""
+        from . import checkpoint as ckpt
+        arrays, record = ckpt.read(path)
+        ckpt.validate(path, arrays, record)
+        plan = ckpt.plan_restart(self, path, arrays, record)
+        self._restart_ready = (os.fspath(path), arrays, record, plan)
+        return plan
 
     def load_checkpoint(self, path):
-        try:
-            z = np.load(path)
-        except Exception as exc:  # noqa: BLE001
-            raise SimulationError(f"{path}: cannot read checkpoint: {exc}") from None
-        with z:
-            if float(z["dt"]) != self.dt:
-                raise SimulationError(f"{path}: checkpoint was written with time_step {float(z['dt'])}, "
-                                      f"the scene has {self.dt}; restart with the same time_step")
-            st = self.state
-            total = self.n_particles
-            if int(z["state_id"].size) != total:
-                raise SimulationError(f"{path}: checkpoint holds {z['state_id'].size} particles, "
-                                      f"the scene {total}")
-            ranks = int(z["ranks"]) if "ranks" in z.files else 1
-            if self.par is not None or ranks != 1 or "nb" not in z.files:
-                self._load_portable(path, z)
-                return
-            for k in st.fields():
-                key = f"state_{k}"
-                if key not in z.files:
-                    raise SimulationError(f"{path}: checkpoint lacks {k!r} (thermal settings changed?)")
-                setattr(st, k, np.ascontiguousarray(z[key]))
-            for k in ("nb", "nnb", "hist", "rhist", "age", "whist", "wrhist", "wnb", "wnn", "Hd", "Hi", "rnear"):
-                setattr(self, k, np.ascontiguousarray(z[k]))
-            self.fp[K.F_TBUILD] = float(z["fp_tbuild"])
-            self.step_count = int(z["step_count"])
-            self.time = self.step_count * self.dt
-            self._forces_ready = bool(z["forces_ready"])
-            if self.thermal is not None:
-                self.thermal.load_checkpoint(z)
-                self.TH = self.thermal.th_tuple()
+        """Continue from a checkpoint. Unchanged scene: the serial layout restarts
+        bit-exact. Edited scene: the changes of dem.checkpoint.plan_restart are applied to
+        the checkpoint's arrays and listed on stdout ("restart: applied ...")."""
+        from . import checkpoint as ckpt
+        ready = getattr(self, "_restart_ready", None)
+        if ready is None or ready[0] != os.fspath(path):
+            self.prepare_restart(path)
+            ready = self._restart_ready
+        self._restart_ready = None
+        _, arrays, record, plan = ready
+        ckpt.apply_edits(arrays, plan, self)
+        z = ckpt.ArrayView(arrays)
+        if self.par is not None or int(z["ranks"]) != 1 or "nb" not in z.files or plan.rebuild:
+            self._load_portable(path, z)
+        else:
+            self._load_serial(z)
+        if plan.recompute_forces:
+            self._recompute_forces_keeping_history()
+        self.restart_changes = plan.applied
+        if self.is_root:
+            for line in plan.applied:
+                print(f"restart: applied {line}", flush=True)
+
+    def _load_serial(self, z):
+        """The serial layout: every array as written (bit-exact continuation)."""
+        st = self.state
+        for k in st.fields():
+            setattr(st, k, np.ascontiguousarray(z[f"state_{k}"]))
+        for k in ("nb", "nnb", "hist", "rhist", "age", "whist", "wrhist", "wnb", "wnn", "Hd", "Hi", "rnear"):
+            setattr(self, k, np.ascontiguousarray(z[k]))
+        self.fp[K.F_TBUILD] = float(z["fp_tbuild"])
+        self.step_count = int(z["step_count"])
+        self.time = self.step_count * self.dt
+        self._forces_ready = bool(z["forces_ready"])
+        if self.thermal is not None:
+            self.thermal.load_checkpoint(z)
+            self.TH = self.thermal.th_tuple()
+
+    def _recompute_forces_keeping_history(self):
+        """Forces at the restart time with the edited physics (masses, tables, walls,
+        gravity); the contact springs, ages and temperatures stay as in the checkpoint so
+        that the next step increments them once, as an uninterrupted run does."""
+        if self.par is not None:  # the parallel loop computes them before its first step
+            self._forces_ready = False
+            return
+        keep = [a.copy() for a in (self.hist, self.rhist, self.whist, self.wrhist, self.age)]
+        st = self.state
+        th = self.thermal
+        if th is not None:
+            tkeep = (st.temperature.copy(), st.heat_rate.copy())
+        self._compute_forces()
+        self.hist[...], self.rhist[...], self.whist[...], self.wrhist[...], self.age[...] = keep
+        if th is not None:
+            st.temperature[:], st.heat_rate[:] = tkeep
+        self._forces_ready = True
 
     def _load_portable(self, path, z):
         """Continue from a checkpoint written on any number of ranks: per-particle arrays by
