@@ -1,6 +1,7 @@
 """Writers: VTK (.vtu via meshio) + a ParaView .pvd series, history.csv, final.npz and
 atomic checkpoints. Every file is written to a temporary name in the same folder and
 renamed, so a reader (or a crash) never sees half a file and nothing written is lost."""
+import math
 import os
 import tempfile
 
@@ -73,8 +74,10 @@ class History:
             data = np.genfromtxt(path, delimiter=",", names=True)
             if data.size:
                 data = np.atleast_1d(data)
-                if list(data.dtype.names) == columns:
-                    self.rows = [list(r) for r in data if r[0] <= keep_until + 1e-15]
+                # by column name: a restart that added a wall adds its E_wall_ column (empty before)
+                names = list(data.dtype.names)
+                self.rows = [[float(r[c]) if c in names else math.nan for c in columns]
+                             for r in data if r[0] <= keep_until + 1e-15]
 
     def add(self, values):
         self.rows.append([float(values[c]) for c in self.columns])

@@ -841,10 +841,8 @@ class Simulation:
     def _recompute_forces_keeping_history(self):
         """Forces at the restart time with the edited physics (masses, tables, walls,
         gravity); the contact springs, ages and temperatures stay as in the checkpoint so
-        that the next step increments them once, as an uninterrupted run does."""
-        if self.par is not None:  # the parallel loop computes them before its first step
-            self._forces_ready = False
-            return
+        that the next step increments them once, as an uninterrupted run does (collective
+        in a parallel run: the ghosts were exchanged by the loader)."""
         keep = [a.copy() for a in (self.hist, self.rhist, self.whist, self.wrhist, self.age)]
         st = self.state
         th = self.thermal

@@ -259,3 +259,33 @@ def test_unedited_restart_prints_no_change(base):
     d, sc, ck = base
     r = ok(dem(sc, "--out", str(d / "o_same"), "--restart", str(ck)))
     assert "restart:" not in r.stdout
+
+
+def thermal_scene(wall_temperature, integrator="euler"):
+    """One bead resting on a floor held at a fixed temperature; a fast conductor (tau = C / H
+    about 0.2 ms) so that it takes the wall temperature within the run."""
+    mat = GLASS + "thermal_conductivity = 1000.0\nheat_capacity = 1.0\n"
+    floor = FLOOR + f'thermal = {{ condition = "fixed_temperature", temperature = {wall_temperature} }}\n'
+    return scene_text(materials=mat, walls=floor, positions="[[0.0, 0.0, 0.001]]") + f"""
+[thermal]
+direct = "batchelor_obrien"
+initial_temperature = 300.0
+integrator = "{integrator}"
+"""
+
+
+def test_wall_temperature_edit_is_applied_and_model_change_refused(tmp_path):
+    sc = write(tmp_path / "hot.toml", thermal_scene(400.0))
+    ok(dem(sc, "--out", str(tmp_path / "out"), "--end-time", "0.02"))
+    ck = tmp_path / "out" / "checkpoint.npz"
+    assert np.load(tmp_path / "out" / "final.npz")["temperature"][0] == pytest.approx(400.0, abs=0.5)
+    hotter = write(tmp_path / "hotter.toml", thermal_scene(500.0))
+    r = ok(dem(hotter, "--out", str(tmp_path / "out"), "--restart", str(ck)))
+    assert "restart: applied walls[floor].thermal.temperature 400 -> 500" in r.stdout
+    # the bead follows the new wall temperature (it could not pass 400 K otherwise)
+    assert np.load(tmp_path / "out" / "final.npz")["temperature"][0] == pytest.approx(500.0, abs=0.5)
+    h = np.genfromtxt(tmp_path / "out" / "history.csv", delimiter=",", names=True)
+    assert np.all(np.diff(h["time"]) > 0) and h["time"][0] == 0.0 and h["time"][-1] == pytest.approx(0.04)
+    expo = write(tmp_path / "expo.toml", thermal_scene(400.0, integrator="exponential"))
+    refused(dem(expo, "--out", str(tmp_path / "o2"), "--restart", str(ck)), "thermal.integrator",
+            "'euler'", "'exponential'")
