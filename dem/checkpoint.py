@@ -419,7 +419,7 @@ def plan_restart(sim, ck_path, arrays, record):
     _plan_contact(sim, ck_path, record, now, plan)
     _plan_materials(sim, ck_path, arrays, record, now, plan)
     _plan_particles(sim, ck_path, record, now)
-    _plan_walls(sim, ck_path, record, now, plan)
+    _plan_walls(sim, ck_path, arrays, record, now, plan)
     _plan_thermal(sim, ck_path, record, now, plan)
     for sec in ("output", "parallel"):
         for k, new in now[sec].items():
@@ -435,12 +435,12 @@ def _plan_particles(sim, ck_path, record, now):
     labels = dict(ids="particle ids", radius="radii", material="materials of the particles",
                   position="initial positions", velocity="initial velocities",
                   angular_velocity="initial angular velocities", group="particle groups",
-                  temperature="initial temperatures")
+                  temperature="initial temperatures (thermal.initial_temperature, initial_regions or "
+                              "particles[].temperature)")
     old, new = record["particles"]["digests"], now["particles"]["digests"]
     for k in labels:
         if k in old and k in new and old[k] != new[k]:
-            key = "thermal.initial_temperature" if k == "temperature" else "particles"
-            raise SceneError(sim.scene.file, key,
+            raise SceneError(sim.scene.file, "particles",
                              f"the {labels[k]} differ from the scene that wrote the checkpoint {ck_path}; "
                              f"particle definitions are initial conditions and cannot change on restart "
                              f"(the checkpoint's particles continue). Restore them, or start a new run")
@@ -521,7 +521,7 @@ def _plan_materials(sim, ck_path, arrays, record, now, plan):
             plan.recompute_forces = True
 
 
-def _plan_walls(sim, ck_path, record, now, plan):
+def _plan_walls(sim, ck_path, arrays, record, now, plan):
     old_w, new_w = record["walls"], now["walls"]
     old_names = [w["name"] for w in old_w]
     new_names = [w["name"] for w in new_w]
@@ -565,10 +565,29 @@ def _plan_walls(sim, ck_path, record, now, plan):
         plan.applied.append("walls renumbered by name")
     for name in new_names:
         if name not in old_names:
+            _check_added_wall(sim, ck_path, arrays, record, new_index[name], name)
             plan.applied.append(f"walls[{name}] added ({len(new_w)} walls; wall lists rebuilt)")
     plan.wall_map = mapping
     plan.rebuild = True
     plan.recompute_forces = True
+
+
+def _check_added_wall(sim, ck_path, arrays, record, k, name):
+    """An added wall must not cut through the checkpoint's particles beyond the overlap
+    bound (the first step would stop the run): refused here, before anything is written."""
+    from .stats import max_overlap_ratio
+    x, r = arrays["state_position"], arrays["state_radius"]
+    n = r.shape[0]
+    wf = np.ascontiguousarray(sim.wf[k:k + 1])
+    wi = np.ascontiguousarray(sim.wi[k:k + 1])
+    ov = max_overlap_ratio(n, x, r, np.zeros((n, 1), np.int32), np.zeros(n, np.int32), sim.lo, sim.hi,
+                           sim.periodic, wf, wi, 1, float(record["time"]))
+    bound = sim.scene.simulation["max_overlap_ratio"]
+    if ov > bound:
+        raise SceneError(sim.scene.file, f"walls[{name}]",
+                         f"added, but at the checkpoint's time t = {record['time']:.6g} s it cuts through "
+                         f"particles (overlap up to {ov:.3g} of a radius, above simulation.max_overlap_ratio "
+                         f"= {bound:g}); place the new wall clear of the particles")
 
 
 def _plan_thermal(sim, ck_path, record, now, plan):

@@ -289,3 +289,13 @@ def test_wall_temperature_edit_is_applied_and_model_change_refused(tmp_path):
     expo = write(tmp_path / "expo.toml", thermal_scene(400.0, integrator="exponential"))
     refused(dem(expo, "--out", str(tmp_path / "o2"), "--restart", str(ck)), "thermal.integrator",
             "'euler'", "'exponential'")
+
+
+def test_added_wall_through_the_particles_is_refused(base):
+    """A wall added where the beads are (at half their radius) would stop the run at its
+    first step: refused before anything is written, naming the wall."""
+    d, sc, ck = base
+    cut = FLOOR.replace('"floor"', '"cut"').replace("point = [0.0, 0.0, 0.0]", f"point = [0.0, 0.0, {R / 2}]")
+    edited = write(d / "cut.toml", scene_text(walls=FLOOR + cut))
+    refused(dem(edited, "--out", str(d / "o_cut"), "--restart", str(ck)), "walls[cut]", "cuts through")
+    assert not (d / "o_cut").exists()
