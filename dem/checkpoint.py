@@ -84,17 +84,17 @@ def read(path):
     if os.path.getsize(path) == 0:
         raise CheckpointError(path, "checkpoint is empty (0 bytes): it was never completely written")
     try:
+        with open(path, "rb") as fh:
+            magic = fh.read(4)
+    except OSError as exc:
+        raise CheckpointError(path, f"cannot read the checkpoint: {exc.strerror or exc}") from None
+    if magic == b"\x93NUM":
+        raise CheckpointError(path, "not a checkpoint: a single .npy array, not an .npz archive")
+    if magic[:2] != b"PK":
+        raise CheckpointError(path, "not a checkpoint: not an .npz archive (text or another format)")
+    try:
         with np.load(path, allow_pickle=False) as z:
-            if not hasattr(z, "files"):
-                raise CheckpointError(path, "not a checkpoint: a single .npy array, not an .npz archive")
             arrays = {k: z[k] for k in z.files}
-    except CheckpointError:
-        raise
-    except ValueError as exc:
-        if "pickle" in str(exc):
-            raise CheckpointError(path, "not a checkpoint: not an .npz archive (text or another "
-                                        "format)") from None
-        raise CheckpointError(path, f"checkpoint is corrupted or truncated ({_short(exc)})") from None
     except Exception as exc:  # noqa: BLE001  (BadZipFile, EOFError, OSError, zlib errors ...)
         raise CheckpointError(path, f"checkpoint is corrupted or truncated, or not a checkpoint "
                                     f"({type(exc).__name__}: {_short(exc)})") from None

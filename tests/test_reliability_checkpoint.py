@@ -136,6 +136,15 @@ def _old_format(src, dst):
         np.savez(fh, **arrays)
 
 
+def _rewritten(src, dst):
+    """A valid archive whose positions were changed after writing (the stored checksum kept)."""
+    with np.load(src) as z:
+        arrays = {k: z[k] for k in z.files}
+    arrays["state_position"] = arrays["state_position"] + 1e-4
+    with open(dst, "wb") as fh:
+        np.savez(fh, **arrays)
+
+
 def _foreign(src, dst):
     with open(dst, "wb") as fh:
         np.savez(fh, a=np.arange(3.0), b=np.ones(2))
@@ -149,6 +158,7 @@ BAD = {
     "foreign_npz": (_foreign, "not a thermodem checkpoint"),
     "old_format": (_old_format, "earlier thermodem"),
     "short_array": (_forged_short_array, "'state_radius' has shape (2,)"),
+    "rewritten": (_rewritten, "does not match its sha256 checksum"),
 }
 
 
