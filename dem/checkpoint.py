@@ -607,7 +607,7 @@ def _plan_thermal(sim, ck_path, record, now, plan):
             plan.applied.append(f"thermal.{THERMAL_PARAM_KEYS.get(k, k)} {_fmt(old[k])} -> {_fmt(new[k])}")
     for k in sorted(set(old["gas"]) | set(new["gas"])):
         a, b = old["gas"].get(k), new["gas"].get(k)
-        if a == b:
+        if a == b or k == "velocity":  # the magnitude of gas_velocity, listed below
             continue
         note = ""
         if k == "temperature":
