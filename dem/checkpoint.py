@@ -24,7 +24,6 @@ checkpoint's arrays for the new scene, and the change is listed) or refused with
 """
 import hashlib
 import json
-import math
 import os
 
 import numpy as np
@@ -241,7 +240,8 @@ def validate(path, arrays, record):
     if "nb" in arrays:  # the serial, bit-exact layout: the neighbour list and its slots
         nb = arrays["nb"]
         if nb.dtype != I4 or nb.ndim != 2 or nb.shape[0] != N or nb.shape[1] < 1:
-            need("nb", I4, (N, "slots"))
+            raise CheckpointError(path, f"checkpoint is damaged: array 'nb' has shape {nb.shape} dtype "
+                                        f"{nb.dtype}, expected ({N}, slots) int32")
         S = nb.shape[1]
         nnb = need("nnb", I4, (N,))
         _check_slots(path, "nb", nb, nnb, N, S)
@@ -704,8 +704,3 @@ def _remap_walls(arrays, plan, sim):
     arrays["wnb"] = new
     arrays["wnn"] = np.ascontiguousarray(wnn, np.int32)
 
-
-def describe(path, record, arrays):
-    """One line: what the checkpoint holds (for messages)."""
-    t = record.get("time", math.nan)
-    return f"{path}: t = {t:.6g} s, {record['particles']['n']} particles, {len(record['walls'])} walls"
