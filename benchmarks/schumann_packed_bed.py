@@ -170,8 +170,8 @@ def main(argv=None):
           f"solid max {r['err_s']:.4f} rms {r['rms_s']:.4f}")
     fig = a.figure or (a.out / "schumann.png")
     if a.figure is None:   # into the output folder: recorded in its manifest, never over a user's file
-        from dem.outdir import check_file_target
-        check_file_target(fig, "the figure")
+        from dem.outdir import claim_file
+        claim_file(fig, "the figure")
     figure(r, d, fig)
     print(f"figure {fig}")
     return r

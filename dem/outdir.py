@@ -66,7 +66,14 @@ class _Folder:
             self.entries.add(name)
             self.save()
 
-    def save(self):
+    def save(self, merge=True):
+        """Write the manifest; ``merge``: keep entries another process (dem render beside a
+        running dem run) added since we read it."""
+        if merge:
+            try:
+                self.entries |= read_manifest(self.path) or set()
+            except OutputFolderError:
+                pass
         data = dict(tool="thermodem", format=FORMAT, command=self.command,
                     note=f"entries written by thermodem; '{TMP_PREFIX}*' are its temporary files. "
                          "--overwrite removes exactly these entries.",
@@ -215,7 +222,7 @@ def claim_folder(out, *, overwrite=False, restart=False, protect=(), keep=(), co
             listed = set()
         os.makedirs(out, exist_ok=True)
         folder = _Folder(real, listed, command)
-        folder.save()
+        folder.save(merge=False)
     except OSError as exc:
         raise OutputFolderError(f"{what} {out}: cannot prepare the output folder: {exc.strerror or exc}") from None
     _claimed[real] = folder
@@ -336,9 +343,11 @@ def png_is_ours(path):
         return False
 
 
-def check_file_target(path, what="--png"):
-    """A single output file (a rendered PNG) may be written when it does not exist, or the tool
-    wrote it (listed in its folder's manifest, or a PNG carrying our signature). Read-only."""
+def claim_file(path, what="--png"):
+    """A single output file (a rendered PNG, a figure) may be written when it does not exist,
+    or the tool wrote it (listed in its folder's manifest, or a PNG carrying our signature);
+    otherwise OutputFolderError. When allowed and its folder is an output folder, the file is
+    recorded in that folder's manifest (before it is written)."""
     if os.path.isdir(path):
         raise OutputFolderError(f"{what} {path} is a folder; give a file name ending in .png")
     folder = os.path.dirname(os.path.abspath(path)) or "."
@@ -347,14 +356,11 @@ def check_file_target(path, what="--png"):
         listed = read_manifest(folder) if os.path.isdir(folder) else None
     except OutputFolderError:
         pass
-    if listed is not None and os.access(folder, os.W_OK):
-        _open_existing(folder, listed)   # an output folder: the new file joins its manifest
     if not os.path.lexists(path):
         _check_creatable(path, what)
-        return
-    if listed is not None and os.path.basename(path) in listed:
-        return
-    if png_is_ours(path):
-        return
-    raise OutputFolderError(f"{what} {path} exists and was not written by this tool; it is left untouched: "
-                            "give a new file name with --png")
+    elif not ((listed is not None and os.path.basename(path) in listed) or png_is_ours(path)):
+        raise OutputFolderError(f"{what} {path} exists and was not written by this tool; it is left untouched: "
+                                "give a new file name with --png")
+    if listed is not None and os.access(folder, os.W_OK):
+        _open_existing(folder, listed)   # an output folder: the new file joins its manifest
+        claim(path)

@@ -1,25 +1,25 @@
 """Off-screen rendering of a run's last VTK output with pyvista (no display needed).
 
-The PNG never replaces a user's file (dem.outdir.check_file_target): it is written only
+The PNG never replaces a user's file (dem.outdir.claim_file): it is written only
 where nothing exists yet, or over a PNG the tool wrote (listed in the output folder's
 manifest, or carrying the tEXt "Software: thermodem" chunk every rendered PNG gets)."""
 import glob
 import os
 
-from .outdir import PNG_SOFTWARE, OutputFolderError, check_file_target
+from .outdir import PNG_SOFTWARE, OutputFolderError, claim_file
 from .output import atomic_write
 
 
 def render(out_dir, png=None, color=None):
     what = "--png" if png else "the PNG"
     png = png or os.path.join(out_dir, "render.png")
-    check_file_target(png, what)
-    import pyvista as pv
-    pv.OFF_SCREEN = True
     files = sorted(glob.glob(os.path.join(out_dir, "vtk", "*.vtu")))
     if not files:
         raise OutputFolderError(f"{out_dir}: no vtk/*.vtu output to render (is it the --out of a run with "
                                 f"output.vtk = true?)")
+    claim_file(png, what)   # refused before anything is drawn; recorded in an output folder's manifest
+    import pyvista as pv
+    pv.OFF_SCREEN = True
     mesh = pv.read(files[-1])
     if color is None:
         color = "temperature" if "temperature" in mesh.point_data else "velocity"
