@@ -1,10 +1,11 @@
 """``coupling`` command: check and run a coupled CFD-DEM case (DEM side + thermoDemFoam).
 
     coupling check CASE_DIR
-    coupling run   CASE_DIR [--out DIR] [--transport file|socket] [--end-time T] [--restart]
+    coupling run   CASE_DIR [--out DIR] [--transport file|socket] [--end-time T] [--restart | --overwrite]
 
 ``run`` copies the OpenFOAM part of CASE_DIR into the output directory (default
-``out/<case name>``), meshes it (blockMesh), writes the initial void fraction of the
+``out/<case name>``; new, empty or an earlier output of this tool, never the case folder nor
+inside it: dem.outdir), meshes it (blockMesh), writes the initial void fraction of the
 particles into 0/eps, decomposes it when ``gas_processes > 1``, builds the solver if
 needed (scripts/build_openfoam_solver.sh, cached), starts thermoDemFoam, runs the coupled
 loop (coupling.interface) and writes

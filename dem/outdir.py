@@ -87,6 +87,7 @@ class _Folder:
 
 
 _claimed: dict[str, _Folder] = {}
+_alias: dict[str, str] = {}      # a folder as given -> its real path (adopt_solver_entries, every step)
 
 
 def _real(path):
@@ -153,8 +154,8 @@ def check(out, *, overwrite=False, restart=False, protect=(), keep=(), what="--o
             raise OutputFolderError(f"{what} {out} {why}; nothing was touched. Choose a folder outside the case "
                                     f"(e.g. out/{os.path.basename(rp)})")
         if _inside(rp, real):
-            raise OutputFolderError(f"the case folder {p} is inside {what} {out}; choose an output folder that "
-                                    "does not contain the case")
+            raise OutputFolderError(f"the case folder {p} is inside {what} {out}; nothing was touched. Choose an "
+                                    "output folder that does not contain the case")
     if os.path.lexists(out) and not os.path.isdir(out):
         raise OutputFolderError(f"{what} {out} is a file, not a folder; choose a folder (it is created when new)")
     if not os.path.exists(out):
@@ -304,7 +305,11 @@ def is_solver_entry(name):
 def adopt_solver_entries(out):
     """Record the gas solver's entries that appeared in the claimed folder ``out`` (called every
     coupling step: one directory listing). Other new entries stay foreign."""
-    folder = _claimed.get(_real(out))
+    key = os.fspath(out)
+    real = _alias.get(key)
+    if real is None:
+        real = _alias[key] = _real(out)
+    folder = _claimed.get(real)
     if folder is None:
         return
     try:
