@@ -40,7 +40,9 @@ def main(argv=None):
     ap.add_argument("--skip", nargs="*", default=[], choices=list(PARTS), help="parts to leave out")
     a = ap.parse_args(argv)
     logs = os.path.join(ROOT, "out", "benchmarks")
-    os.makedirs(logs, exist_ok=True)
+    sys.path.insert(0, ROOT)
+    from dem import outdir   # replaces our earlier logs there, never a user's file
+    outdir.claim_folder(logs, overwrite=True, command="python -m benchmarks", what="log folder")
     env = dict(os.environ, PYTHONPATH=ROOT + os.pathsep + os.environ.get("PYTHONPATH", ""),
                PYTHONUNBUFFERED="1")
     results = []
@@ -55,6 +57,7 @@ def main(argv=None):
         args = [sys.executable] + cmd + (["--quick"] if a.quick else []) + (["--no-docs"] if a.no_docs else [])
         print(f"[benchmarks] {name}: {' '.join(args[1:])}", flush=True)
         t0 = time.perf_counter()
+        outdir.claim(os.path.join(logs, f"{name}.log"))
         with open(os.path.join(logs, f"{name}.log"), "w") as f:
             p = subprocess.Popen(args, cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
             for line in p.stdout:

@@ -37,8 +37,9 @@ COUPLING = ("locate", "void_fraction", "interpolation", "exchange_terms", "excha
 
 def run(transport, end_time, out):
     from coupling.run import run_case
+    # overwrite: replaces this benchmark's earlier output there, never anything else (dem.outdir)
     return run_case(ROOT / "openfoam_cases" / "fluidized_bed_heating", Path(out) / transport,
-                    transport=transport, end_time=end_time, quiet=True)
+                    transport=transport, end_time=end_time, quiet=True, overwrite=True)
 
 
 def table(results, end_time) -> str:

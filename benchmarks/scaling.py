@@ -25,7 +25,7 @@ def ours(size, heat, steps, ranks):
     scene = os.path.join(HERE, f"shared_bed{'_heat' if heat else ''}_{size}.toml")
     out = os.path.join("/tmp", f"scaling_{size}_{heat}_{ranks}")
     cmd = ["mpirun", "-np", str(ranks), sys.executable, "-m", "dem", "run", scene, "--end-time",
-           repr(steps * 1e-5), "--out", out, "--quiet"]
+           repr(steps * 1e-5), "--out", out, "--quiet", "--overwrite"]
     p = subprocess.run(cmd, capture_output=True, text=True, env=ENV)
     if p.returncode:
         raise SystemExit(p.stdout + p.stderr)

@@ -157,7 +157,7 @@ def main(argv=None):
     from coupling import foam_case as fc
     from coupling.run import run_case
     if not (a.reuse and (a.out / "final.npz").is_file()):
-        run_case(CASE, a.out, end_time=a.end_time, quiet=True)
+        run_case(CASE, a.out, end_time=a.end_time, quiet=True, overwrite=True)  # only our earlier output
     mat = tomllib.loads((a.out / "dem.toml").read_text())["materials"][0]
     rho_s_cs = float(mat["density"]) * float(mat["heat_capacity"])
     dt = float(fc.parse_foam_dict(a.out / "system" / "controlDict")["deltaT"])
@@ -169,6 +169,9 @@ def main(argv=None):
     print(f"error / (Tin - T0): gas max {r['err_g']:.4f} rms {r['rms_g']:.4f}; "
           f"solid max {r['err_s']:.4f} rms {r['rms_s']:.4f}")
     fig = a.figure or (a.out / "schumann.png")
+    if a.figure is None:   # into the output folder: recorded in its manifest, never over a user's file
+        from dem.outdir import claim_file
+        claim_file(fig, "the figure")
     figure(r, d, fig)
     print(f"figure {fig}")
     return r

@@ -105,16 +105,21 @@ def build_solver(force: bool = False) -> Path:
 
 
 def copy_template(name: str, dest: str | os.PathLike, *, overwrite: bool = False) -> Path:
-    """Copy ``openfoam_cases/<name>`` to ``dest``."""
+    """Copy ``openfoam_cases/<name>`` to ``dest``. ``overwrite``: ``dest`` may be an earlier
+    copy (its entries are replaced); a folder holding anything this tool did not write is
+    refused either way (dem.outdir.OutputFolderError)."""
+    from dem import outdir
     src = TEMPLATES / name
     if not (src / "system" / "controlDict").exists():
         raise CaseError(src, "not an OpenFOAM case template (no system/controlDict)")
     dest = Path(dest)
-    if dest.exists():
-        if not overwrite:
-            raise FileExistsError(dest)
-        shutil.rmtree(dest)
-    shutil.copytree(src, dest, ignore=shutil.ignore_patterns("README.md"))
+    if dest.exists() and not overwrite and os.listdir(dest):
+        raise FileExistsError(dest)
+    outdir.claim_folder(dest, overwrite=overwrite, command=f"copy_template {name}", what="case folder")
+    for entry in src.iterdir():
+        if entry.name != "README.md":
+            outdir.claim(dest / entry.name)
+    shutil.copytree(src, dest, ignore=shutil.ignore_patterns("README.md"), dirs_exist_ok=True)
     return dest
 
 

@@ -1,10 +1,11 @@
 """``coupling`` command: check and run a coupled CFD-DEM case (DEM side + thermoDemFoam).
 
     coupling check CASE_DIR
-    coupling run   CASE_DIR [--out DIR] [--transport file|socket] [--end-time T] [--restart]
+    coupling run   CASE_DIR [--out DIR] [--transport file|socket] [--end-time T] [--restart | --overwrite]
 
 ``run`` copies the OpenFOAM part of CASE_DIR into the output directory (default
-``out/<case name>``), meshes it (blockMesh), writes the initial void fraction of the
+``out/<case name>``; new, empty or an earlier output of this tool, never the case folder nor
+inside it: dem.outdir), meshes it (blockMesh), writes the initial void fraction of the
 particles into 0/eps, decomposes it when ``gas_processes > 1``, builds the solver if
 needed (scripts/build_openfoam_solver.sh, cached), starts thermoDemFoam, runs the coupled
 loop (coupling.interface) and writes
@@ -130,28 +131,35 @@ def _time_index(tdir: Path) -> int | None:
     return int(m.group(1)) if m else None
 
 
-def prepare_output(case, out: Path, *, restart: bool) -> None:
+def output_rule(case_dir, *, restart: bool, overwrite: bool) -> dict:
+    """The output-folder rule of a coupled run (dem.outdir): --out new, empty or an earlier
+    output (continued with --restart, replaced with --overwrite), never the case folder, a
+    folder inside it or one holding it."""
+    return dict(restart=restart, overwrite=overwrite, protect=[Path(case_dir)])
+
+
+def prepare_output(case, out: Path, *, restart: bool, overwrite: bool = False) -> None:
+    """Claim --out (dem.outdir: refused unless new, empty or an earlier output of ours; with
+    --overwrite the earlier output's entries are removed, nothing else), copy the case's
+    OpenFOAM part into it and mesh it."""
     from . import foam_case as fc
+    from dem import outdir
+    rule = output_rule(case.dir, restart=restart, overwrite=overwrite)
     if restart:
+        outdir.check(out, **rule)
         if not (out / "system" / "controlDict").exists():
             raise CouplingRunError(f"{out}: nothing to restart (no system/controlDict)")
+    outdir.claim_folder(out, command="coupling run", **rule)
+    if restart:
         return
-    if out.exists():
-        for sub in ("0", "constant", "system", "coupling", "vtk", "checkpoints"):
-            shutil.rmtree(out / sub, ignore_errors=True)
-        for p in out.glob("processor*"):
-            shutil.rmtree(p, ignore_errors=True)
-        for t, p in _time_dirs(out):
-            shutil.rmtree(p, ignore_errors=True)
-        for f in ("history.csv", "coupling.csv", "final.npz", "checkpoint.npz", "particles.pvd",
-                  "coupling_state.npz", "timings.json", "coupling.png"):
-            (out / f).unlink(missing_ok=True)
-    out.mkdir(parents=True, exist_ok=True)
     for sub in ("0", "constant", "system"):
+        outdir.claim(out / sub)
         shutil.copytree(case.dir / sub, out / sub)
     for f in ("dem.toml", "coupling.toml"):
+        outdir.claim(out / f)
         shutil.copy2(case.dir / f, out / f)
     if not (out / "constant" / "polyMesh" / "owner").exists():
+        outdir.claim(out / "log.blockMesh")
         fc.block_mesh(out)
 
 
@@ -253,6 +261,8 @@ def plot(out: Path, title: str) -> Path | None:
     fig.suptitle(title)
     fig.tight_layout()
     p = out / "coupling.png"
+    from dem.outdir import claim
+    claim(p)
     fig.savefig(p, dpi=110)
     plt.close(fig)
     return p
@@ -276,9 +286,11 @@ class _ExternalSolver:
 
 
 def run_case(case_dir, out=None, *, transport=None, end_time=None, restart=False,
-             quiet=False, solver=None, log=print, external_solver=False):
+             quiet=False, solver=None, log=print, external_solver=False, overwrite=False):
     """Run a coupled case; returns a summary dict. Raises CouplingError / CaseConfigError /
-    SimulationError / CouplingRunError (``main`` maps them to exit codes)."""
+    SimulationError / CouplingRunError / dem.outdir.OutputFolderError (``main`` maps them to
+    exit codes). ``out`` must be new, empty or an earlier output of this tool (continued with
+    ``restart``, replaced with ``overwrite``: dem.outdir)."""
     from . import foam_case as fc
     from .case import check_coupled_case, format_report, load_case
     from .exchange import CouplingError, FileExchange, SocketExchange
@@ -287,16 +299,20 @@ def run_case(case_dir, out=None, *, transport=None, end_time=None, restart=False
     from dem.output import VTKSeries, History, save_npz
     from dem.simulation import SimulationError
 
+    from dem import outdir
     t_wall0 = time.perf_counter()
+    out = Path(out) if out is not None else Path("out") / Path(case_dir).resolve().name
+    out = out.resolve()
+    # read-only, on every rank: a user's folder is refused before anything is read or written
+    outdir.check(out, **output_rule(Path(case_dir).resolve(), restart=restart, overwrite=overwrite))
     case = load_case(case_dir)
     cfg = case.config
     if transport is not None:
         cfg.transport = transport
-    out = Path(out) if out is not None else Path("out") / case.dir.name
-    out = out.resolve()
     sim = case.sim
     R = _Ranks(sim)
-    R.on_root(prepare_output, case, out, restart=restart)
+    R.barrier()   # every rank has checked --out before rank 0 claims it
+    R.on_root(prepare_output, case, out, restart=restart, overwrite=overwrite)
     mesh = read_polymesh(str(out))
     mt, eps_min_cfd = case.model_type, None
     g = np.asarray(sim.scene.simulation["gravity"], float)
@@ -332,6 +348,7 @@ def run_case(case_dir, out=None, *, transport=None, end_time=None, restart=False
             fc.write_eps(out, eps0)
         # ---- transport
         ex = None
+        outdir.claim(out / "coupling")   # the exchange folder (file transport; the solver's pid file)
         if cfg.transport == "socket":
             ex = SocketExchange(port=0, timeout=cfg.timeout, n_cells=mesh.n_cells)
             fc.write_coupling_dict(out, "socket", port=ex.port, timeout=cfg.timeout,
@@ -343,6 +360,8 @@ def run_case(case_dir, out=None, *, transport=None, end_time=None, restart=False
             if restart and (out / "processor0").exists():
                 pass
             else:
+                for name in ["log.decomposePar"] + [f"processor{i}" for i in range(cfg.gas_processes)]:
+                    outdir.claim(out / name)
                 fc.decompose(out, cfg.gas_processes)
         fc.check_case(out)
         exe = Path(solver) if solver else fc.build_solver()
@@ -360,6 +379,7 @@ def run_case(case_dir, out=None, *, transport=None, end_time=None, restart=False
         hist = History(str(out / "history.csv"), sim.history_columns(), keep)
         vtk = VTKSeries(str(out)) if sim.scene.output["vtk"] else None
         diag = Diagnostics(out / "coupling.csv", mesh, case.gas, keep)
+        outdir.claim(out / "checkpoints")
         (out / "checkpoints").mkdir(exist_ok=True)
     if not R.root:
         return _follow(R, sim, iface, n_steps, i0, t_start, dt, k, out, write_every, out_every,
@@ -373,6 +393,7 @@ def run_case(case_dir, out=None, *, transport=None, end_time=None, restart=False
         sys.stdout.flush()
         proc = _ExternalSolver()
     else:
+        outdir.claim(out / "log.thermoDemFoam")
         proc = fc.start_solver(out, nprocs=cfg.gas_processes, solver=exe)
     if cfg.solver_nice and proc.pid:
         try:  # a woken solver then does not preempt the DEM (the critical path) on busy cores
@@ -407,6 +428,7 @@ def run_case(case_dir, out=None, *, transport=None, end_time=None, restart=False
                 fluid = _share(R, lambda: check_gas_fields(ex.receive(step), step, time_value=t, mesh=mesh,
                                                            cfg=cfg, eps_change=iface.eps_change), ex)
             watch.after_receive(fluid, t)
+            outdir.adopt_solver_entries(out)   # the time folders the solver wrote (dem.outdir)
             if s % out_every == 0 or s == n_steps or ex.peer_final:
                 _output(hist, vtk, diag, sim, iface, fluid, frame, t, step, t_wall0, timer)
             if write_every and step % write_every == 0:
@@ -441,6 +463,8 @@ def run_case(case_dir, out=None, *, transport=None, end_time=None, restart=False
             proc.kill()
             proc.wait()
         ex.close()
+        outdir.adopt_solver_entries(out)
+        outdir.claim(out / "timings.json")
         (out / "timings.json").write_text(json.dumps(_timings(timer, t_wall0, sim, n_steps=step - i0, k=k),
                                                      indent=1))
     # ---- final output
@@ -773,7 +797,8 @@ def cmd_check(args) -> int:
 
 def cmd_run(args) -> int:
     run_case(args.case, args.out, transport=args.transport, end_time=args.end_time,
-             restart=args.restart, quiet=args.quiet, external_solver=args.external_solver)
+             restart=args.restart, quiet=args.quiet, external_solver=args.external_solver,
+             overwrite=args.overwrite)
     return 0
 
 
@@ -788,6 +813,9 @@ def main(argv=None) -> int:
     r.add_argument("--transport", choices=["file", "socket"], default=None)
     r.add_argument("--end-time", type=float, default=None)
     r.add_argument("--restart", action="store_true", help="continue the run in --out")
+    r.add_argument("--overwrite", action="store_true",
+                   help="replace an earlier output in --out: removes only what the tool wrote there "
+                        "(listed in its .thermodem-manifest.json) and refuses if anything else is there")
     r.add_argument("--quiet", action="store_true")
     r.add_argument("--external-solver", action="store_true",
                    help="do not start thermoDemFoam: print the command to run it by hand in a second "

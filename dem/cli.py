@@ -56,11 +56,17 @@ def cmd_check(args):
 
 def cmd_run(args):
     from .simulation import SimulationError  # noqa: F401
+    from . import outdir
+    out = args.out or os.path.join("out", os.path.splitext(os.path.basename(args.scene))[0])
+    rule = dict(overwrite=args.overwrite, restart=bool(args.restart), keep=[args.scene])
+    outdir.check(out, **rule)          # a user's folder is refused before the scene is even read
     sim = _load(args.scene)
     if args.restart is not None:
         sim.prepare_restart(args.restart)  # a bad checkpoint or a refused scene edit: exit 2 now
     sim.check()
-    out = args.out or os.path.join("out", os.path.splitext(os.path.basename(args.scene))[0])
+    if sim.par is not None:
+        sim.par.comm.Barrier()         # every rank has checked the folder before rank 0 claims it
+    outdir.claim_collective(out, sim.par.comm if sim.par is not None else None, sim.is_root, **rule)
     t0 = time.perf_counter()
     c = sim.warmup()
     sim.run(end_time=args.end_time, out_dir=out, restart=args.restart, progress=not args.quiet)
@@ -136,7 +142,10 @@ def main(argv=None):
     r = sub.add_parser("run", help="run a scene")
     r.add_argument("scene")
     r.add_argument("--out", help="output folder (default out/<scene name>)")
-    r.add_argument("--restart", help="checkpoint to continue from")
+    r.add_argument("--restart", help="checkpoint to continue from (--out may then be the earlier output)")
+    r.add_argument("--overwrite", action="store_true",
+                   help="replace an earlier output in --out: removes only what the tool wrote there "
+                        "(listed in its .thermodem-manifest.json) and refuses if anything else is there")
     r.add_argument("--end-time", type=float, help="override simulation.end_time")
     r.add_argument("--quiet", action="store_true", help="no progress display")
     c = sub.add_parser("check", help="validate a scene and print derived quantities")
@@ -144,7 +153,8 @@ def main(argv=None):
     sub.add_parser("compile", help="compile and cache the kernels (done by scripts/setup.sh)")
     d = sub.add_parser("render", help="render the last output of a run to PNG")
     d.add_argument("out_dir")
-    d.add_argument("--png", default=None)
+    d.add_argument("--png", default=None, help="PNG to write (default OUT_DIR/render.png); never replaces a "
+                                               "file the tool did not write")
     d.add_argument("--color", default=None, help="field to colour by (default temperature or velocity)")
     args = ap.parse_args(argv)
     from .scene import SceneError

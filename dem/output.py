@@ -7,9 +7,13 @@ import tempfile
 
 import numpy as np
 
+from .outdir import claim
+
 
 def atomic_write(path, write):
-    """Call ``write(tmp_path)`` then rename onto ``path``."""
+    """Call ``write(tmp_path)`` then rename onto ``path``. The target is first recorded in
+    the manifest of the output folder that holds it (dem.outdir.claim)."""
+    claim(path)
     d = os.path.dirname(os.path.abspath(path))
     os.makedirs(d, exist_ok=True)
     suffix = os.path.splitext(path)[1]

@@ -1,14 +1,25 @@
-"""Off-screen rendering of a run's last VTK output with pyvista (no display needed)."""
+"""Off-screen rendering of a run's last VTK output with pyvista (no display needed).
+
+The PNG never replaces a user's file (dem.outdir.claim_file): it is written only
+where nothing exists yet, or over a PNG the tool wrote (listed in the output folder's
+manifest, or carrying the tEXt "Software: thermodem" chunk every rendered PNG gets)."""
 import glob
 import os
 
+from .outdir import PNG_SOFTWARE, OutputFolderError, claim_file
+from .output import atomic_write
+
 
 def render(out_dir, png=None, color=None):
-    import pyvista as pv
-    pv.OFF_SCREEN = True
+    what = "--png" if png else "the PNG"
+    png = png or os.path.join(out_dir, "render.png")
     files = sorted(glob.glob(os.path.join(out_dir, "vtk", "*.vtu")))
     if not files:
-        raise FileNotFoundError(f"{out_dir}: no vtk/*.vtu output to render")
+        raise OutputFolderError(f"{out_dir}: no vtk/*.vtu output to render (is it the --out of a run with "
+                                f"output.vtk = true?)")
+    claim_file(png, what)   # refused before anything is drawn; recorded in an output folder's manifest
+    import pyvista as pv
+    pv.OFF_SCREEN = True
     mesh = pv.read(files[-1])
     if color is None:
         color = "temperature" if "temperature" in mesh.point_data else "velocity"
@@ -23,7 +34,17 @@ def render(out_dir, png=None, color=None):
     pl.add_mesh(glyphs, scalars=color, cmap="coolwarm" if "temp" in color else "viridis",
                 scalar_bar_args={"fmt": "%.2f", "title": color})
     pl.view_isometric()
-    png = png or os.path.join(out_dir, "render.png")
-    pl.screenshot(png)
+    img = pl.screenshot(return_img=True)
     pl.close()
+    _write_png(png, img)
     return png
+
+
+def _write_png(path, img):
+    """The image as a PNG tagged as ours (tEXt Software), written atomically (and recorded
+    in the manifest when ``path`` is inside an output folder)."""
+    from PIL import Image
+    from PIL.PngImagePlugin import PngInfo
+    info = PngInfo()
+    info.add_text("Software", f"{PNG_SOFTWARE} dem render")
+    atomic_write(path, lambda tmp: Image.fromarray(img).save(tmp, format="PNG", pnginfo=info))

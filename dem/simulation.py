@@ -17,6 +17,7 @@ from .contact.registry import CONTACT_MODELS, ROLLING_MODELS, DAMPING_MODELS
 from .contact import walls as W
 from .neighbors import build_half_list, sort_permutation
 from .output import History, VTKSeries, save_npz
+from .outdir import claim_collective
 from .state import State
 from . import step as K
 from .thermal.kernel import MECHANISMS as THERMAL_MECHANISMS
@@ -922,8 +923,11 @@ class Simulation:
         if out_dir is not None:
             keep = self.time if restart is not None else None
             writers = dict(hist=None, vtk=None)  # the root writes; the others take part in the gathers
+            # new, empty or an earlier output continued (restart) or claimed already (dem run):
+            # never a user's folder (dem.outdir)
+            claim_collective(out_dir, self.par.comm if self.par is not None else None, self.is_root,
+                             restart=restart is not None, reuse=True, keep=[restart] if restart else ())
             if self.is_root:
-                os.makedirs(out_dir, exist_ok=True)
                 writers = dict(hist=History(os.path.join(out_dir, "history.csv"), self.history_columns(), keep),
                                vtk=VTKSeries(out_dir) if self.scene.output["vtk"] else None)
             if self.step_count == 0 or restart is None:

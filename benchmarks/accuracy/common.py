@@ -55,12 +55,24 @@ def finite_state(sim):
     return all(bool(np.all(np.isfinite(a))) for a in arrs)
 
 
+def claim_cache():
+    """out/bench_cache as the benchmarks' own folder (dem.outdir: new, empty or written by them;
+    kept between runs). Returns its path."""
+    from dem.outdir import claim_folder
+    claim_folder(CACHE, restart=True, reuse=True, command="benchmarks cache", what="benchmark cache folder")
+    return CACHE
+
+
+def claim(path):
+    from dem.outdir import claim as _claim
+    _claim(path)
+
+
 def settled_packing(n=600, L=0.012, seed=11, log=print):
     """The random packing of tests/test_thermal_mechanisms.py: n spheres of 1 mm poured into a
     periodic L x L column and settled on a floor for 0.35 s (cached in out/bench_cache)."""
     from dem import Simulation
-    os.makedirs(CACHE, exist_ok=True)
-    path = os.path.join(CACHE, f"packing_{n}_{L:g}_{seed}.npz")
+    path = os.path.join(claim_cache(), f"packing_{n}_{L:g}_{seed}.npz")
     if os.path.exists(path):
         return np.load(path)["x"], L
     t0 = time.perf_counter()
@@ -73,6 +85,7 @@ def settled_packing(n=600, L=0.012, seed=11, log=print):
     sim = Simulation.from_dict(sc)
     sim.run(progress=False)
     x = sim.state.position.copy()
+    claim(path)
     np.savez(path, x=x)
     log(f"  settled packing of {n} spheres: {time.perf_counter() - t0:.1f} s (cached in {path})")
     return x, L

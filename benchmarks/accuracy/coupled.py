@@ -60,7 +60,7 @@ def run(case: Path, out: Path, end_time: float):
     """Coupled run; returns (summary, coupling.csv as a structured array, loop wall seconds)."""
     from coupling.run import run_case
     t0 = time.perf_counter()
-    s = run_case(case, out, end_time=end_time, quiet=True)
+    s = run_case(case, out, end_time=end_time, quiet=True, overwrite=True)  # replaces the previous sweep point
     whole = time.perf_counter() - t0
     d = np.atleast_1d(np.genfromtxt(Path(s["out"]) / "coupling.csv", delimiter=",", names=True))
     loop = float(s["loop"]) - float(s["phases"].get("output", 0.0))   # without output writing

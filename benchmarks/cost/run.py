@@ -228,6 +228,9 @@ def noheat_copy():
     """A copy of dem/ whose step kernel has the heat code compiled out, in NOHEAT_DIR/dem.
     Files are rewritten only when their text changes, so Numba's cache of the copy stays
     valid between runs. Returns NOHEAT_DIR."""
+    from benchmarks.accuracy.common import claim, claim_cache
+    claim_cache()
+    claim(NOHEAT_DIR)   # our entry of out/bench_cache: never a user's folder (dem.outdir)
     src = os.path.join(ROOT, "dem")
     dst = os.path.join(NOHEAT_DIR, "dem")
     want = {}

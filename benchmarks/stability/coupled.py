@@ -54,9 +54,12 @@ def write_case(dest: Path, *, L: float, H: float, nxy: int, nz: int, positions, 
                heat: bool = True, diameter: float = D, density: float = 2500.0) -> Path:
     """A coupled case: L x L x H box meshed nxy x nxy x nz, hot gas entering at the bottom
     at u_in (superficial), beads of 2 mm at the given positions (300 K)."""
-    if dest.exists():
-        shutil.rmtree(dest)
-    shutil.copytree(TEMPLATE, dest, ignore=shutil.ignore_patterns("README.md", "dem.toml", "coupling.toml"))
+    from dem import outdir   # dest: new, empty or this benchmark's earlier case (replaced), never a user's
+    outdir.claim_folder(dest, overwrite=True, command="benchmarks/stability case", what="case folder")
+    skip = ("README.md", "dem.toml", "coupling.toml")
+    for name in [n for n in os.listdir(TEMPLATE) if n not in skip] + ["particles.csv", "dem.toml", "coupling.toml"]:
+        outdir.claim(dest / name)
+    shutil.copytree(TEMPLATE, dest, ignore=shutil.ignore_patterns(*skip), dirs_exist_ok=True)
     bm = dest / "system" / "blockMeshDict"
     _sub(bm, r"vertices\s*\(.*?\n\);",
          "vertices\n(\n    (0 0 0) ({L} 0 0) ({L} {L} 0) (0 {L} 0)\n"
@@ -284,7 +287,8 @@ def run_one(case: Path, out: Path, probe: Probe, teleport=None):
     res = dict(outcome="completed", error="", message="")
     t0 = time.perf_counter()
     try:
-        res["summary"] = run_case(case, out, quiet=False, log=lambda *a: lines.append(" ".join(map(str, a))))
+        res["summary"] = run_case(case, out, quiet=False, log=lambda *a: lines.append(" ".join(map(str, a))),
+                                  overwrite=True)
     except (SimulationError, CouplingError, CouplingRunError, CaseConfigError) as e:
         res["outcome"] = "stopped"
         res["error"] = type(e).__name__
