@@ -10,8 +10,25 @@ ACCURATE_HERTZ_FRACTION = 0.02
 
 
 def _load(path):
+    """Read and validate the scene, check its memory estimate against the machine's
+    available memory (dem.memory), then build the Simulation (allocates its arrays)."""
+    from .memory import check_scene
+    from .scene import load
     from .simulation import Simulation
-    return Simulation.from_file(path)
+    scene = load(path)
+    est = check_scene(scene)
+    sim = Simulation(scene)
+    sim.memory_estimate = est
+    return sim
+
+
+def _check_out(out):
+    """SceneError naming --out when it cannot be an output folder (nothing is created)."""
+    from .args import out_dir_problem
+    from .scene import SceneError
+    why = out_dir_problem(out)
+    if why:
+        raise SceneError("--out", "", why)
 
 
 def cmd_check(args):
@@ -43,6 +60,10 @@ def cmd_check(args):
     for w in rep.get("warnings", []):
         p(f"warning: {w}")
     p(f"memory: {rep['memory_bytes'] / 2**20:.2f} MiB ({rep['memory_per_particle']:.0f} B per particle)")
+    from .memory import available_bytes, fmt
+    avail = available_bytes()
+    p(f"memory estimated before allocating: {fmt(sim.memory_estimate['total'])} (neighbour grid "
+      f"{fmt(sim.memory_estimate['grid'])}); available: {fmt(avail) if avail else 'unknown'}")
     p("runs:")
     for r in rep["runs"]:
         p(f"  + {r}")
@@ -56,9 +77,10 @@ def cmd_check(args):
 
 def cmd_run(args):
     from .simulation import SimulationError  # noqa: F401
+    out = args.out or os.path.join("out", os.path.splitext(os.path.basename(args.scene))[0])
+    _check_out(out)
     sim = _load(args.scene)
     sim.check()
-    out = args.out or os.path.join("out", os.path.splitext(os.path.basename(args.scene))[0])
     t0 = time.perf_counter()
     c = sim.warmup()
     sim.run(end_time=args.end_time, out_dir=out, restart=args.restart, progress=not args.quiet)
@@ -129,13 +151,14 @@ def cmd_render(args):
 
 
 def main(argv=None):
+    from .args import end_time
     ap = argparse.ArgumentParser(prog="dem", description="Thermal DEM solver")
     sub = ap.add_subparsers(dest="cmd", required=True)
     r = sub.add_parser("run", help="run a scene")
     r.add_argument("scene")
     r.add_argument("--out", help="output folder (default out/<scene name>)")
     r.add_argument("--restart", help="checkpoint to continue from")
-    r.add_argument("--end-time", type=float, help="override simulation.end_time")
+    r.add_argument("--end-time", type=end_time, help="override simulation.end_time (s)")
     r.add_argument("--quiet", action="store_true", help="no progress display")
     c = sub.add_parser("check", help="validate a scene and print derived quantities")
     c.add_argument("scene")
@@ -159,6 +182,12 @@ def main(argv=None):
     except SimulationError as exc:
         if root:
             print(f"error: {exc}", file=sys.stderr)
+        return 3
+    except MemoryError:
+        if root:
+            print(f"error: {args.scene if hasattr(args, 'scene') else args.cmd}: out of memory (the scene "
+                  "did not fit although `dem check` estimated it would, or simulation.force = true); use "
+                  "fewer particles or a smaller domain", file=sys.stderr)
         return 3
 
 
