@@ -772,12 +772,17 @@ def cmd_check(args) -> int:
 
 
 def cmd_run(args) -> int:
+    from dem.args import out_dir_problem
+    why = out_dir_problem(args.out) if args.out is not None else None
+    if why:
+        raise CouplingRunError(f"--out: {why}")
     run_case(args.case, args.out, transport=args.transport, end_time=args.end_time,
              restart=args.restart, quiet=args.quiet, external_solver=args.external_solver)
     return 0
 
 
 def main(argv=None) -> int:
+    from dem.args import end_time
     ap = argparse.ArgumentParser(prog="coupling", description="CFD-DEM coupling (thermodem + thermoDemFoam)")
     sub = ap.add_subparsers(dest="cmd", required=True)
     c = sub.add_parser("check", help="validate a coupled case and print the coupling checks")
@@ -786,7 +791,7 @@ def main(argv=None) -> int:
     r.add_argument("case")
     r.add_argument("--out", default=None, help="output directory (default out/<case name>)")
     r.add_argument("--transport", choices=["file", "socket"], default=None)
-    r.add_argument("--end-time", type=float, default=None)
+    r.add_argument("--end-time", type=end_time, default=None, help="override the end time (s)")
     r.add_argument("--restart", action="store_true", help="continue the run in --out")
     r.add_argument("--quiet", action="store_true")
     r.add_argument("--external-solver", action="store_true",
