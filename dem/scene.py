@@ -203,6 +203,26 @@ def _read_particle_file(v, fname, path, base_dir):
 DENSEST_PACKING = math.pi / (3 * math.sqrt(2))
 
 
+def _check_region_in_domain(v, p, reg, spec, lo, hi, periodic):
+    """The centres an insertion region can receive must lie inside the domain (non-periodic
+    axes): its box (or the box around its cylinder) shrunk by the smallest radius."""
+    rmin = float(spec["value"] if spec["distribution"] == "constant" else spec["min"])
+    if reg["type"] == "box":
+        a, b = np.asarray(reg["min"], float), np.asarray(reg["max"], float)
+    else:
+        ax = np.asarray(reg["axis"], float) / np.linalg.norm(reg["axis"])
+        ext = np.abs(ax) * float(reg["length"]) / 2 + np.sqrt(np.maximum(0.0, 1 - ax ** 2)) * float(reg["radius"])
+        a, b = np.asarray(reg["center"], float) - ext, np.asarray(reg["center"], float) + ext
+    tol = 1e-9 * float(np.max(hi - lo))
+    for k in range(3):
+        if periodic[k]:
+            continue
+        if a[k] + rmin < lo[k] - tol or b[k] - rmin > hi[k] + tol:
+            v.err(p + ".region", f"reaches outside the domain on axis {'xyz'[k]} (region {a[k]:g} .. {b[k]:g} m, "
+                                 f"domain {lo[k]:g} .. {hi[k]:g} m): particles could be placed outside; keep "
+                                 "the region inside [domain]")
+
+
 def _check_count(v, p, reg, spec, n, force):
     """An insertion ``count`` that cannot fit: more sphere volume (at the smallest radius of
     the distribution) than the densest packing of the region, or more memory than the
@@ -414,6 +434,7 @@ def parse(data, file="<dict>", base_dir="."):
                 v.unit(reg, "axis", p + ".region")
                 v.num(reg, "radius", p + ".region", lo=0, lo_open=True, required=True)
                 v.num(reg, "length", p + ".region", lo=0, lo_open=True, required=True)
+            _check_region_in_domain(v, p, reg, spec, lo, hi, periodic)
             _check_count(v, p, reg, spec, n, sim["force"])
             rad = sample_radii(spec, n, rng)
             ex_x = np.concatenate(P["x"]) if P["x"] else np.zeros((0, 3))
@@ -575,7 +596,7 @@ def _check_walls(v, walls, x, ids, periodic):
                 v.err(p + ".normal", f"points away from every particle (normal {n.tolist()}, all {s.size} "
                                      f"particle centres lie behind the plane through {w['point'].tolist()}); "
                                      f"the normal of a plane points into the region of the particles: use "
-                                     f"{(-n).tolist()}")
+                                     f"{(0.0 - n).tolist()}")
             behind = np.nonzero(s < 0)[0]
             if behind.size:
                 q = behind[0]
