@@ -192,7 +192,7 @@ def _read_npz(full, name):
     for c, a in cols.items():
         bad = np.nonzero(~np.isfinite(a))[0]
         if bad.size:
-            _err(name, f"row {bad[0]}, column {c}", f"not a finite number ({a[bad[0]]!r}); every value must "
+            _err(name, f"row {bad[0]}, column {c}", f"not a finite number ({float(a[bad[0]])!r}); every value must "
                                                     "be a finite number")
     return cols
 
