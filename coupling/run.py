@@ -823,6 +823,10 @@ def main(argv=None) -> int:
     except (CaseConfigError, CaseError, SceneError, CouplingRunError, FoamError) as e:
         print(f"coupling: error: {e}", file=sys.stderr)
         return EXIT_CHECK
+    except MemoryError:
+        print("coupling: error: out of memory (the DEM scene or the mesh did not fit); use fewer particles "
+              "or cells", file=sys.stderr)
+        return EXIT_DEM
     except KeyboardInterrupt:
         print("coupling: interrupted (checkpoint written)", file=sys.stderr)
         return 130

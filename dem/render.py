@@ -6,12 +6,19 @@ import os
 def render(out_dir, png=None, color=None):
     import pyvista as pv
     pv.OFF_SCREEN = True
+    from .scene import SceneError
+    if not os.path.isdir(out_dir):
+        raise SceneError(out_dir, "", "no such output folder (give the --out folder of a `dem run`)")
     files = sorted(glob.glob(os.path.join(out_dir, "vtk", "*.vtu")))
     if not files:
-        raise FileNotFoundError(f"{out_dir}: no vtk/*.vtu output to render")
+        raise SceneError(out_dir, "", "no vtk/*.vtu output to render (a `dem run` with [output] vtk = true "
+                                      "writes them)")
     mesh = pv.read(files[-1])
     if color is None:
         color = "temperature" if "temperature" in mesh.point_data else "velocity"
+    if color not in mesh.point_data:
+        raise SceneError("--color", "", f"no field {color!r} in {files[-1]}; fields: "
+                                        f"{', '.join(sorted(mesh.point_data.keys()))}")
     scal = mesh.point_data[color]
     if scal.ndim == 2:
         import numpy as np
