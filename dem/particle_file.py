@@ -26,6 +26,7 @@ OPTIONAL = ("vx", "vy", "vz", "wx", "wy", "wz", "id", "temperature")
 COLUMNS = REQUIRED + OPTIONAL
 VECTORS = {"position": ("x", "y", "z"), "velocity": ("vx", "vy", "vz"),
            "angular_velocity": ("wx", "wy", "wz")}
+MAX_MAGNITUDE = 1e100   # as dem.scene.MAX_MAGNITUDE
 ALLOWED_TEXT = f"need {', '.join(REQUIRED)}; optional {', '.join(OPTIONAL)}"
 
 
@@ -203,6 +204,9 @@ def _check_values(cols, name, where):
         bad = np.nonzero(mask)[0]
         if bad.size:
             _err(name, f"{where(bad[0])}, column {col}", f"{msg}, got {float(cols[col][bad[0]])!r}")
+    for c, a in cols.items():
+        first_bad(np.abs(a) > MAX_MAGNITUDE, c, f"too large to compute with (|value| <= {MAX_MAGNITUDE:g}); "
+                                               "check the units")
     first_bad(~(cols["radius"] > 0), "radius", "must be > 0")
     if "temperature" in cols:
         first_bad(~(cols["temperature"] > 0), "temperature", "must be > 0 K")

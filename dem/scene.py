@@ -21,6 +21,8 @@ class SceneError(ValueError):
 
 
 _NUM = (int, float)
+# largest magnitude of any number in a scene: cubes and products of two stay finite in float64
+MAX_MAGNITUDE = 1e100
 
 
 class _V:
@@ -57,6 +59,8 @@ class _V:
         x = float(x)
         if not math.isfinite(x):
             self.err(p, f"must be finite, got {x}")
+        if abs(x) > MAX_MAGNITUDE:
+            self.err(p, f"{x:g} is too large to compute with (|value| <= {MAX_MAGNITUDE:g}); check the units")
         rng = f"{'(' if lo_open or lo is None else '['}{'-inf' if lo is None else lo}, " \
               f"{'inf' if hi is None else hi}{')' if hi_open or hi is None else ']'}"
         if lo is not None and (x < lo or (lo_open and x == lo)):
@@ -115,7 +119,9 @@ class _V:
             return [bool(e) for e in x]
         arr = np.array(x, float)
         if not np.all(np.isfinite(arr)):
-            self.err(p, "must be finite")
+            self.err(p, f"must be finite numbers (no nan or inf), got {arr.tolist()}")
+        if np.any(np.abs(arr) > MAX_MAGNITUDE):
+            self.err(p, f"{arr.tolist()} is too large to compute with (|value| <= {MAX_MAGNITUDE:g}); check the units")
         return arr
 
     def unit(self, d, key, path, required=True, default=None):
@@ -249,6 +255,11 @@ def _finite_rows(v, arr, key):
     if bad.size:
         k = bad[0]
         v.err(f"{key}[{k}]", f"must be finite numbers (no nan or inf), got {arr[k].tolist()}")
+    big = np.nonzero((np.abs(arr.reshape(len(arr), -1)) > MAX_MAGNITUDE).any(1))[0]
+    if big.size:
+        k = big[0]
+        v.err(f"{key}[{k}]", f"{arr[k].tolist()} is too large to compute with (|value| <= {MAX_MAGNITUDE:g}); "
+                             "check the units")
 
 
 def parse(data, file="<dict>", base_dir="."):
