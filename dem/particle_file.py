@@ -42,7 +42,7 @@ def read(full):
     if not os.path.exists(full):
         raise ParticleFileError(f"file not found: {full}")
     if os.path.isdir(full):
-        raise ParticleFileError(f"{full} is a folder; give a CSV or NPZ file")
+        raise ParticleFileError(f"{name}: is a folder ({full}); give a CSV or NPZ file")
     if full.lower().endswith(".npz"):
         cols = _read_npz(full, name)
         where = lambda k: f"row {k}"  # noqa: E731

@@ -131,7 +131,7 @@ CASES = [
      scene(extra=THERMAL), ["particles[0].file: bed.csv: line 2, column temperature: must be > 0 K, got -50.0"]),
     ("csv-duplicate-id", {"bed.csv": "id,x,y,z,radius\n4,0.002,0.002,0.002,0.001\n4,0.005,0.002,0.002,0.001\n"},
      SCENE, ["particles[0].file: bed.csv: line 3, column id: id 4 repeats (also on line 2); ids must be unique"]),
-    ("csv-is-a-folder", {"bed.csv": None}, SCENE, ["particles[0].file:", "bed.csv is a folder"]),
+    ("csv-is-a-folder", {"bed.csv": None}, SCENE, ["particles[0].file: bed.csv: is a folder"]),
     # packing file (NPZ)
     ("npz-lengths", {"bed.npz": npz(x=[0.002, 0.005], y=[0.002, 0.002], z=[0.002, 0.002], radius=[0.001],
                                     vx=[0.0, 0.0])},
