@@ -243,11 +243,7 @@ def load_case(case_dir, *, build_sim: bool = True) -> CoupledCase:
     sim = None
     if build_sim:
         try:
-            from dem.memory import check_scene
-            from dem.scene import load as load_scene
-            scene = load_scene(str(dem_file))
-            check_scene(scene)   # before the Simulation allocates its arrays
-            sim = dem.Simulation(scene)
+            sim = dem.Simulation.from_file(str(dem_file))  # memory checked before allocating
         except SceneError as e:
             raise CaseConfigError(dem_file, str(e).split(": ", 1)[-1]) from None
     return CoupledCase(case_dir, cfg, dem_file, cfg_file, gas, mt, ctl, sim)

@@ -10,16 +10,8 @@ ACCURATE_HERTZ_FRACTION = 0.02
 
 
 def _load(path):
-    """Read and validate the scene, check its memory estimate against the machine's
-    available memory (dem.memory), then build the Simulation (allocates its arrays)."""
-    from .memory import check_scene
-    from .scene import load
     from .simulation import Simulation
-    scene = load(path)
-    est = check_scene(scene)
-    sim = Simulation(scene)
-    sim.memory_estimate = est
-    return sim
+    return Simulation.from_file(path)  # refuses a scene over the available memory (dem.memory)
 
 
 def _check_out(out):
@@ -60,10 +52,10 @@ def cmd_check(args):
     for w in rep.get("warnings", []):
         p(f"warning: {w}")
     p(f"memory: {rep['memory_bytes'] / 2**20:.2f} MiB ({rep['memory_per_particle']:.0f} B per particle)")
-    from .memory import available_bytes, fmt
-    avail = available_bytes()
-    p(f"memory estimated before allocating: {fmt(sim.memory_estimate['total'])} (neighbour grid "
-      f"{fmt(sim.memory_estimate['grid'])}); available: {fmt(avail) if avail else 'unknown'}")
+    from .memory import available_bytes, fmt, scene_bytes
+    est, avail = scene_bytes(sim.scene), available_bytes()
+    p(f"memory estimated before allocating: {fmt(est['total'])} (neighbour grid {fmt(est['grid'])}); "
+      f"available: {fmt(avail) if avail else 'unknown'}")
     p("runs:")
     for r in rep["runs"]:
         p(f"  + {r}")
