@@ -117,8 +117,20 @@ def load_config(path: Path) -> CouplingConfig:
     path = Path(path)
     if not path.exists():
         raise CaseConfigError(path, "missing (a coupled case needs coupling.toml with a [coupling] table)")
+    if path.is_dir():
+        raise CaseConfigError(path, "is a folder; coupling.toml must be a TOML file with a [coupling] table")
     try:
-        data = tomllib.loads(path.read_text())
+        raw = path.read_bytes()
+    except OSError as e:
+        raise CaseConfigError(path, f"cannot read: {e.strerror or e}") from None
+    try:
+        text = raw.decode("utf-8").removeprefix("\ufeff")
+    except UnicodeDecodeError as e:
+        line = raw[:e.start].count(b"\n") + 1
+        raise CaseConfigError(path, f"line {line}: not UTF-8 text (byte 0x{raw[e.start]:02x}); save it as "
+                                    "UTF-8 TOML") from None
+    try:
+        data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:
         raise CaseConfigError(path, f"not valid TOML: {e}") from None
     extra = sorted(set(data) - {"coupling"})
@@ -145,7 +157,9 @@ def load_config(path: Path) -> CouplingConfig:
                     (typ is int and not isinstance(val, int)):
                 raise CaseConfigError(path, f"must be {'an integer' if typ is int else 'a number'}, got {val!r}", k)
             lo, hi = allowed
-            if not math.isfinite(val) or (lo is not None and val < lo) or (hi is not None and val > hi):
+            if not math.isfinite(val):
+                raise CaseConfigError(path, f"must be a finite number, got {val!r}", k)
+            if (lo is not None and val < lo) or (hi is not None and val > hi):
                 rng = f">= {lo}" + (f" and <= {hi}" if hi is not None else "")
                 raise CaseConfigError(path, f"must be {rng}, got {val!r}", k)
             val = typ(val)
@@ -212,6 +226,9 @@ def load_case(case_dir, *, build_sim: bool = True) -> CoupledCase:
     import dem
     from dem.scene import SceneError
     case_dir = Path(case_dir).resolve()
+    if case_dir.exists() and not case_dir.is_dir():
+        raise CaseConfigError(case_dir, "is a file; give the case folder (0/, constant/, system/, dem.toml, "
+                                        "coupling.toml)")
     if not case_dir.is_dir():
         raise CaseConfigError(case_dir, "case directory does not exist")
     cfg_file = case_dir / "coupling.toml"
@@ -226,7 +243,7 @@ def load_case(case_dir, *, build_sim: bool = True) -> CoupledCase:
     sim = None
     if build_sim:
         try:
-            sim = dem.Simulation.from_file(str(dem_file))
+            sim = dem.Simulation.from_file(str(dem_file))  # memory checked before allocating
         except SceneError as e:
             raise CaseConfigError(dem_file, str(e).split(": ", 1)[-1]) from None
     return CoupledCase(case_dir, cfg, dem_file, cfg_file, gas, mt, ctl, sim)

@@ -13,6 +13,7 @@ of ``scripts/foam_env.sh`` (installed by ``scripts/install_openfoam.sh``).
 """
 from __future__ import annotations
 
+import math
 import os
 import re
 import shutil
@@ -619,11 +620,40 @@ def check_case(case, *, coupled: bool = True) -> None:
         unknown = sorted(k for k in bf if not any(re.fullmatch(k.strip('"'), q) for q in patches))
         if unknown:
             raise CaseError(p, f"boundary condition for unknown patch(es) {unknown}")
+    _check_uniform_values(case)
     if (case / "constant" / "polyMesh" / "owner").exists():
         n = _n_cells_from_owner(case)
         eps = read_internal_field(case / "0" / "eps", n)
         if np.any(eps <= 0) or np.any(eps > 1):
             raise CaseError(case / "0" / "eps", "void fraction outside (0, 1]")
+
+
+def _check_uniform_values(case) -> None:
+    """The ``uniform`` values of 0/T (finite, > 0 K) and 0/U (finite vectors): a NaN or a
+    negative absolute temperature is a typing error, refused naming the file and entry."""
+    for fld, positive in (("T", True), ("U", False)):
+        p = Path(case) / "0" / fld
+        if not p.exists():
+            continue
+        d = parse_foam_dict(p)
+        entries = [("internalField", d.get("internalField"))]
+        bf = d.get("boundaryField")
+        if isinstance(bf, dict):
+            for patch, spec in bf.items():
+                if isinstance(spec, dict):
+                    entries += [(f"boundaryField.{patch}.{k}", v) for k, v in spec.items()]
+        for key, val in entries:
+            if not isinstance(val, str) or not val.startswith("uniform"):
+                continue
+            raw = val[len("uniform"):].strip()
+            try:
+                vals = [float(x) for x in raw.strip("()").split()]
+            except ValueError:
+                raise CaseError(p, f"{key}: 'uniform {raw}' is not a number") from None
+            if not all(math.isfinite(x) for x in vals):
+                raise CaseError(p, f"{key}: 'uniform {raw}' is not a finite number")
+            if positive and any(x <= 0 for x in vals):
+                raise CaseError(p, f"{key}: 'uniform {raw}': a temperature must be > 0 K")
 
 
 def _n_cells_from_owner(case) -> int:

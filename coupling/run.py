@@ -796,6 +796,10 @@ def cmd_check(args) -> int:
 
 
 def cmd_run(args) -> int:
+    from dem.args import out_dir_problem
+    why = out_dir_problem(args.out) if args.out is not None else None
+    if why:
+        raise CouplingRunError(f"--out: {why}")
     run_case(args.case, args.out, transport=args.transport, end_time=args.end_time,
              restart=args.restart, quiet=args.quiet, external_solver=args.external_solver,
              overwrite=args.overwrite)
@@ -803,6 +807,7 @@ def cmd_run(args) -> int:
 
 
 def main(argv=None) -> int:
+    from dem.args import end_time
     ap = argparse.ArgumentParser(prog="coupling", description="CFD-DEM coupling (thermodem + thermoDemFoam)")
     sub = ap.add_subparsers(dest="cmd", required=True)
     c = sub.add_parser("check", help="validate a coupled case and print the coupling checks")
@@ -811,7 +816,7 @@ def main(argv=None) -> int:
     r.add_argument("case")
     r.add_argument("--out", default=None, help="output directory (default out/<case name>)")
     r.add_argument("--transport", choices=["file", "socket"], default=None)
-    r.add_argument("--end-time", type=float, default=None)
+    r.add_argument("--end-time", type=end_time, default=None, help="override the end time (s)")
     r.add_argument("--restart", action="store_true", help="continue the run in --out")
     r.add_argument("--overwrite", action="store_true",
                    help="replace an earlier output in --out: removes only what the tool wrote there "
@@ -846,6 +851,10 @@ def main(argv=None) -> int:
     except (CaseConfigError, CaseError, SceneError, CouplingRunError, FoamError) as e:
         print(f"coupling: error: {e}", file=sys.stderr)
         return EXIT_CHECK
+    except MemoryError:
+        print("coupling: error: out of memory (the DEM scene or the mesh did not fit); use fewer particles "
+              "or cells", file=sys.stderr)
+        return EXIT_DEM
     except KeyboardInterrupt:
         print("coupling: interrupted (checkpoint written)", file=sys.stderr)
         return 130

@@ -11,7 +11,16 @@ ACCURATE_HERTZ_FRACTION = 0.02
 
 def _load(path):
     from .simulation import Simulation
-    return Simulation.from_file(path)
+    return Simulation.from_file(path)  # refuses a scene over the available memory (dem.memory)
+
+
+def _check_out(out):
+    """SceneError naming --out when it cannot be an output folder (nothing is created)."""
+    from .args import out_dir_problem
+    from .scene import SceneError
+    why = out_dir_problem(out)
+    if why:
+        raise SceneError("--out", "", why)
 
 
 def cmd_check(args):
@@ -43,6 +52,10 @@ def cmd_check(args):
     for w in rep.get("warnings", []):
         p(f"warning: {w}")
     p(f"memory: {rep['memory_bytes'] / 2**20:.2f} MiB ({rep['memory_per_particle']:.0f} B per particle)")
+    from .memory import available_bytes, fmt, scene_bytes
+    est, avail = scene_bytes(sim.scene), available_bytes()
+    p(f"memory estimated before allocating: {fmt(est['total'])} (neighbour grid {fmt(est['grid'])}); "
+      f"available: {fmt(avail) if avail else 'unknown'}")
     p("runs:")
     for r in rep["runs"]:
         p(f"  + {r}")
@@ -58,6 +71,7 @@ def cmd_run(args):
     from .simulation import SimulationError  # noqa: F401
     from . import outdir
     out = args.out or os.path.join("out", os.path.splitext(os.path.basename(args.scene))[0])
+    _check_out(out)
     rule = dict(overwrite=args.overwrite, restart=bool(args.restart), keep=[args.scene])
     outdir.check(out, **rule)          # a user's folder is refused before the scene is even read
     sim = _load(args.scene)
@@ -137,6 +151,7 @@ def cmd_render(args):
 
 
 def main(argv=None):
+    from .args import end_time
     ap = argparse.ArgumentParser(prog="dem", description="Thermal DEM solver")
     sub = ap.add_subparsers(dest="cmd", required=True)
     r = sub.add_parser("run", help="run a scene")
@@ -146,7 +161,7 @@ def main(argv=None):
     r.add_argument("--overwrite", action="store_true",
                    help="replace an earlier output in --out: removes only what the tool wrote there "
                         "(listed in its .thermodem-manifest.json) and refuses if anything else is there")
-    r.add_argument("--end-time", type=float, help="override simulation.end_time")
+    r.add_argument("--end-time", type=end_time, help="override simulation.end_time (s)")
     r.add_argument("--quiet", action="store_true", help="no progress display")
     c = sub.add_parser("check", help="validate a scene and print derived quantities")
     c.add_argument("scene")
@@ -171,6 +186,12 @@ def main(argv=None):
     except SimulationError as exc:
         if root:
             print(f"error: {exc}", file=sys.stderr)
+        return 3
+    except MemoryError:
+        if root:
+            print(f"error: {args.scene if hasattr(args, 'scene') else args.cmd}: out of memory (the scene "
+                  "did not fit although `dem check` estimated it would, or simulation.force = true); use "
+                  "fewer particles or a smaller domain", file=sys.stderr)
         return 3
 
 

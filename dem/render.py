@@ -13,16 +13,21 @@ from .output import atomic_write
 def render(out_dir, png=None, color=None):
     what = "--png" if png else "the PNG"
     png = png or os.path.join(out_dir, "render.png")
+    if not os.path.isdir(out_dir):
+        raise OutputFolderError(f"{out_dir}: no such output folder (give the --out folder of a `dem run`)")
     files = sorted(glob.glob(os.path.join(out_dir, "vtk", "*.vtu")))
     if not files:
-        raise OutputFolderError(f"{out_dir}: no vtk/*.vtu output to render (is it the --out of a run with "
-                                f"output.vtk = true?)")
+        raise OutputFolderError(f"{out_dir}: no vtk/*.vtu output to render (a `dem run` with [output] vtk = true "
+                                f"writes them)")
     claim_file(png, what)   # refused before anything is drawn; recorded in an output folder's manifest
     import pyvista as pv
     pv.OFF_SCREEN = True
     mesh = pv.read(files[-1])
     if color is None:
         color = "temperature" if "temperature" in mesh.point_data else "velocity"
+    if color not in mesh.point_data:
+        raise OutputFolderError(f"--color: no field {color!r} in {files[-1]}; fields: "
+                                        f"{', '.join(sorted(mesh.point_data.keys()))}")
     scal = mesh.point_data[color]
     if scal.ndim == 2:
         import numpy as np

@@ -21,6 +21,8 @@ class SceneError(ValueError):
 
 
 _NUM = (int, float)
+# largest magnitude of any number in a scene: cubes and products of two stay finite in float64
+MAX_MAGNITUDE = 1e100
 
 
 class _V:
@@ -57,6 +59,8 @@ class _V:
         x = float(x)
         if not math.isfinite(x):
             self.err(p, f"must be finite, got {x}")
+        if abs(x) > MAX_MAGNITUDE:
+            self.err(p, f"{x:g} is too large to compute with (|value| <= {MAX_MAGNITUDE:g}); check the units")
         rng = f"{'(' if lo_open or lo is None else '['}{'-inf' if lo is None else lo}, " \
               f"{'inf' if hi is None else hi}{')' if hi_open or hi is None else ']'}"
         if lo is not None and (x < lo or (lo_open and x == lo)):
@@ -115,7 +119,9 @@ class _V:
             return [bool(e) for e in x]
         arr = np.array(x, float)
         if not np.all(np.isfinite(arr)):
-            self.err(p, "must be finite")
+            self.err(p, f"must be finite numbers (no nan or inf), got {arr.tolist()}")
+        if np.any(np.abs(arr) > MAX_MAGNITUDE):
+            self.err(p, f"{arr.tolist()} is too large to compute with (|value| <= {MAX_MAGNITUDE:g}); check the units")
         return arr
 
     def unit(self, d, key, path, required=True, default=None):
@@ -153,11 +159,23 @@ HERTZ_FRACTION = 0.1
 def load(path):
     """Read and validate a scene file; returns a :class:`Scene`."""
     path = os.fspath(path)
+    if os.path.isdir(path):
+        raise SceneError(path, "", "is a folder; give the scene file (.toml)")
     try:
         with open(path, "rb") as fh:
-            data = tomllib.load(fh)
+            raw = fh.read()
     except FileNotFoundError:
         raise SceneError(path, "", "file not found") from None
+    except OSError as exc:
+        raise SceneError(path, "", f"cannot read: {exc.strerror or exc}") from None
+    try:
+        text = raw.decode("utf-8").removeprefix("\ufeff")
+    except UnicodeDecodeError as exc:
+        line = raw[:exc.start].count(b"\n") + 1
+        raise SceneError(path, "", f"line {line}: not UTF-8 text (byte 0x{raw[exc.start]:02x}); a scene is a "
+                                   "TOML text file saved as UTF-8") from None
+    try:
+        data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise SceneError(path, "", f"not valid TOML: {exc}") from None
     return parse(data, path, base_dir=os.path.dirname(os.path.abspath(path)))
@@ -171,41 +189,77 @@ class Scene:
 
 
 def _read_particle_file(v, fname, path, base_dir):
+    """A packing file (dem.particle_file): every cell checked, problems named by line/row
+    and column under the key ``particles[k].file``."""
+    from .particle_file import ParticleFileError, read
     full = fname if os.path.isabs(fname) else os.path.join(base_dir, fname)
-    if not os.path.exists(full):
-        v.err(path + ".file", f"file not found: {full}")
-    cols = {}
     try:
-        if full.endswith(".npz"):
-            with np.load(full) as z:
-                for k in z.files:
-                    cols[k] = np.asarray(z[k], float)
-            if "position" in cols:
-                p = cols.pop("position")
-                cols.update(x=p[:, 0], y=p[:, 1], z=p[:, 2])
-            if "velocity" in cols:
-                p = cols.pop("velocity")
-                cols.update(vx=p[:, 0], vy=p[:, 1], vz=p[:, 2])
-            if "angular_velocity" in cols:
-                p = cols.pop("angular_velocity")
-                cols.update(wx=p[:, 0], wy=p[:, 1], wz=p[:, 2])
-        else:
-            arr = np.genfromtxt(full, delimiter=",", names=True, dtype=float)
-            for k in arr.dtype.names:
-                cols[k.strip().lower()] = np.atleast_1d(arr[k])
-    except Exception as exc:  # noqa: BLE001
-        v.err(path + ".file", f"cannot read {full}: {exc}")
-    for need in ("x", "y", "z", "radius"):
-        if need not in cols:
-            v.err(path + ".file", f"{full}: missing column {need!r} (need x, y, z, radius; "
-                                  f"optional vx, vy, vz, wx, wy, wz, id)")
+        cols, where = read(full)
+    except ParticleFileError as exc:
+        v.err(path + ".file", str(exc))
     n = cols["x"].size
+    zero = np.zeros(n)
     pos = np.stack([cols["x"], cols["y"], cols["z"]], 1)
-    vel = np.stack([cols.get("vx", np.zeros(n)), cols.get("vy", np.zeros(n)), cols.get("vz", np.zeros(n))], 1)
-    om = np.stack([cols.get("wx", np.zeros(n)), cols.get("wy", np.zeros(n)), cols.get("wz", np.zeros(n))], 1)
-    ids = cols.get("id")
-    temp = cols.get("temperature")
-    return pos, cols["radius"].copy(), vel, om, ids, temp
+    vel = np.stack([cols.get("vx", zero), cols.get("vy", zero), cols.get("vz", zero)], 1)
+    om = np.stack([cols.get("wx", zero), cols.get("wy", zero), cols.get("wz", zero)], 1)
+    return pos, cols["radius"].copy(), vel, om, cols.get("id"), cols.get("temperature"), where
+
+
+# densest packing of equal spheres (Kepler): no region holds more sphere volume than this
+DENSEST_PACKING = math.pi / (3 * math.sqrt(2))
+
+
+def _check_region_in_domain(v, p, reg, spec, lo, hi, periodic):
+    """The centres an insertion region can receive must lie inside the domain (non-periodic
+    axes): its box (or the box around its cylinder) shrunk by the smallest radius."""
+    rmin = float(spec["value"] if spec["distribution"] == "constant" else spec["min"])
+    if reg["type"] == "box":
+        a, b = np.asarray(reg["min"], float), np.asarray(reg["max"], float)
+    else:
+        ax = np.asarray(reg["axis"], float) / np.linalg.norm(reg["axis"])
+        ext = np.abs(ax) * float(reg["length"]) / 2 + np.sqrt(np.maximum(0.0, 1 - ax ** 2)) * float(reg["radius"])
+        a, b = np.asarray(reg["center"], float) - ext, np.asarray(reg["center"], float) + ext
+    tol = 1e-9 * float(np.max(hi - lo))
+    for k in range(3):
+        if periodic[k]:
+            continue
+        if a[k] + rmin < lo[k] - tol or b[k] - rmin > hi[k] + tol:
+            v.err(p + ".region", f"reaches outside the domain on axis {'xyz'[k]} (region {a[k]:g} .. {b[k]:g} m, "
+                                 f"domain {lo[k]:g} .. {hi[k]:g} m): particles could be placed outside; keep "
+                                 "the region inside [domain]")
+
+
+def _check_count(v, p, reg, spec, n, force):
+    """An insertion ``count`` that cannot fit: more sphere volume (at the smallest radius of
+    the distribution) than the densest packing of the region, or more memory than the
+    machine has for the candidate arrays (dem.memory)."""
+    from .memory import check_insertion
+    if reg["type"] == "box":
+        vol = float(np.prod(np.asarray(reg["max"], float) - np.asarray(reg["min"], float)))
+    else:
+        vol = math.pi * float(reg["radius"]) ** 2 * float(reg["length"])
+    rmin = float(spec["value"] if spec["distribution"] == "constant" else spec["min"])
+    rmax = float(spec["value"] if spec["distribution"] == "constant" else spec["max"])
+    need = n * 4.0 / 3.0 * math.pi * rmin ** 3
+    if need > DENSEST_PACKING * vol:
+        v.err(p + ".count", f"{n} spheres of radius >= {rmin:g} m hold {need:.3g} m3, more than the "
+                            f"densest packing ({DENSEST_PACKING:.3f}) of the region's {vol:.3g} m3 can hold "
+                            f"(at most {int(DENSEST_PACKING * vol / (4.0 / 3.0 * math.pi * rmin ** 3))}); "
+                            "enlarge the region or lower the count")
+    check_insertion(v, p + ".count", reg, n, rmax, force)
+
+
+def _finite_rows(v, arr, key):
+    """``key[k]: must be finite`` for the first row of ``arr`` holding nan or inf."""
+    bad = np.nonzero(~np.isfinite(arr.reshape(len(arr), -1)).all(1))[0]
+    if bad.size:
+        k = bad[0]
+        v.err(f"{key}[{k}]", f"must be finite numbers (no nan or inf), got {arr[k].tolist()}")
+    big = np.nonzero((np.abs(arr.reshape(len(arr), -1)) > MAX_MAGNITUDE).any(1))[0]
+    if big.size:
+        k = big[0]
+        v.err(f"{key}[{k}]", f"{arr[k].tolist()} is too large to compute with (|value| <= {MAX_MAGNITUDE:g}); "
+                             "check the units")
 
 
 def parse(data, file="<dict>", base_dir="."):
@@ -292,7 +346,7 @@ def parse(data, file="<dict>", base_dir="."):
     if not isinstance(parts, list) or not parts:
         v.err("particles", "must be a non-empty array of tables [[particles]]")
     rng = np.random.default_rng(sim["seed"])
-    P = dict(x=[], r=[], v=[], w=[], mat=[], id=[], T=[], group=[], mode=[])
+    P = dict(x=[], r=[], v=[], w=[], mat=[], id=[], T=[], group=[], mode=[], where=[])
     from .insertion import insert, sample_radii
     for k, g in enumerate(parts):
         p = f"particles[{k}]"
@@ -306,6 +360,7 @@ def parse(data, file="<dict>", base_dir="."):
         ids = None
         temp_col = None
         om = None
+        where = None
         if mode == "positions":
             pos = g["positions"]
             if not isinstance(pos, list) or not pos or not all(
@@ -313,6 +368,7 @@ def parse(data, file="<dict>", base_dir="."):
                     for q in pos):
                 v.err(p + ".positions", "must be a non-empty list of [x, y, z] number triples")
             pos = np.array(pos, float)
+            _finite_rows(v, pos, p + ".positions")
             n = len(pos)
             if "radii" in g:
                 if "radius" in g:
@@ -321,6 +377,7 @@ def parse(data, file="<dict>", base_dir="."):
                 if not isinstance(rr, list) or len(rr) != n or not all(isinstance(e, _NUM) and not isinstance(e, bool) for e in rr):
                     v.err(p + ".radii", f"must be a list of {n} numbers (one per position)")
                 rad = np.array(rr, float)
+                _finite_rows(v, rad, p + ".radii")
                 bad = np.nonzero(~(rad > 0))[0]
                 if bad.size:
                     v.err(f"{p}.radii[{bad[0]}]", f"radius must be > 0, got {rad[bad[0]]}")
@@ -335,19 +392,18 @@ def parse(data, file="<dict>", base_dir="."):
                         isinstance(q, list) and len(q) == 3 and all(isinstance(e, _NUM) and not isinstance(e, bool) for e in q) for q in vv):
                     v.err(p + ".velocities", f"must be a list of {n} [vx, vy, vz] triples")
                 vel = np.array(vv, float)
+                _finite_rows(v, vel, p + ".velocities")
             if "angular_velocities" in g:
                 vv = g["angular_velocities"]
                 if not isinstance(vv, list) or len(vv) != n or not all(
                         isinstance(q, list) and len(q) == 3 and all(isinstance(e, _NUM) and not isinstance(e, bool) for e in q) for q in vv):
                     v.err(p + ".angular_velocities", f"must be a list of {n} [wx, wy, wz] triples")
                 om = np.array(vv, float)
+                _finite_rows(v, om, p + ".angular_velocities")
         elif mode == "file":
             fname = v.string(g, "file", p, required=True)
-            pos, rad, vel, om, ids, temp_col = _read_particle_file(v, fname, p, base_dir)
+            pos, rad, vel, om, ids, temp_col, where = _read_particle_file(v, fname, p, base_dir)
             n = len(pos)
-            bad = np.nonzero(~(rad > 0))[0]
-            if bad.size:
-                v.err(f"{p}.file", f"row {bad[0]}: radius must be > 0, got {rad[bad[0]]}")
         else:
             n = v.integer(g, "count", p, lo=1, required=True)
             rs = g.get("radius")
@@ -389,6 +445,8 @@ def parse(data, file="<dict>", base_dir="."):
                 v.unit(reg, "axis", p + ".region")
                 v.num(reg, "radius", p + ".region", lo=0, lo_open=True, required=True)
                 v.num(reg, "length", p + ".region", lo=0, lo_open=True, required=True)
+            _check_region_in_domain(v, p, reg, spec, lo, hi, periodic)
+            _check_count(v, p, reg, spec, n, sim["force"])
             rad = sample_radii(spec, n, rng)
             ex_x = np.concatenate(P["x"]) if P["x"] else np.zeros((0, 3))
             ex_r = np.concatenate(P["r"]) if P["r"] else np.zeros(0)
@@ -415,6 +473,7 @@ def parse(data, file="<dict>", base_dir="."):
         P["T"].append(T)
         P["group"].append(np.full(n, k, np.int32))
         P["mode"].append(mode)
+        P["where"].append(where)
     x = np.ascontiguousarray(np.concatenate(P["x"]))
     r = np.ascontiguousarray(np.concatenate(P["r"]))
     n = r.size
@@ -438,9 +497,10 @@ def parse(data, file="<dict>", base_dir="."):
             q = out[0]
             g = int(group[q])
             i = q - int(np.argmax(group == g))   # index within its [[particles]] group
-            where = {"positions": f"particles[{g}].positions[{i}]", "file": f"particles[{g}].file",
-                     "count": f"particles[{g}].region"}[P["mode"][g]]
-            v.err(where, f"particle id {ids[q]}{f' (row {i})' if P['mode'][g] == 'file' else ''} at "
+            key = {"positions": f"particles[{g}].positions[{i}]", "file": f"particles[{g}].file",
+                   "count": f"particles[{g}].region"}[P["mode"][g]]
+            in_file = f" ({P['where'][g](i)})" if P["mode"][g] == "file" else ""
+            v.err(key, f"particle id {ids[q]}{in_file} at "
                          f"{x[q].tolist()} lies outside the domain [{lo.tolist()}, {hi.tolist()}] on axis "
                          f"{'xyz'[ax]}; particle centres must lie within domain.min .. domain.max")
     # --- walls
@@ -489,6 +549,8 @@ def parse(data, file="<dict>", base_dir="."):
             if np.linalg.norm(np.cross(W["rotation_center"] - W["point"], W["axis"])) > 1e-12:
                 v.err(p + ".rotation_center", "must lie on the cylinder axis")
         walls.append(W)
+    _check_periodic_length(v, lo, hi, periodic, r)
+    _check_walls(v, walls, x, ids, periodic)
     o = v.table(data.get("output", {}), "output", OUTPUT_KEYS)
     output = dict(vtk=v.boolean(o, "vtk", "output", default=True))
     pa = v.table(data.get("parallel", {}), "parallel", PARALLEL_KEYS)
@@ -508,6 +570,73 @@ def parse(data, file="<dict>", base_dir="."):
     _check_overlaps(v, sc)
     _thermal_hook(v, sc, data)
     return sc
+
+
+def _check_periodic_length(v, lo, hi, periodic, r):
+    """A periodic axis must be at least two of the largest diameters long: the neighbour
+    search takes the nearest image of each neighbour, so a sphere must never touch two
+    images of the same neighbour (or its own image)."""
+    d = 2.0 * float(r.max())
+    for ax in range(3):
+        L = float(hi[ax] - lo[ax])
+        if periodic[ax] and L < 2.0 * d:
+            v.err("domain.periodic", f"axis {'xyz'[ax]} is periodic with length {L:g} m, less than two of "
+                                     f"the largest particle diameters (2 x {d:g} m): a particle would touch "
+                                     f"its own image or two images of a neighbour; enlarge the domain along "
+                                     f"{'xyz'[ax]} or make it non-periodic")
+
+
+def _check_walls(v, walls, x, ids, periodic):
+    """Walls that cannot be meant: an unbounded wall across a periodic axis, an unbounded
+    plane with a particle centre behind it (its normal must point towards the particles),
+    a cylinder with every particle on the wrong side of ``inside``."""
+    for k, w in enumerate(walls):
+        p = f"walls[{k}]"
+        if w["type"] == "plane":
+            n = w["normal"]
+            if w["extent"] is not None:
+                continue
+            cross = [a for a in range(3) if periodic[a] and abs(n[a]) > 1e-12]
+            if cross:
+                v.err(p + ".normal", f"an unbounded plane across the periodic axis {'xyz'[cross[0]]} "
+                                     f"(normal {n.tolist()}): particles leaving through the periodic "
+                                     f"boundary would meet the wall from behind; remove the wall, give it an "
+                                     f"extent, or make axis {'xyz'[cross[0]]} non-periodic")
+            s = (x - w["point"]) @ n
+            if np.all(s < 0):
+                v.err(p + ".normal", f"points away from every particle (normal {n.tolist()}, all {s.size} "
+                                     f"particle centres lie behind the plane through {w['point'].tolist()}); "
+                                     f"the normal of a plane points into the region of the particles: use "
+                                     f"{(0.0 - n).tolist()}")
+            behind = np.nonzero(s < 0)[0]
+            if behind.size:
+                q = behind[0]
+                v.err(p + ".normal", f"particle id {ids[q]} at {x[q].tolist()} lies behind the plane "
+                                     f"(through {w['point'].tolist()}, normal {n.tolist()}); an unbounded "
+                                     f"plane is one-sided: every particle centre must lie on the side its "
+                                     f"normal points to")
+        else:
+            a = w["axis"]
+            if math.isinf(w["length"]):
+                cross = [b for b in range(3) if periodic[b] and np.linalg.norm(np.cross(a, np.eye(3)[b])) > 1e-9]
+                if cross:
+                    v.err(p + ".axis", f"an unbounded cylinder across the periodic axis {'xyz'[cross[0]]} "
+                                       f"(axis {a.tolist()}); a cylinder may only run along periodic axes: "
+                                       f"turn it, give it a length, or make axis {'xyz'[cross[0]]} non-periodic")
+            rel = x - w["point"]
+            s = rel @ a
+            along = np.abs(s) <= w["length"] / 2
+            if not np.any(along):
+                continue
+            rho = np.linalg.norm(rel[along] - s[along, None] * a, axis=1)
+            if w["inside"] and np.all(rho > w["radius"]):
+                v.err(p + ".inside", f"every particle lies outside the cylinder (radius {w['radius']:g} m "
+                                     f"about {w['point'].tolist()}, axis {a.tolist()}) but inside = true "
+                                     "keeps particles inside it; set inside = false or check radius and point")
+            if not w["inside"] and np.all(rho < w["radius"]):
+                v.err(p + ".inside", f"every particle lies inside the cylinder (radius {w['radius']:g} m "
+                                     f"about {w['point'].tolist()}, axis {a.tolist()}) but inside = false "
+                                     "keeps particles outside it; set inside = true or check radius and point")
 
 
 def _check_overlaps(v, sc):

@@ -29,6 +29,8 @@ class SimulationError(RuntimeError):
 
 class Simulation:
     def __init__(self, scene):
+        from .memory import check_scene
+        check_scene(scene)  # refuse a scene larger than the available memory before allocating
         self.scene = scene
         sim = scene.simulation
         self.dt = sim["time_step"]

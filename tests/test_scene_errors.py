@@ -112,10 +112,13 @@ def _add_material(d):
     d["materials"].append(dict(d["materials"][0], restitution=0.7))
 
 
-def _insertion(d):
-    # 500 spheres of radius 1 mm cannot fit in a 4 mm cube
-    d["particles"].append({"material": "glass", "count": 500, "radius": 0.001,
-                           "region": {"type": "box", "min": [0.0, 0.0, 0.006], "max": [0.004, 0.004, 0.01]}})
+def _insertion(count):
+    def f(d):
+        # spheres of radius 1 mm in a 4 mm cube: 8 fill 52 % of it (random insertion fails),
+        # 500 hold 33 times its volume (refused before trying)
+        d["particles"].append({"material": "glass", "count": count, "radius": 0.001,
+                               "region": {"type": "box", "min": [0.0, 0.0, 0.006], "max": [0.004, 0.004, 0.01]}})
+    return f
 
 
 # (id, mutation, exact key path, phrases saying what is allowed / what is wrong)
@@ -192,8 +195,10 @@ CASES = [
      "particles[1]", ["overlap", "allowed: simulation.initial_overlap_ratio = 0.05"]),
     ("domain-max-le-min", _set("domain", "max", [0.01, 0.0, 0.01]), "domain.max",
      ["must be larger than domain.min on every axis"]),
-    ("insertion-cannot-fit", _insertion, "particles[2].count",
-     ["could place only", "of 500", "enlarge the region or lower the count"]),
+    ("insertion-cannot-fit", _insertion(8), "particles[2].count",
+     ["could place only", "of 8", "enlarge the region or lower the count"]),
+    ("insertion-beyond-densest-packing", _insertion(500), "particles[2].count",
+     ["500 spheres", "more than the densest packing", "(at most 11)", "enlarge the region or lower the count"]),
     ("plane-spin-not-about-normal", _set("walls", 0, "angular_velocity", [1.0, 0.0, 0.0]),
      "walls[0].angular_velocity", ["may only turn about its normal"]),
 ]

@@ -223,12 +223,18 @@ def parse_thermal(v, sc, data):
             else:
                 tab = spec["table"]
                 ok = isinstance(tab, list) and len(tab) >= 1 and all(
-                    isinstance(r, list) and len(r) == 2 and all(isinstance(e, (int, float)) for e in r) for r in tab)
+                    isinstance(r, list) and len(r) == 2
+                    and all(isinstance(e, (int, float)) and not isinstance(e, bool) for e in r) for r in tab)
                 if not ok:
                     v.err(p + ".table", "must be a list of [time, temperature] pairs")
                 tab = np.array(tab, float)
-                if np.any(np.diff(tab[:, 0]) <= 0) or np.any(tab[:, 1] <= 0):
-                    v.err(p + ".table", "times must increase and temperatures be > 0")
+                for row, (tk, Tk) in enumerate(tab):
+                    if not (math.isfinite(tk) and math.isfinite(Tk) and Tk > 0):
+                        v.err(f"{p}.table[{row}]", f"[time, temperature] must be finite with temperature "
+                                                   f"> 0 K, got [{tk}, {Tk}]")
+                if np.any(np.diff(tab[:, 0]) <= 0):
+                    k = int(np.argmax(np.diff(tab[:, 0]) <= 0)) + 1
+                    v.err(f"{p}.table[{k}]", f"times must increase, got {tab[k, 0]} after {tab[k - 1, 0]}")
                 W["table"] = tab
                 W["temperature"] = float(tab[0, 1])
             if th["direct_id"] < 0 and th["indirect_id"] < 0:
