@@ -253,8 +253,11 @@ def plot(out: Path, title: str) -> Path | None:
     fig.suptitle(title)
     fig.tight_layout()
     p = out / "coupling.png"
-    fig.savefig(p, dpi=110)
-    plt.close(fig)
+    from dem.output import atomic_write
+    try:
+        atomic_write(str(p), lambda tmp: fig.savefig(tmp, dpi=110, format="png"))
+    finally:
+        plt.close(fig)
     return p
 
 
@@ -441,8 +444,8 @@ def run_case(case_dir, out=None, *, transport=None, end_time=None, restart=False
             proc.kill()
             proc.wait()
         ex.close()
-        (out / "timings.json").write_text(json.dumps(_timings(timer, t_wall0, sim, n_steps=step - i0, k=k),
-                                                     indent=1))
+        _write_timings(out / "timings.json", _timings(timer, t_wall0, sim, n_steps=step - i0, k=k),
+                       failing=status != "finished")
     # ---- final output
     fa = sim.final_arrays()
     if fa is not None:
@@ -455,6 +458,17 @@ def run_case(case_dir, out=None, *, transport=None, end_time=None, restart=False
     if not quiet:
         log(_format_timings(summ))
     return summ
+
+
+def _write_timings(path, timings, failing):
+    """timings.json, atomically (never a 0-byte file). While a run is already failing, a write
+    error here is dropped so that the first error, the one the user needs, is the one reported."""
+    from dem.output import OutputError, write_text
+    try:
+        write_text(str(path), json.dumps(timings, indent=1))
+    except OutputError:
+        if not failing:
+            raise
 
 
 def _silent(*a, **k):
@@ -805,6 +819,7 @@ def main(argv=None) -> int:
     from .case import CaseConfigError
     from .exchange import CouplingError
     from .foam_case import CaseError, FoamError
+    from dem.output import DISK_ERRNOS, OutputError
     from dem.scene import SceneError
     from dem.simulation import SimulationError
     try:
@@ -818,6 +833,14 @@ def main(argv=None) -> int:
     except (CaseConfigError, CaseError, SceneError, CouplingRunError, FoamError) as e:
         print(f"coupling: error: {e}", file=sys.stderr)
         return EXIT_CHECK
+    except OutputError as e:  # disk full, quota, read-only: written by the DEM side
+        print(f"coupling: error: {e}", file=sys.stderr)
+        return EXIT_DEM
+    except OSError as e:
+        if e.errno not in DISK_ERRNOS:
+            raise
+        print(f"coupling: error: {OutputError(e.filename or '(unnamed file)', e)}", file=sys.stderr)
+        return EXIT_DEM
     except KeyboardInterrupt:
         print("coupling: interrupted (checkpoint written)", file=sys.stderr)
         return 130

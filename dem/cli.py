@@ -55,13 +55,24 @@ def cmd_check(args):
 
 
 def cmd_run(args):
-    from .simulation import SimulationError  # noqa: F401
-    sim = _load(args.scene)
-    sim.check()
+    from .interrupt import StopRequested, StopSignals
+    from .output import OutputError
     out = args.out or os.path.join("out", os.path.splitext(os.path.basename(args.scene))[0])
-    t0 = time.perf_counter()
-    c = sim.warmup()
-    sim.run(end_time=args.end_time, out_dir=out, restart=args.restart, progress=not args.quiet)
+    with StopSignals():  # a signal during loading or compiling stops at the first chunk boundary
+        sim = _load(args.scene)
+        sim.check()
+        t0 = time.perf_counter()
+        c = sim.warmup()
+        try:
+            sim.run(end_time=args.end_time, out_dir=out, restart=args.restart, progress=not args.quiet)
+        except StopRequested as stop:
+            if sim.is_root:
+                print(stop_message(args, sim, stop, out), file=sys.stderr, flush=True)
+            return stop.exit_code
+        except OutputError as exc:
+            if sim.is_root:
+                print(f"error: {exc}", file=sys.stderr, flush=True)
+            return 3
     wall = time.perf_counter() - t0
     steps = sim.step_count
     n = sim.n_particles
@@ -77,6 +88,29 @@ def cmd_run(args):
               f"(kernels compile/load {c:.2f} s), {n * max(steps, 1) / max(sim.wall_seconds, 1e-9):.3g} "
               f"particle-steps/s; output in {out}")
     return 0
+
+
+def continue_command(args, sim, checkpoint):
+    """The command line that continues an interrupted ``dem run`` (same scene, folder, end)."""
+    import shlex
+    cmd = []
+    if sim.par is not None:
+        cmd += ["mpirun", "-np", str(sim.par.size)]
+    cmd += ["dem", "run", args.scene, "--out", args.out or os.path.dirname(checkpoint),
+            "--restart", checkpoint]
+    if args.end_time is not None:
+        cmd += ["--end-time", repr(args.end_time)]
+    if args.quiet:
+        cmd.append("--quiet")
+    return " ".join(shlex.quote(str(c)) for c in cmd)
+
+
+def stop_message(args, sim, stop, out):
+    """The one line printed when SIGINT / SIGTERM stopped a run."""
+    from .interrupt import signal_name
+    return (f"interrupted by {signal_name(stop.signum)} at t = {stop.time:.9g} s (step {stop.step}); "
+            f"checkpoint written to {stop.checkpoint}; continue with: "
+            f"{continue_command(args, sim, stop.checkpoint)}")
 
 
 def cmd_compile(args):
@@ -160,6 +194,11 @@ def main(argv=None):
         if root:
             print(f"error: {exc}", file=sys.stderr)
         return 3
+    except KeyboardInterrupt as exc:  # a second Ctrl-C / SIGTERM while the first was served
+        if root:
+            print(f"interrupted ({exc or 'KeyboardInterrupt'}): stopped at once; every file written is "
+                  f"complete (atomic writes), the last checkpoint is the one to continue from", file=sys.stderr)
+        return 143 if "SIGTERM" in str(exc) else 130
 
 
 if __name__ == "__main__":

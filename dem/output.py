@@ -1,29 +1,120 @@
 """Writers: VTK (.vtu via meshio) + a ParaView .pvd series, history.csv, final.npz and
 atomic checkpoints. Every file is written to a temporary name in the same folder and
 renamed, so a reader (or a crash) never sees half a file and nothing written is lost."""
+import errno
 import os
 import tempfile
 
 import numpy as np
 
+# every temporary file this tool writes starts with this prefix (hidden, and ours alone), so
+# that one left by a kill -9 can be recognised and removed by the next run in that folder
+TMP_PREFIX = ".tmp_thermodem_"
+
+# errors of a full or unwritable disk: reported as OutputError (one line, no traceback)
+DISK_ERRNOS = {errno.ENOSPC: "the disk is full", errno.EDQUOT: "the disk quota is exceeded",
+               errno.EROFS: "the file system is read-only", errno.EACCES: "permission denied",
+               errno.EPERM: "permission denied", errno.EFBIG: "the file is too large for the file system"}
+
+
+class OutputError(RuntimeError):
+    """An output file could not be written (disk full, quota, read-only, permissions). The
+    message names the file and what to do; the file's previous version is untouched."""
+
+    def __init__(self, path=None, exc=None, message=None):
+        if message is not None:  # relayed from the rank that writes
+            self.path, self.errno = path, None
+            super().__init__(message)
+            return
+        self.path = str(path)
+        self.errno = getattr(exc, "errno", None)
+        why = DISK_ERRNOS.get(self.errno, getattr(exc, "strerror", None) or str(exc))
+        folder = os.path.dirname(os.path.abspath(self.path))
+        super().__init__(f"cannot write {self.path}: {why}. Its previous version and the other files "
+                         f"in {folder} are intact; free space (or fix the permissions) there, or "
+                         f"choose another output folder, then continue from the last checkpoint")
+
+
+def _fsync_path(path, directory=False):
+    fd = os.open(path, os.O_RDONLY | (os.O_DIRECTORY if directory else 0))
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
 
 def atomic_write(path, write):
-    """Call ``write(tmp_path)`` then rename onto ``path``."""
+    """Call ``write(tmp_path)`` then make it durable and rename it onto ``path``: the data
+    and the folder entry are fsync'ed, so a crash or kill -9 at any instant leaves either
+    the old or the new file, complete. A full or unwritable disk raises OutputError naming
+    ``path``; the temporary file is removed and the old ``path`` stays as it was."""
     d = os.path.dirname(os.path.abspath(path))
-    os.makedirs(d, exist_ok=True)
     suffix = os.path.splitext(path)[1]
-    fd, tmp = tempfile.mkstemp(dir=d, prefix=".tmp_", suffix=suffix)
-    os.close(fd)
+    tmp = None
     try:
+        os.makedirs(d, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=d, prefix=TMP_PREFIX, suffix=suffix)
+        os.close(fd)
         write(tmp)
         umask = os.umask(0)
         os.umask(umask)
         os.chmod(tmp, 0o666 & ~umask)  # mkstemp creates 0600; give the usual permissions
+        _fsync_path(tmp)
         os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+        tmp = None
+        _fsync_path(d, directory=True)
+    except OSError as exc:
+        if exc.errno in DISK_ERRNOS:
+            raise OutputError(path, exc) from None
         raise
+    finally:
+        if tmp is not None:
+            try:
+                os.unlink(tmp)
+            except OSError:
+                pass
+
+
+def write_text(path, text):
+    """Write ``text`` to ``path`` atomically (see atomic_write)."""
+    def w(tmp):
+        with open(tmp, "w") as fh:
+            fh.write(text)
+    atomic_write(path, w)
+
+
+def remove_stale_temporaries(folder):
+    """Remove the temporary files (TMP_PREFIX) a killed earlier run left in ``folder`` and its
+    vtk/ and checkpoints/ subfolders; returns their paths. Only files carrying our prefix are
+    touched. Call it before a run starts writing in the folder."""
+    removed = []
+    for sub in ("", "vtk", "checkpoints"):
+        d = os.path.join(folder, sub)
+        try:
+            names = os.listdir(d)
+        except OSError:
+            continue
+        for name in names:
+            p = os.path.join(d, name)
+            if name.startswith(TMP_PREFIX) and os.path.isfile(p) and not os.path.islink(p):
+                try:
+                    os.unlink(p)
+                    removed.append(p)
+                except OSError:
+                    pass
+    return removed
+
+
+def prepare_output_folder(folder):
+    """Create ``folder`` (OutputError if that is impossible) and remove the temporary files a
+    killed earlier run left there (remove_stale_temporaries)."""
+    try:
+        os.makedirs(folder, exist_ok=True)
+    except OSError as exc:
+        if exc.errno in DISK_ERRNOS or exc.errno == errno.EEXIST:
+            raise OutputError(folder, exc) from None
+        raise
+    return remove_stale_temporaries(folder)
 
 
 def save_npz(path, **arrays):
@@ -59,7 +150,7 @@ class VTKSeries:
                  '<VTKFile type="Collection" version="0.1" byte_order="LittleEndian">', "  <Collection>"]
         lines += [f'    <DataSet timestep="{t:.10g}" group="" part="0" file="{f}"/>' for t, f in self.entries]
         lines += ["  </Collection>", "</VTKFile>", ""]
-        atomic_write(self.pvd, lambda tmp: open(tmp, "w").write("\n".join(lines)))
+        write_text(self.pvd, "\n".join(lines))
 
 
 class History:
@@ -80,4 +171,4 @@ class History:
         self.rows.append([float(values[c]) for c in self.columns])
         text = ",".join(self.columns) + "\n" + "".join(
             ",".join(f"{v:.12g}" for v in r) + "\n" for r in self.rows)
-        atomic_write(self.path, lambda tmp: open(tmp, "w").write(text))
+        write_text(self.path, text)
