@@ -68,6 +68,8 @@ def cmd_run(args):
         except StopRequested as stop:
             if sim.is_root:
                 print(stop_message(args, sim, stop, out), file=sys.stderr, flush=True)
+            if sim.par is not None:
+                _exit_stopped_rank(sim, stop.exit_code)
             return stop.exit_code
         except OutputError as exc:
             if sim.is_root:
@@ -88,6 +90,17 @@ def cmd_run(args):
               f"(kernels compile/load {c:.2f} s), {n * max(steps, 1) / max(sim.wall_seconds, 1e-9):.3g} "
               f"particle-steps/s; output in {out}")
     return 0
+
+
+def _exit_stopped_rank(sim, code):
+    """End a rank of a stopped MPI run at once. Open MPI's mpirun, once signalled, is killing
+    the job (SIGTERM to the ranks, then SIGKILL after odls_base_sigkill_timeout): MPI_Finalize
+    then waits for daemons that no longer answer until the SIGKILL. Every file is written and
+    fsync'ed and every rank has reached this point (barrier), so nothing is lost by skipping it."""
+    sim.par.comm.Barrier()
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code)
 
 
 def continue_command(args, sim, checkpoint):

@@ -32,14 +32,13 @@ import pytest
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(HERE)
 SCENE = os.path.join(HERE, "scenes", "signals_bed.toml")
-END = 0.06          # serial runs: 6,000 steps
-END_MPI = 0.012     # mpirun -np 2: 1,200 steps (the parallel loop steps in Python)
+END = 0.03          # serial runs: 3,000 steps
 FIELDS = ("position", "velocity", "angular_velocity", "temperature")
 MPI_ENV = dict(OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1",
                OMPI_MCA_rmaps_base_oversubscribe="1", OMPI_MCA_mpi_yield_when_idle="1",
                # mpirun sends SIGCONT, waits this many seconds, sends SIGTERM, waits again, then
                # SIGKILL (default 1 s: too short to finish a chunk and write a checkpoint)
-               OMPI_MCA_odls_base_sigkill_timeout="5")
+               OMPI_MCA_odls_base_sigkill_timeout="3")
 
 
 def env(**extra):
@@ -154,35 +153,37 @@ def test_signal_checkpoints_and_continues_exactly(reference, tmp_path, sig, code
 
 @pytest.mark.skipif(shutil.which("mpirun") is None, reason="needs Open MPI (mpirun)")
 def test_mpirun_sigint_stops_every_rank_with_a_checkpoint(tmp_path):
-    """Ctrl-C to mpirun: Open MPI 4.1 sends SIGTERM to every rank (after
-    odls_base_sigkill_timeout seconds); each rank stops at the same step, the root writes the
-    checkpoint, every rank exits 143; the continue command ends where an uninterrupted run on
-    2 ranks ends, to round-off."""
-    ref, out = tmp_path / "ref", tmp_path / "out"
+    """Ctrl-C to mpirun: Open MPI 4.1 sends SIGTERM to every rank (odls_base_sigkill_timeout
+    seconds later); the ranks stop at the same step, the root writes the checkpoint, every rank
+    exits 143. Continued 100 steps further, the run ends where an uninterrupted run on 2 ranks
+    ends, to round-off."""
+    out, ref = tmp_path / "out", tmp_path / "ref"
     base = ["mpirun", "-np", "2"]
-    r = subprocess.run(base + dem("run", SCENE, "--out", str(ref), "--end-time", str(END_MPI), "--quiet"),
-                       capture_output=True, text=True, env=env(**MPI_ENV), timeout=600)
-    assert r.returncode == 0, r.stderr
+    mpi_env = env(**MPI_ENV, THERMODEM_CHUNK_SECONDS="0.2")
     # each rank's exit status, recorded by a shell that ignores the signals itself
     rank = ("trap '' INT TERM; \"$@\"; echo $? > " + shlex.quote(str(tmp_path)) +
             "/rc.$OMPI_COMM_WORLD_RANK")
     p = subprocess.Popen(base + ["sh", "-c", rank, "sh"] +
-                         dem("run", SCENE, "--out", str(out), "--end-time", str(END_MPI), "--quiet"),
-                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env(**MPI_ENV))
+                         dem("run", SCENE, "--out", str(out), "--end-time", "0.5", "--quiet"),
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=mpi_env)
     wait_for_rows(p, out, 2)
     p.send_signal(signal.SIGINT)
     _, err = p.communicate(timeout=120)
     codes = [int(open(tmp_path / f"rc.{k}").read()) for k in (0, 1)]
     assert codes == [143, 143], err
     t, step, line = assert_one_stop_line(err, "SIGTERM", out)
-    assert 0 < step < int(round(END_MPI / 1e-5))
     assert int(load_all(out / "checkpoint.npz")["step_count"]) == step
     prefix, argv = continue_argv(line)
-    assert prefix == ["mpirun", "-np", "2"]
-    q = subprocess.run(prefix + argv, capture_output=True, text=True, env=env(**MPI_ENV), timeout=600)
+    assert prefix == ["mpirun", "-np", "2"] and argv[-3:] == ["--end-time", "0.5", "--quiet"]
+    end = repr((step + 100) * 1e-5)
+    argv[-2] = end
+    q = subprocess.run(prefix + argv, capture_output=True, text=True, env=mpi_env, timeout=600)
     assert q.returncode == 0, q.stderr
+    r = subprocess.run(base + dem("run", SCENE, "--out", str(ref), "--end-time", end, "--quiet"),
+                       capture_output=True, text=True, env=mpi_env, timeout=600)
+    assert r.returncode == 0, r.stderr
     a, b = load_all(ref / "final.npz"), load_all(out / "final.npz")
-    assert np.array_equal(a["id"], b["id"])
+    assert np.array_equal(a["id"], b["id"]) and int(round(float(a["time"]) / 1e-5)) == step + 100
     for k, tol in (("position", 1e-10), ("velocity", 1e-7), ("angular_velocity", 5e-4), ("temperature", 1e-9)):
         assert np.abs(a[k] - b[k]).max() <= tol, k
 
@@ -252,27 +253,46 @@ def fill(disk, leave):
         fh.write(b"\0" * max(free - leave, 0))
 
 
-def test_disk_full_names_the_file_and_keeps_the_checkpoint(small_disk):
+def test_disk_full_names_the_file_and_keeps_the_checkpoint(small_disk, tmp_path):
+    """The disk fills while the continued run writes its checkpoint: the checkpoint written
+    before is kept byte for byte (the new one went to a temporary name, removed)."""
+    scene = tmp_path / "novtk.toml"  # no VTK: the history and final.npz fit, the checkpoint does not
+    scene.write_text(open(SCENE).read().replace("vtk = true", "vtk = false"))
     out = small_disk / "out"
-    first = subprocess.run(dem("run", SCENE, "--out", str(out), "--end-time", "0.004", "--quiet"),
+    first = subprocess.run(dem("run", str(scene), "--out", str(out), "--end-time", "0.004", "--quiet"),
                            capture_output=True, text=True, env=env(), timeout=600)
     assert first.returncode == 0, first.stderr
-    before = {p: sha(p) for p in glob.glob(str(out / "**" / "*"), recursive=True) if os.path.isfile(p)}
     ck = str(out / "checkpoint.npz")
-    fill(small_disk, os.path.getsize(ck) // 2)  # the outputs go on; the checkpoint will not fit
-    p = subprocess.run(dem("run", SCENE, "--out", str(out), "--end-time", "0.03", "--quiet", "--restart", ck),
-                       capture_output=True, text=True, env=env(), timeout=600)
+    before = sha(ck)
+    fill(small_disk, os.path.getsize(ck) // 2)
+    p = subprocess.run(dem("run", str(scene), "--out", str(out), "--end-time", "0.008", "--quiet",
+                           "--restart", ck), capture_output=True, text=True, env=env(), timeout=600)
     assert p.returncode == 3, p.stderr
     assert "Traceback" not in p.stderr
     lines = [s for s in p.stderr.splitlines() if s.strip()]
     assert len(lines) == 1, p.stderr
-    m = re.match(r"error: cannot write (\S+): the disk is full\. ", lines[0])
-    assert m and os.path.dirname(m.group(1)).startswith(str(out)), lines[0]
-    assert sha(ck) == before[ck]  # the earlier checkpoint, byte for byte
-    load_all(ck)
-    files = [p for p in glob.glob(str(out / "**" / "*"), recursive=True) if os.path.isfile(p)]
+    assert lines[0].startswith(f"error: cannot write {ck}: the disk is full. "), lines[0]
+    assert sha(ck) == before  # the earlier checkpoint, byte for byte
+    assert int(load_all(ck)["step_count"]) == 400
+    files = [f for f in glob.glob(str(out / "**" / "*"), recursive=True) if os.path.isfile(f)]
     assert not [f for f in files if os.path.getsize(f) == 0]
     assert not glob.glob(str(out / "**" / ".tmp_*"), recursive=True)
-    for f in files:  # whatever was written is complete
-        if f.endswith(".npz"):
-            load_all(f)
+    assert load_all(out / "final.npz")["time"] == pytest.approx(0.008)  # written before the disk filled
+
+
+@pytest.mark.skipif(shutil.which("mpirun") is None, reason="needs Open MPI (mpirun)")
+def test_disk_full_under_mpirun_stops_every_rank(small_disk):
+    """The root cannot write a VTK file: every rank stops (no hang), exit 3, one line."""
+    out = small_disk / "out"
+    fill(small_disk, 60_000)
+    p = subprocess.run(["mpirun", "-np", "2"] + dem("run", SCENE, "--out", str(out), "--end-time", "0.004",
+                                                    "--quiet"),
+                       capture_output=True, text=True, env=env(**MPI_ENV), timeout=600)
+    assert p.returncode != 0
+    assert "Traceback" not in p.stderr
+    errs = [s for s in p.stderr.splitlines() if s.startswith("error:")]
+    assert len(errs) == 1 and re.match(rf"error: cannot write {re.escape(str(out))}/\S+: the disk is full\. ",
+                                       errs[0]), p.stderr
+    files = [f for f in glob.glob(str(out / "**" / "*"), recursive=True) if os.path.isfile(f)]
+    assert not [f for f in files if os.path.getsize(f) == 0]
+    assert not glob.glob(str(out / "**" / ".tmp_*"), recursive=True)
