@@ -73,7 +73,10 @@ def cmd_run(args):
             return stop.exit_code
         except OutputError as exc:
             if sim.is_root:
-                print(f"error: {exc}", file=sys.stderr, flush=True)
+                ck = os.path.join(out, "checkpoint.npz")
+                again = (f"; then continue with: {continue_command(args, sim, ck)}" if os.path.isfile(ck)
+                         else "")
+                print(f"error: {exc}{again}", file=sys.stderr, flush=True)
             return 3
     wall = time.perf_counter() - t0
     steps = sim.step_count

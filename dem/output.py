@@ -30,9 +30,9 @@ class OutputError(RuntimeError):
         self.errno = getattr(exc, "errno", None)
         why = DISK_ERRNOS.get(self.errno, getattr(exc, "strerror", None) or str(exc))
         folder = os.path.dirname(os.path.abspath(self.path))
-        super().__init__(f"cannot write {self.path}: {why}. Its previous version and the other files "
-                         f"in {folder} are intact; free space (or fix the permissions) there, or "
-                         f"choose another output folder, then continue from the last checkpoint")
+        super().__init__(f"cannot write {self.path}: {why}. The previous version of that file (if any) "
+                         f"and the other files in {folder} are intact; free space there (or fix its "
+                         f"permissions), or choose another output folder")
 
 
 def _fsync_path(path, directory=False):

@@ -296,3 +296,37 @@ def test_disk_full_under_mpirun_stops_every_rank(small_disk):
     files = [f for f in glob.glob(str(out / "**" / "*"), recursive=True) if os.path.isfile(f)]
     assert not [f for f in files if os.path.getsize(f) == 0]
     assert not glob.glob(str(out / "**" / ".tmp_*"), recursive=True)
+
+
+def test_coupled_run_on_a_full_disk(tmp_path, solver):
+    """`coupling run` whose output disk fills (1 MiB tmpfs; the gas solver's log fills it):
+    exit 4, one line naming the file, no traceback, no 0-byte or temporary file (timings.json
+    used to be left empty), the solver stopped."""
+    disk = tmp_path / "disk"
+    disk.mkdir()
+    r = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=1m", "tmpfs", str(disk)], capture_output=True, text=True)
+    if r.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs here: {r.stderr.strip()}")
+    try:
+        case = tmp_path / "case"
+        shutil.copytree(os.path.join(ROOT, "openfoam_cases", "single_particle_heating"), case)
+        out = disk / "out"
+        p = subprocess.run([sys.executable, "-m", "coupling.run", "run", str(case), "--out", str(out),
+                            "--end-time", "3.0", "--quiet"], capture_output=True, text=True, env=env(),
+                           timeout=600)
+        assert p.returncode == 4, p.stderr[-3000:]
+        assert "Traceback" not in p.stderr
+        errs = [s for s in p.stderr.splitlines() if s.strip()]
+        assert len(errs) == 1, p.stderr[-3000:]
+        m = re.match(r"coupling: error: cannot write (\S+): the disk is full\. ", errs[0])
+        assert m and m.group(1).startswith(str(out)), errs[0]
+        files = [f for f in glob.glob(str(out / "**" / "*"), recursive=True) if os.path.isfile(f)]
+        assert not [f for f in files if os.path.getsize(f) == 0 and not f.endswith(".pid")], files
+        assert not glob.glob(str(out / "**" / ".tmp_*"), recursive=True)
+        for f in files:
+            if f.endswith(".npz"):
+                load_all(f)
+        # the gas solver was stopped: no process left running on this case
+        assert subprocess.run(["pgrep", "-f", str(out)], capture_output=True).returncode == 1
+    finally:
+        subprocess.run(["umount", "-l", str(disk)], capture_output=True)
