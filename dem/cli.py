@@ -179,6 +179,14 @@ def cmd_render(args):
 
 
 def main(argv=None):
+    try:
+        return _main(argv)
+    except KeyboardInterrupt:  # Ctrl-C before the run installed its handlers (imports, parsing)
+        print("interrupted before the run started: nothing was written", file=sys.stderr)
+        return 130
+
+
+def _main(argv=None):
     ap = argparse.ArgumentParser(prog="dem", description="Thermal DEM solver")
     sub = ap.add_subparsers(dest="cmd", required=True)
     r = sub.add_parser("run", help="run a scene")
@@ -210,10 +218,14 @@ def main(argv=None):
         if root:
             print(f"error: {exc}", file=sys.stderr)
         return 3
-    except KeyboardInterrupt as exc:  # a second Ctrl-C / SIGTERM while the first was served
-        if root:
-            print(f"interrupted ({exc or 'KeyboardInterrupt'}): stopped at once; every file written is "
-                  f"complete (atomic writes), the last checkpoint is the one to continue from", file=sys.stderr)
+    except KeyboardInterrupt as exc:
+        if not str(exc).startswith("second"):  # Ctrl-C in dem check / render / compile
+            if root:
+                print("interrupted", file=sys.stderr)
+            return 130
+        if root:  # a second Ctrl-C / SIGTERM while the first was being served
+            print(f"interrupted again ({exc}): stopped at once; every file written is complete (atomic "
+                  f"writes) and the last checkpoint is the one to continue from", file=sys.stderr)
         return 143 if "SIGTERM" in str(exc) else 130
 
 

@@ -111,7 +111,10 @@ def prepare_output_folder(folder):
     try:
         os.makedirs(folder, exist_ok=True)
     except OSError as exc:
-        if exc.errno in DISK_ERRNOS or exc.errno == errno.EEXIST:
+        if exc.errno == errno.EEXIST:
+            raise OutputError(message=f"cannot write into {folder}: it is a file, not a folder; "
+                                      f"choose another output folder") from None
+        if exc.errno in DISK_ERRNOS:
             raise OutputError(folder, exc) from None
         raise
     return remove_stale_temporaries(folder)
