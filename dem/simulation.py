@@ -876,6 +876,14 @@ class Simulation:
         are written, then StopRequested is raised (its ``time`` and ``checkpoint`` say where).
         A checkpoint is written at the end of every run with out_dir, whatever
         checkpoint_interval. A file that cannot be written raises OutputError (every rank)."""
+        self._write_failure = None
+        self._hold_writes = True
+        try:
+            return self._run(end_time, out_dir, progress, restart, log)
+        finally:
+            self._hold_writes = False
+
+    def _run(self, end_time, out_dir, progress, restart, log):
         from .chunks import ChunkClock, agree
         from .interrupt import StopRequested, StopSignals
         from .progress import Progress
@@ -892,8 +900,6 @@ class Simulation:
             self.warmup()
         writers = None
         ck_path = os.path.join(out_dir, "checkpoint.npz") if out_dir is not None else None
-        self._write_failure = None
-        self._hold_writes = True
         if out_dir is not None:
             keep = self.time if restart is not None else None
             writers = dict(hist=None, vtk=None)  # the root writes; the others take part in the gathers
@@ -941,7 +947,6 @@ class Simulation:
                 self._settle_writes()
             stop.time, stop.step, stop.checkpoint = self.time, self.step_count, ck_path
             self.wall_seconds = prog.elapsed
-            self._hold_writes = False
             raise
         except SimulationError:
             self._hold_writes = False
@@ -960,7 +965,6 @@ class Simulation:
                 self._root_write(lambda: save_npz(os.path.join(out_dir, "final.npz"), **fa))
             self.write_checkpoint(ck_path)
             self._settle_writes()
-        self._hold_writes = False
         self.wall_seconds = prog.elapsed
         return self
 
@@ -982,6 +986,7 @@ class Simulation:
             return
         msg = self.par.comm.bcast(str(self._write_failure) if self._write_failure else None, root=0)
         if msg:
+            self._write_failure = None
             self._hold_writes = False
             raise OutputError(message=msg)
 
