@@ -287,7 +287,7 @@ def run_case(case_dir, out=None, *, transport=None, end_time=None, restart=False
     from .exchange import CouplingError, FileExchange, SocketExchange
     from .interface import CouplingInterface
     from .mesh import read_polymesh
-    from dem.output import VTKSeries, History, save_npz
+    from dem.output import VTKSeries, History, remove_stale_temporaries, save_npz
     from dem.simulation import SimulationError
 
     t_wall0 = time.perf_counter()
@@ -300,6 +300,7 @@ def run_case(case_dir, out=None, *, transport=None, end_time=None, restart=False
     sim = case.sim
     R = _Ranks(sim)
     R.on_root(prepare_output, case, out, restart=restart)
+    R.on_root(remove_stale_temporaries, str(out))  # left by a kill -9 of an earlier run (ours only)
     mesh = read_polymesh(str(out))
     mt, eps_min_cfd = case.model_type, None
     g = np.asarray(sim.scene.simulation["gravity"], float)

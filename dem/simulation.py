@@ -783,7 +783,7 @@ class Simulation:
     def write_checkpoint(self, path):
         arr = self.checkpoint_arrays()
         if arr is not None:
-            self._root_write(lambda: save_npz(path, **arr))
+            self._root_write(lambda: save_npz(path, durable=True, **arr))
 
     def load_checkpoint(self, path):
         try:
