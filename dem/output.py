@@ -30,9 +30,11 @@ class OutputError(RuntimeError):
         self.errno = getattr(exc, "errno", None)
         why = DISK_ERRNOS.get(self.errno, getattr(exc, "strerror", None) or str(exc))
         folder = os.path.dirname(os.path.abspath(self.path))
+        fix = ("make it writable" if self.errno in (errno.EROFS, errno.EACCES, errno.EPERM)
+               else "free space there")
         super().__init__(f"cannot write {self.path}: {why}. The previous version of that file (if any) "
-                         f"and the other files in {folder} are intact; free space there (or fix its "
-                         f"permissions), or choose another output folder")
+                         f"and the other files in {folder} are intact; {fix}, or choose another output "
+                         f"folder")
 
 
 def _fsync_path(path, directory=False):
