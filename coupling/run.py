@@ -261,10 +261,11 @@ def plot(out: Path, title: str) -> Path | None:
     fig.suptitle(title)
     fig.tight_layout()
     p = out / "coupling.png"
-    from dem.outdir import claim
-    claim(p)
-    fig.savefig(p, dpi=110)
-    plt.close(fig)
+    from dem.output import atomic_write
+    try:
+        atomic_write(str(p), lambda tmp: fig.savefig(tmp, dpi=110, format="png"))
+    finally:
+        plt.close(fig)
     return p
 
 
@@ -296,7 +297,7 @@ def run_case(case_dir, out=None, *, transport=None, end_time=None, restart=False
     from .exchange import CouplingError, FileExchange, SocketExchange
     from .interface import CouplingInterface
     from .mesh import read_polymesh
-    from dem.output import VTKSeries, History, save_npz
+    from dem.output import VTKSeries, History, remove_stale_temporaries, save_npz
     from dem.simulation import SimulationError
 
     from dem import outdir
@@ -313,6 +314,7 @@ def run_case(case_dir, out=None, *, transport=None, end_time=None, restart=False
     R = _Ranks(sim)
     R.barrier()   # every rank has checked --out before rank 0 claims it
     R.on_root(prepare_output, case, out, restart=restart, overwrite=overwrite)
+    R.on_root(remove_stale_temporaries, str(out))  # left by a kill -9 of an earlier run (ours only)
     mesh = read_polymesh(str(out))
     mt, eps_min_cfd = case.model_type, None
     g = np.asarray(sim.scene.simulation["gravity"], float)
@@ -464,9 +466,8 @@ def run_case(case_dir, out=None, *, transport=None, end_time=None, restart=False
             proc.wait()
         ex.close()
         outdir.adopt_solver_entries(out)
-        outdir.claim(out / "timings.json")
-        (out / "timings.json").write_text(json.dumps(_timings(timer, t_wall0, sim, n_steps=step - i0, k=k),
-                                                     indent=1))
+        _write_timings(out / "timings.json", _timings(timer, t_wall0, sim, n_steps=step - i0, k=k),
+                       failing=status != "finished")
     # ---- final output
     fa = sim.final_arrays()
     if fa is not None:
@@ -479,6 +480,17 @@ def run_case(case_dir, out=None, *, transport=None, end_time=None, restart=False
     if not quiet:
         log(_format_timings(summ))
     return summ
+
+
+def _write_timings(path, timings, failing):
+    """timings.json, atomically (never a 0-byte file). While a run is already failing, a write
+    error here is dropped so that the first error, the one the user needs, is the one reported."""
+    from dem.output import OutputError, write_text
+    try:
+        write_text(str(path), json.dumps(timings, indent=1))
+    except OutputError:
+        if not failing:
+            raise
 
 
 def _silent(*a, **k):
@@ -838,6 +850,7 @@ def main(argv=None) -> int:
     from .case import CaseConfigError
     from .exchange import CouplingError
     from .foam_case import CaseError, FoamError
+    from dem.output import DISK_ERRNOS, OutputError
     from dem.scene import SceneError
     from dem.simulation import SimulationError
     try:
@@ -854,6 +867,14 @@ def main(argv=None) -> int:
     except MemoryError:
         print("coupling: error: out of memory (the DEM scene or the mesh did not fit); use fewer particles "
               "or cells", file=sys.stderr)
+        return EXIT_DEM
+    except OutputError as e:  # disk full, quota, read-only: written by the DEM side
+        print(f"coupling: error: {e}", file=sys.stderr)
+        return EXIT_DEM
+    except OSError as e:
+        if e.errno not in DISK_ERRNOS:
+            raise
+        print(f"coupling: error: {OutputError(e.filename or '(unnamed file)', e)}", file=sys.stderr)
         return EXIT_DEM
     except KeyboardInterrupt:
         print("coupling: interrupted (checkpoint written)", file=sys.stderr)

@@ -68,7 +68,7 @@ def with_meta(arrays, record):
 def write(path, arrays, record):
     """Write a checkpoint atomically (dem.output.save_npz)."""
     from .output import save_npz
-    save_npz(path, **with_meta(arrays, record))
+    save_npz(path, durable=True, **with_meta(arrays, record))
 
 
 # ---------------------------------------------------------------------------- reading

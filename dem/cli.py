@@ -68,22 +68,38 @@ def cmd_check(args):
 
 
 def cmd_run(args):
-    from .simulation import SimulationError  # noqa: F401
+    from .interrupt import StopRequested, StopSignals
+    from .output import OutputError
     from . import outdir
     out = args.out or os.path.join("out", os.path.splitext(os.path.basename(args.scene))[0])
     _check_out(out)
     rule = dict(overwrite=args.overwrite, restart=bool(args.restart), keep=[args.scene])
     outdir.check(out, **rule)          # a user's folder is refused before the scene is even read
-    sim = _load(args.scene)
-    if args.restart is not None:
-        sim.prepare_restart(args.restart)  # a bad checkpoint or a refused scene edit: exit 2 now
-    sim.check()
-    if sim.par is not None:
-        sim.par.comm.Barrier()         # every rank has checked the folder before rank 0 claims it
-    outdir.claim_collective(out, sim.par.comm if sim.par is not None else None, sim.is_root, **rule)
-    t0 = time.perf_counter()
-    c = sim.warmup()
-    sim.run(end_time=args.end_time, out_dir=out, restart=args.restart, progress=not args.quiet)
+    with StopSignals():  # a signal during loading or compiling stops at the first chunk boundary
+        sim = _load(args.scene)
+        if args.restart is not None:
+            sim.prepare_restart(args.restart)  # a bad checkpoint or a refused scene edit: exit 2 now
+        sim.check()
+        if sim.par is not None:
+            sim.par.comm.Barrier()         # every rank has checked the folder before rank 0 claims it
+        outdir.claim_collective(out, sim.par.comm if sim.par is not None else None, sim.is_root, **rule)
+        t0 = time.perf_counter()
+        c = sim.warmup()
+        try:
+            sim.run(end_time=args.end_time, out_dir=out, restart=args.restart, progress=not args.quiet)
+        except StopRequested as stop:
+            if sim.is_root:
+                print(stop_message(args, sim, stop, out), file=sys.stderr, flush=True)
+            if sim.par is not None:
+                _exit_stopped_rank(sim, stop.exit_code)
+            return stop.exit_code
+        except OutputError as exc:
+            if sim.is_root:
+                ck = os.path.join(out, "checkpoint.npz")
+                again = (f"; then continue with: {continue_command(args, sim, ck)}" if os.path.isfile(ck)
+                         else "")
+                print(f"error: {exc}{again}", file=sys.stderr, flush=True)
+            return 3
     wall = time.perf_counter() - t0
     steps = sim.step_count
     n = sim.n_particles
@@ -99,6 +115,40 @@ def cmd_run(args):
               f"(kernels compile/load {c:.2f} s), {n * max(steps, 1) / max(sim.wall_seconds, 1e-9):.3g} "
               f"particle-steps/s; output in {out}")
     return 0
+
+
+def _exit_stopped_rank(sim, code):
+    """End a rank of a stopped MPI run at once. Open MPI's mpirun, once signalled, is killing
+    the job (SIGTERM to the ranks, then SIGKILL after odls_base_sigkill_timeout): MPI_Finalize
+    then waits for daemons that no longer answer until the SIGKILL. Every file is written and
+    fsync'ed and every rank has reached this point (barrier), so nothing is lost by skipping it."""
+    sim.par.comm.Barrier()
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code)
+
+
+def continue_command(args, sim, checkpoint):
+    """The command line that continues an interrupted ``dem run`` (same scene, folder, end)."""
+    import shlex
+    cmd = []
+    if sim.par is not None:
+        cmd += ["mpirun", "-np", str(sim.par.size)]
+    cmd += ["dem", "run", args.scene, "--out", args.out or os.path.dirname(checkpoint),
+            "--restart", checkpoint]
+    if args.end_time is not None:
+        cmd += ["--end-time", repr(args.end_time)]
+    if args.quiet:
+        cmd.append("--quiet")
+    return " ".join(shlex.quote(str(c)) for c in cmd)
+
+
+def stop_message(args, sim, stop, out):
+    """The one line printed when SIGINT / SIGTERM stopped a run."""
+    from .interrupt import signal_name
+    return (f"interrupted by {signal_name(stop.signum)} at t = {stop.time:.9g} s (step {stop.step}); "
+            f"checkpoint written to {stop.checkpoint}; continue with: "
+            f"{continue_command(args, sim, stop.checkpoint)}")
 
 
 def cmd_compile(args):
@@ -151,6 +201,14 @@ def cmd_render(args):
 
 
 def main(argv=None):
+    try:
+        return _main(argv)
+    except KeyboardInterrupt:  # Ctrl-C before the run installed its handlers (imports, parsing)
+        print("interrupted before the run started: nothing was written", file=sys.stderr)
+        return 130
+
+
+def _main(argv=None):
     from .args import end_time
     ap = argparse.ArgumentParser(prog="dem", description="Thermal DEM solver")
     sub = ap.add_subparsers(dest="cmd", required=True)
@@ -193,6 +251,15 @@ def main(argv=None):
                   "did not fit although `dem check` estimated it would, or simulation.force = true); use "
                   "fewer particles or a smaller domain", file=sys.stderr)
         return 3
+    except KeyboardInterrupt as exc:
+        if not str(exc).startswith("second"):  # Ctrl-C in dem check / render / compile
+            if root:
+                print("interrupted", file=sys.stderr)
+            return 130
+        if root:  # a second Ctrl-C / SIGTERM while the first was being served
+            print(f"interrupted again ({exc}): stopped at once; every file written is complete (atomic "
+                  f"writes) and the last checkpoint is the one to continue from", file=sys.stderr)
+        return 143 if "SIGTERM" in str(exc) else 130
 
 
 if __name__ == "__main__":

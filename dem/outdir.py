@@ -5,7 +5,7 @@ be used only when it is
 
 * new (it does not exist yet), or empty, or
 * an earlier output of this tool: it holds the manifest :data:`MANIFEST` and nothing that the
-  manifest does not list (besides the tool's own temporary files ``.tmp_*``).
+  manifest does not list (besides the tool's own temporary files ``.tmp_thermodem_*``).
 
 An earlier output is refused unless the run continues it (``--restart``) or replaces it
 (``--overwrite``: removes exactly the entries the manifest lists, nothing else, then starts
@@ -33,7 +33,9 @@ import shutil
 from .scene import SceneError
 
 MANIFEST = ".thermodem-manifest.json"
-TMP_PREFIX = ".tmp_"          # dem.output.atomic_write's temporary files (a kill may leave one)
+# every temporary file this tool writes starts with this prefix (hidden, and ours alone), so
+# that one left by a kill -9 is recognised as ours and removed by the next run in that folder
+TMP_PREFIX = ".tmp_thermodem_"
 FORMAT = 1
 SHOW = 4                      # foreign entries named in a message
 # entries the gas solver (OpenFOAM) creates in the case copy it runs in

@@ -1,41 +1,138 @@
 """Writers: VTK (.vtu via meshio) + a ParaView .pvd series, history.csv, final.npz and
 atomic checkpoints. Every file is written to a temporary name in the same folder and
 renamed, so a reader (or a crash) never sees half a file and nothing written is lost."""
+import errno
 import math
 import os
 import tempfile
 
 import numpy as np
 
-from .outdir import claim
+from .outdir import TMP_PREFIX, claim  # noqa: F401  (TMP_PREFIX: every temporary file of ours)
+
+# errors of a full or unwritable disk: reported as OutputError (one line, no traceback)
+DISK_ERRNOS = {errno.ENOSPC: "the disk is full", errno.EDQUOT: "the disk quota is exceeded",
+               errno.EROFS: "the file system is read-only", errno.EACCES: "permission denied",
+               errno.EPERM: "permission denied", errno.EFBIG: "the file is too large for the file system"}
 
 
-def atomic_write(path, write):
-    """Call ``write(tmp_path)`` then rename onto ``path``. The target is first recorded in
-    the manifest of the output folder that holds it (dem.outdir.claim)."""
-    claim(path)
-    d = os.path.dirname(os.path.abspath(path))
-    os.makedirs(d, exist_ok=True)
-    suffix = os.path.splitext(path)[1]
-    fd, tmp = tempfile.mkstemp(dir=d, prefix=".tmp_", suffix=suffix)
-    os.close(fd)
+class OutputError(RuntimeError):
+    """An output file could not be written (disk full, quota, read-only, permissions). The
+    message names the file and what to do; the file's previous version is untouched."""
+
+    def __init__(self, path=None, exc=None, message=None):
+        if message is not None:  # relayed from the rank that writes
+            self.path, self.errno = path, None
+            super().__init__(message)
+            return
+        self.path = str(path)
+        self.errno = getattr(exc, "errno", None)
+        why = DISK_ERRNOS.get(self.errno, getattr(exc, "strerror", None) or str(exc))
+        folder = os.path.dirname(os.path.abspath(self.path))
+        fix = ("make it writable" if self.errno in (errno.EROFS, errno.EACCES, errno.EPERM)
+               else "free space there")
+        super().__init__(f"cannot write {self.path}: {why}. The previous version of that file (if any) "
+                         f"and the other files in {folder} are intact; {fix}, or choose another output "
+                         f"folder")
+
+
+def _fsync_path(path, directory=False):
+    fd = os.open(path, os.O_RDONLY | (os.O_DIRECTORY if directory else 0))
     try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def atomic_write(path, write, durable=False):
+    """Call ``write(tmp_path)`` then rename it onto ``path``: a kill -9 at any instant leaves
+    either the old or the new file, complete (the rename is atomic; what a killed process
+    wrote stays in the page cache). ``durable``: also fsync the data before the rename and
+    the folder after it, so that a power cut or an OS crash cannot leave an empty or partial
+    file either (checkpoints; ~15 ms per file on ext4, too much for every VTK output). A full
+    or unwritable disk raises OutputError naming ``path``; the temporary file is removed and
+    the old ``path`` stays as it was."""
+    d = os.path.dirname(os.path.abspath(path))
+    suffix = os.path.splitext(path)[1]
+    tmp = None
+    try:
+        claim(path)   # recorded in the manifest of the output folder that holds it (dem.outdir)
+        os.makedirs(d, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=d, prefix=TMP_PREFIX, suffix=suffix)
+        os.close(fd)
         write(tmp)
         umask = os.umask(0)
         os.umask(umask)
         os.chmod(tmp, 0o666 & ~umask)  # mkstemp creates 0600; give the usual permissions
+        if durable:
+            _fsync_path(tmp)
         os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+        tmp = None
+        if durable:
+            _fsync_path(d, directory=True)
+    except OSError as exc:
+        if exc.errno in DISK_ERRNOS:
+            raise OutputError(path, exc) from None
         raise
+    finally:
+        if tmp is not None:
+            try:
+                os.unlink(tmp)
+            except OSError:
+                pass
 
 
-def save_npz(path, **arrays):
+def write_text(path, text):
+    """Write ``text`` to ``path`` atomically (see atomic_write)."""
+    def w(tmp):
+        with open(tmp, "w") as fh:
+            fh.write(text)
+    atomic_write(path, w)
+
+
+def remove_stale_temporaries(folder):
+    """Remove the temporary files (TMP_PREFIX) a killed earlier run left in ``folder`` and its
+    vtk/ and checkpoints/ subfolders; returns their paths. Only files carrying our prefix are
+    touched. Call it before a run starts writing in the folder."""
+    removed = []
+    for sub in ("", "vtk", "checkpoints"):
+        d = os.path.join(folder, sub)
+        try:
+            names = os.listdir(d)
+        except OSError:
+            continue
+        for name in names:
+            p = os.path.join(d, name)
+            if name.startswith(TMP_PREFIX) and os.path.isfile(p) and not os.path.islink(p):
+                try:
+                    os.unlink(p)
+                    removed.append(p)
+                except OSError:
+                    pass
+    return removed
+
+
+def prepare_output_folder(folder):
+    """Create ``folder`` (OutputError if that is impossible) and remove the temporary files a
+    killed earlier run left there (remove_stale_temporaries)."""
+    try:
+        os.makedirs(folder, exist_ok=True)
+    except OSError as exc:
+        if exc.errno == errno.EEXIST:
+            raise OutputError(message=f"cannot write into {folder}: it is a file, not a folder; "
+                                      f"choose another output folder") from None
+        if exc.errno in DISK_ERRNOS:
+            raise OutputError(folder, exc) from None
+        raise
+    return remove_stale_temporaries(folder)
+
+
+def save_npz(path, durable=False, **arrays):
+    """``np.savez`` of ``arrays`` to ``path`` atomically (durable: fsync'ed, for checkpoints)."""
     def w(tmp):
         with open(tmp, "wb") as fh:
             np.savez(fh, **arrays)
-    atomic_write(path, w)
+    atomic_write(path, w, durable=durable)
 
 
 class VTKSeries:
@@ -64,7 +161,7 @@ class VTKSeries:
                  '<VTKFile type="Collection" version="0.1" byte_order="LittleEndian">', "  <Collection>"]
         lines += [f'    <DataSet timestep="{t:.10g}" group="" part="0" file="{f}"/>' for t, f in self.entries]
         lines += ["  </Collection>", "</VTKFile>", ""]
-        atomic_write(self.pvd, lambda tmp: open(tmp, "w").write("\n".join(lines)))
+        write_text(self.pvd, "\n".join(lines))
 
 
 class History:
@@ -87,4 +184,4 @@ class History:
         self.rows.append([float(values[c]) for c in self.columns])
         text = ",".join(self.columns) + "\n" + "".join(
             ",".join(f"{v:.12g}" for v in r) + "\n" for r in self.rows)
-        atomic_write(self.path, lambda tmp: open(tmp, "w").write(text))
+        write_text(self.path, text)

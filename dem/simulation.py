@@ -16,7 +16,7 @@ from .contact.damping import damping_factor, mixed_tables, rayleigh_time, hertz_
 from .contact.registry import CONTACT_MODELS, ROLLING_MODELS, DAMPING_MODELS
 from .contact import walls as W
 from .neighbors import build_half_list, sort_permutation
-from .output import History, VTKSeries, save_npz
+from .output import History, OutputError, VTKSeries, prepare_output_folder, save_npz  # noqa: F401
 from .outdir import claim_collective
 from .state import State
 from . import step as K
@@ -370,7 +370,7 @@ class Simulation:
         if not self._forces_ready:
             self._compute_forces()
             self._forces_ready = True
-        res = K.advance(nsteps, self.step_count * self.dt, st.n, st.position, st.velocity,
+        res = K.advance(nsteps, self.step_count, st.n, st.position, st.velocity,
                         st.angular_velocity, st.radius, st.mass, st.inv_mass, st.inv_inertia,
                         st.material, st.force, st.torque, self._fext(), st.x_build,
                         self.nb, self.nnb, self.hist, self.rhist, self.age, self.wf, self.wi,
@@ -789,7 +789,8 @@ class Simulation:
         from . import checkpoint as ckpt
         arr = self.checkpoint_arrays()
         if arr is not None:
-            ckpt.write(path, arr, ckpt.scene_record(self))
+            record = ckpt.scene_record(self)
+            self._root_write(lambda: ckpt.write(path, arr, record))
 
     def prepare_restart(self, path):
         """Read and verify a checkpoint and plan the restart with this scene: raises
@@ -908,7 +909,23 @@ class Simulation:
 
     # ------------------------------------------------------------------ run
     def run(self, end_time=None, out_dir=None, progress=None, restart=None, log=None):
-        """Run to ``end_time`` (default: the scene's). Writes output when out_dir is given."""
+        """Run to ``end_time`` (default: the scene's). Writes output when out_dir is given.
+
+        The steps go in compiled chunks of about a second (dem.chunks); between chunks a
+        SIGINT / SIGTERM (dem.interrupt) stops the run: the current output and a checkpoint
+        are written, then StopRequested is raised (its ``time`` and ``checkpoint`` say where).
+        A checkpoint is written at the end of every run with out_dir, whatever
+        checkpoint_interval. A file that cannot be written raises OutputError (every rank)."""
+        self._write_failure = None
+        self._hold_writes = True
+        try:
+            return self._run(end_time, out_dir, progress, restart, log)
+        finally:
+            self._hold_writes = False
+
+    def _run(self, end_time, out_dir, progress, restart, log):
+        from .chunks import ChunkClock, agree
+        from .interrupt import StopRequested, StopSignals
         from .progress import Progress
         if restart is not None:
             self.load_checkpoint(restart)
@@ -922,6 +939,7 @@ class Simulation:
         if self.compile_seconds is None:
             self.warmup()
         writers = None
+        ck_path = os.path.join(out_dir, "checkpoint.npz") if out_dir is not None else None
         if out_dir is not None:
             keep = self.time if restart is not None else None
             writers = dict(hist=None, vtk=None)  # the root writes; the others take part in the gathers
@@ -930,29 +948,52 @@ class Simulation:
             claim_collective(out_dir, self.par.comm if self.par is not None else None, self.is_root,
                              restart=restart is not None, reuse=True, keep=[restart] if restart else ())
             if self.is_root:
+                self._root_write(lambda: prepare_output_folder(out_dir))
+                self._settle_writes()
                 writers = dict(hist=History(os.path.join(out_dir, "history.csv"), self.history_columns(), keep),
                                vtk=VTKSeries(out_dir) if self.scene.output["vtk"] else None)
+            else:
+                self._settle_writes()
             if self.step_count == 0 or restart is None:
                 self._write_output(writers)
+                self._settle_writes()
         prog = Progress(self.step_count, end_step, self.dt, self.n_particles, self.compile_seconds,
                         enabled=progress and self.is_root, stream=log or sys.stderr)
+        clock = ChunkClock()
         try:
-            while self.step_count < end_step:
-                s = self.step_count
-                nxt = end_step
-                for every in (out_every, ck_every, sort_every):
-                    if every:
-                        nxt = min(nxt, (s // every + 1) * every)
-                self._advance(nxt - s)
-                s = self.step_count
-                if sort_every and s % sort_every == 0:
-                    self.sort_particles()
-                if writers is not None and s % out_every == 0:
+            with StopSignals():
+                while self.step_count < end_step:
+                    sig, chunk = agree(self.par, clock.steps)  # every rank stops at the same step
+                    if sig:
+                        raise StopRequested(sig)
+                    s = self.step_count
+                    nxt = end_step
+                    for every in (out_every, ck_every, sort_every):
+                        if every:
+                            nxt = min(nxt, (s // every + 1) * every)
+                    clock.start()
+                    clock.done(self._advance(min(nxt - s, chunk)))
+                    s = self.step_count
+                    if sort_every and s % sort_every == 0:
+                        self.sort_particles()
+                    if writers is not None and s % out_every == 0:
+                        self._write_output(writers)
+                    if writers is not None and ck_every and s % ck_every == 0:
+                        self.write_checkpoint(ck_path)
+                    self._settle_writes()
+                    prog.update(self.step_count)
+        except StopRequested as stop:
+            prog.close()
+            if writers is not None:  # close the series with the current state, then the checkpoint
+                if self.step_count % out_every != 0:
                     self._write_output(writers)
-                if writers is not None and ck_every and s % ck_every == 0:
-                    self.write_checkpoint(os.path.join(out_dir, "checkpoint.npz"))
-                prog.update(self.step_count)
+                self.write_checkpoint(ck_path)
+                self._settle_writes()
+            stop.time, stop.step, stop.checkpoint = self.time, self.step_count, ck_path
+            self.wall_seconds = prog.elapsed
+            raise
         except SimulationError:
+            self._hold_writes = False
             if out_dir is not None:
                 fa = self.final_arrays()
                 if fa is not None:
@@ -965,15 +1006,38 @@ class Simulation:
                 self._write_output(writers)
             fa = self.final_arrays()
             if fa is not None:
-                save_npz(os.path.join(out_dir, "final.npz"), **fa)
-            self.write_checkpoint(os.path.join(out_dir, "checkpoint.npz"))
+                self._root_write(lambda: save_npz(os.path.join(out_dir, "final.npz"), **fa))
+            self.write_checkpoint(ck_path)
+            self._settle_writes()
         self.wall_seconds = prog.elapsed
         return self
+
+    def _root_write(self, write):
+        """A write done by the root alone. Inside run() under MPI an OutputError is held (the
+        other ranks are on their way to the next collective call) until _settle_writes
+        raises it on every rank; elsewhere it is raised at once."""
+        try:
+            write()
+        except OutputError as exc:
+            if self.par is None or not getattr(self, "_hold_writes", False):
+                raise
+            if self._write_failure is None:
+                self._write_failure = exc
+
+    def _settle_writes(self):
+        """Raise the held OutputError of the root on every rank (collective under MPI)."""
+        if self.par is None:
+            return
+        msg = self.par.comm.bcast(str(self._write_failure) if self._write_failure else None, root=0)
+        if msg:
+            self._write_failure = None
+            self._hold_writes = False
+            raise OutputError(message=msg)
 
     def _write_output(self, writers):
         row = self.history_row()
         if writers["hist"] is not None:
-            writers["hist"].add(row)
+            self._root_write(lambda: writers["hist"].add(row))
         if self.scene.output["vtk"]:
             self.write_vtk(writers["vtk"])
 
@@ -986,4 +1050,4 @@ class Simulation:
         f = self._gather_by_id(f)
         if vtk is not None:
             pos = f.pop("position")
-            vtk.write(self.time, self.step_count, pos, f)
+            self._root_write(lambda: vtk.write(self.time, self.step_count, pos, f))

@@ -570,10 +570,12 @@ def kick(n, v, w, f, tq, inv_m, inv_i, dt):
 
 
 @njit(cache=True, error_model="numpy")
-def advance(nsteps, t0, n, x, v, w, r, m, inv_m, inv_i, mat, f, tq, fext, xb,
+def advance(nsteps, s0, n, x, v, w, r, m, inv_m, inv_i, mat, f, tq, fext, xb,
             nb, nnb, hist, rhist, age, wf, wi, wnb, wnn, whist, wrhist, tab, ip, fp, lo, hi, periodic,
             Hd, Hi, rnear, TH, hon):
-    """Advance ``nsteps`` steps from time t0 (f, tq hold the forces at t0).
+    """Advance ``nsteps`` steps from step number s0, time s0 dt (f, tq hold the forces then).
+    Step k ends at time (s0 + k) dt, computed from the step number alone, so that splitting a
+    run into calls of any length gives the same arithmetic (bit-identical results).
 
     Mechanics on: velocity Verlet, neighbour rebuilds, then (with heat) one heat step on
     the conductances found in the force loop. Mechanics off (frozen packing): only the
@@ -592,7 +594,7 @@ def advance(nsteps, t0, n, x, v, w, r, m, inv_m, inv_i, mat, f, tq, fext, xb,
     heat = hon is not None and thi[TI_HEAT] != 0
     local_por = thi[TI_LOCALPOR] == 1
     for step in range(nsteps):
-        t = t0 + (step + 1) * dt
+        t = (s0 + step + 1) * dt
         if mech:
             maxd2 = kick_drift(n, x, v, w, f, tq, inv_m, inv_i, xb, lo, hi, periodic, dt)
             if math.sqrt(maxd2) + fp[F_VWALL] * (t - fp[F_TBUILD]) > 0.5 * skin:
