@@ -214,8 +214,8 @@ def test_kill9_during_checkpoint_writes_leaves_a_loadable_checkpoint(tmp_path):
     ours = out / ".tmp_thermodem_abcd1234.npz"
     ours.write_bytes(b"partial")
     (out / "vtk" / ".tmp_thermodem_x.vtu").write_bytes(b"")
-    user = out / ".tmp_notes.txt"
-    user.write_text("mine")
+    user = out / "vtk" / ".tmp_notes.txt"   # inside vtk/: a user's file at the top would be refused
+    user.write_text("mine")                  # by the output-folder rule (tests/test_reliability_outdir.py)
     p = subprocess.Popen(dem("run", str(scene), "--out", str(out), "--quiet", "--end-time", "1.0",
                              "--restart", str(out / "checkpoint.npz")),
                          stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=env())
