@@ -473,6 +473,8 @@ def run_case(case_dir, out=None, *, transport=None, end_time=None, restart=False
             save_npz(str(out / "final.npz"), **fa)
         sim.write_checkpoint(str(out / "checkpoint.npz"))
         png = plot(out, f"{case.dir.name}: {cfg.transport} transport")
+    if peer_sig:  # the solver stopped on a signal: did this process get one too (a scheduler's TERM)?
+        stop_sig = stop_sig or stop_requested()
     signum = stop_sig or peer_sig
     if signum:
         raise RunInterrupted(signum, _stopped_line(signum, bool(stop_sig), t, step, out, cont))
