@@ -11,8 +11,11 @@ loop (coupling.interface) and writes
 
 * ``history.csv``, ``particles.pvd`` + ``vtk/``, ``final.npz`` (DEM, dem.output);
 * ``coupling.csv`` (gas and particle energies, heat rate, pressure drop, bed height);
-* ``checkpoint.npz`` (DEM state at the end, or at the failure) and
-  ``checkpoints/checkpoint_<step>.npz`` at every OpenFOAM write (restart points);
+* ``checkpoint.npz`` (DEM state at the end, or at the failure) and a restart point at
+  every OpenFOAM write, at the end of the run and on SIGINT/SIGTERM:
+  ``checkpoints/checkpoint_<step>.npz`` (DEM) + ``checkpoints/coupling_<step>.npz`` (the
+  relaxed eps/Ksl last sent and the gas frame the next DEM interval uses) + the gas time
+  directory (written with 17 significant digits);
 * the OpenFOAM time directories (written by the solver), ``log.thermoDemFoam``;
 * ``timings.json`` (wall time per phase) and ``coupling.png``.
 
@@ -26,8 +29,11 @@ with status 4. ``RunWatch`` warns once per run when the void fraction is clipped
 (solid volume the gas does not see), when a cell's void fraction changes by more than 0.2
 in one coupling step, and when the gas is faster than Mach 0.3; coupling.csv records the
 smallest unclipped void fraction and the number of clipped cells of every output step.
-``--restart`` continues a run in --out from the latest OpenFOAM time that has a DEM
-checkpoint. Under ``mpirun -np 1`` the command works as in serial; more DEM ranks are not
+``--restart`` continues a run in --out from its latest restart point; the continued run
+equals the uninterrupted one to round-off (bit-identical in tests). SIGINT/SIGTERM (of
+this process, or of the gas solver) end the current coupling step, the solver writes its
+fields there, a restart point is written, one line gives the command to continue, and the
+command exits 130/143. Under ``mpirun -np 1`` the command works as in serial; more DEM ranks are not
 supported yet.
 """
 from __future__ import annotations
