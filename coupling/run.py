@@ -33,8 +33,9 @@ smallest unclipped void fraction and the number of clipped cells of every output
 equals the uninterrupted one to round-off (bit-identical in tests). SIGINT/SIGTERM (of
 this process, or of the gas solver) end the current coupling step, the solver writes its
 fields there, a restart point is written, one line gives the command to continue, and the
-command exits 130/143. Under ``mpirun -np 1`` the command works as in serial; more DEM ranks are not
-supported yet.
+command exits 130/143 (the ``coupling`` command installs the handlers, dem.interrupt;
+``run_case`` called from Python does not). Under ``mpirun -np 1`` the command works as in
+serial; more DEM ranks are not supported yet.
 """
 from __future__ import annotations
 
@@ -410,75 +411,74 @@ def run_case(case_dir, out=None, *, transport=None, end_time=None, restart=False
     frame = None
     stop_sig = 0        # SIGINT/SIGTERM of this process (rank 0 decides for every DEM rank)
     peer_sig = 0        # the signal that stopped the gas solver, from its FINAL frame
-    with StopSignals():
-        try:
+    try:
+        with timer("gas_wait"):
+            fluid = _share(R, lambda: _first_frame(ex, i0, t_start, mesh, cfg, cstate), ex)
+        _grow_socket_buffers(ex, mesh.n_cells)
+        watch = RunWatch(mesh, cfg, log)
+        for s in range(1, n_steps + 1):
+            step = i0 + s
+            stop_sig = stop_sig or stop_requested()
+            last = s == n_steps or bool(stop_sig)   # a stop request ends this coupling step
+            frame = iface.prepare(fluid, dt)
+            watch.after_prepare(iface, t)
+            if s == 1 and not restart:
+                _output(hist, vtk, diag, sim, iface, fluid, frame, t, step - 1, t_wall0, timer)
+            with timer("exchange"):
+                ex.send(step, frame, time_value=t + dt, final=last)
+            iface.advance_dem(k)
+            t = t_start + s * dt
+            if s < n_steps:   # (also on a stop step: the other DEM ranks do it too, collectively)
+                iface.map_particles()   # overlaps with the gas solve
             with timer("gas_wait"):
-                fluid = _share(R, lambda: _first_frame(ex, i0, t_start, mesh, cfg, cstate), ex)
-            _grow_socket_buffers(ex, mesh.n_cells)
-            watch = RunWatch(mesh, cfg, log)
-            for s in range(1, n_steps + 1):
-                step = i0 + s
-                stop_sig = stop_sig or stop_requested()
-                last = s == n_steps or bool(stop_sig)   # a stop request ends this coupling step
-                frame = iface.prepare(fluid, dt)
-                watch.after_prepare(iface, t)
-                if s == 1 and not restart:
-                    _output(hist, vtk, diag, sim, iface, fluid, frame, t, step - 1, t_wall0, timer)
-                with timer("exchange"):
-                    ex.send(step, frame, time_value=t + dt, final=last)
-                iface.advance_dem(k)
-                t = t_start + s * dt
-                if s < n_steps:   # (also on a stop step: the other DEM ranks do it too, collectively)
-                    iface.map_particles()   # overlaps with the gas solve
-                with timer("gas_wait"):
-                    fluid = _share(R, lambda: check_gas_fields(ex.receive(step), step, time_value=t, mesh=mesh,
-                                                               cfg=cfg, eps_change=iface.eps_change), ex,
-                                   stop_sig=lambda: stop_sig or _peer_signal(ex))
-                watch.after_receive(fluid, t)
-                peer_sig = _peer_signal(ex)
-                done = last or ex.peer_final
-                if s % out_every == 0 or done:
-                    _output(hist, vtk, diag, sim, iface, fluid, frame, t, step, t_wall0, timer)
-                if done or (write_every and step % write_every == 0):
-                    with timer("output"):
-                        _write_restart_point(R, sim, iface, out, step, t, fluid)
-                if done:
-                    if ex.peer_final and not last and not peer_sig:
-                        log(f"coupling: the solver reached its endTime at step {step} (t = {t:g} s)")
-                    break
-            status = "finished"
-            try:
-                rc = proc.wait(timeout=max(cfg.timeout, 30))
-            except Exception:  # noqa: BLE001
-                proc.kill()
-                rc = proc.wait()
-            if rc != 0:
-                raise CouplingError(f"CFD solver exited with code {rc} after the last step "
-                                    f"(log: {out / 'log.thermoDemFoam'})", peer="CFD solver", step=step)
-        except (CouplingError, SimulationError, KeyboardInterrupt) as e:
-            status = "failed"
-            if R.comm is not None and not isinstance(e, SimulationError) and not R.failure_shared:
-                _share_failure(R, e)
-            with timer("output"):
-                sim.write_checkpoint(str(out / "checkpoint.npz"))
-            if isinstance(e, CouplingError):
-                tail = _log_tail(out / "log.thermoDemFoam")
-                e.args = (e.args[0] + f"\n  DEM checkpoint at t = {sim.time:.9g} s written to "
-                          f"{out / 'checkpoint.npz'}" + (f"\n  solver log tail:\n{tail}" if tail else ""),)
-            raise
-        finally:
-            if proc.poll() is None and status != "finished":
-                proc.kill()
-                proc.wait()
-            ex.close()
-            (out / "timings.json").write_text(json.dumps(_timings(timer, t_wall0, sim, n_steps=step - i0, k=k),
-                                                         indent=1))
-        # ---- final output
-        fa = sim.final_arrays()
-        if fa is not None:
-            save_npz(str(out / "final.npz"), **fa)
-        sim.write_checkpoint(str(out / "checkpoint.npz"))
-        png = plot(out, f"{case.dir.name}: {cfg.transport} transport")
+                fluid = _share(R, lambda: check_gas_fields(ex.receive(step), step, time_value=t, mesh=mesh,
+                                                           cfg=cfg, eps_change=iface.eps_change), ex,
+                               stop_sig=lambda: stop_sig or _peer_signal(ex))
+            watch.after_receive(fluid, t)
+            peer_sig = _peer_signal(ex)
+            done = last or ex.peer_final
+            if s % out_every == 0 or done:
+                _output(hist, vtk, diag, sim, iface, fluid, frame, t, step, t_wall0, timer)
+            if done or (write_every and step % write_every == 0):
+                with timer("output"):
+                    _write_restart_point(R, sim, iface, out, step, t, fluid)
+            if done:
+                if ex.peer_final and not last and not peer_sig:
+                    log(f"coupling: the solver reached its endTime at step {step} (t = {t:g} s)")
+                break
+        status = "finished"
+        try:
+            rc = proc.wait(timeout=max(cfg.timeout, 30))
+        except Exception:  # noqa: BLE001
+            proc.kill()
+            rc = proc.wait()
+        if rc != 0:
+            raise CouplingError(f"CFD solver exited with code {rc} after the last step "
+                                f"(log: {out / 'log.thermoDemFoam'})", peer="CFD solver", step=step)
+    except (CouplingError, SimulationError, KeyboardInterrupt) as e:
+        status = "failed"
+        if R.comm is not None and not isinstance(e, SimulationError) and not R.failure_shared:
+            _share_failure(R, e)
+        with timer("output"):
+            sim.write_checkpoint(str(out / "checkpoint.npz"))
+        if isinstance(e, CouplingError):
+            tail = _log_tail(out / "log.thermoDemFoam")
+            e.args = (e.args[0] + f"\n  DEM checkpoint at t = {sim.time:.9g} s written to "
+                      f"{out / 'checkpoint.npz'}" + (f"\n  solver log tail:\n{tail}" if tail else ""),)
+        raise
+    finally:
+        if proc.poll() is None and status != "finished":
+            proc.kill()
+            proc.wait()
+        ex.close()
+        (out / "timings.json").write_text(json.dumps(_timings(timer, t_wall0, sim, n_steps=step - i0, k=k),
+                                                     indent=1))
+    # ---- final output
+    fa = sim.final_arrays()
+    if fa is not None:
+        save_npz(str(out / "final.npz"), **fa)
+    sim.write_checkpoint(str(out / "checkpoint.npz"))
+    png = plot(out, f"{case.dir.name}: {cfg.transport} transport")
     if peer_sig:  # the solver stopped on a signal: did this process get one too (a scheduler's TERM)?
         stop_sig = stop_sig or stop_requested()
     signum = stop_sig or peer_sig
@@ -706,33 +706,32 @@ def _follow(R, sim, iface, n_steps, i0, t_start, dt, k, out, write_every, out_ev
             raise CouplingError(f"rank 0: {err}", peer="CFD solver", step=step)
         return fluid, final, signum
 
-    with StopSignals():  # rank 0 decides when to stop; a signal here must not kill this rank
-        try:
+    try:
+        fluid, final, sig = receive()
+        if cstate is not None:
+            fluid = dict(fluid, **cstate["fluid"])
+        for s in range(1, n_steps + 1):
+            step = i0 + s
+            frame = iface.prepare(fluid, dt)
+            if s == 1 and not restart:
+                _output(None, None, None, sim, iface, fluid, frame, t, step - 1, t_wall0, timer)
+            iface.advance_dem(k)
+            t = t_start + s * dt
+            if s < n_steps:
+                iface.map_particles()
             fluid, final, sig = receive()
-            if cstate is not None:
-                fluid = dict(fluid, **cstate["fluid"])
-            for s in range(1, n_steps + 1):
-                step = i0 + s
-                frame = iface.prepare(fluid, dt)
-                if s == 1 and not restart:
-                    _output(None, None, None, sim, iface, fluid, frame, t, step - 1, t_wall0, timer)
-                iface.advance_dem(k)
-                t = t_start + s * dt
-                if s < n_steps:
-                    iface.map_particles()
-                fluid, final, sig = receive()
-                done = final or s == n_steps
-                if s % out_every == 0 or done:
-                    _output(None, None, None, sim, iface, fluid, frame, t, step, t_wall0, timer)
-                if done or (write_every and step % write_every == 0):
-                    _write_restart_point(R, sim, iface, out, step, t, fluid)
-                if done:
-                    break
-        except (CouplingError, SimulationError):
-            sim.write_checkpoint(str(out / "checkpoint.npz"))
-            raise
-        sim.final_arrays()
+            done = final or s == n_steps
+            if s % out_every == 0 or done:
+                _output(None, None, None, sim, iface, fluid, frame, t, step, t_wall0, timer)
+            if done or (write_every and step % write_every == 0):
+                _write_restart_point(R, sim, iface, out, step, t, fluid)
+            if done:
+                break
+    except (CouplingError, SimulationError):
         sim.write_checkpoint(str(out / "checkpoint.npz"))
+        raise
+    sim.final_arrays()
+    sim.write_checkpoint(str(out / "checkpoint.npz"))
     if sig:
         raise RunInterrupted(sig, _stopped_line(sig, True, t, step, out, cont))
     return {}
