@@ -457,11 +457,14 @@ def read_cell_volumes(case) -> np.ndarray:
 
 def start_solver(case, *, nprocs: int = 1, solver: str | os.PathLike | None = None,
                  log: str | os.PathLike | None = "log.thermoDemFoam",
-                 env: Mapping[str, str] | None = None, extra_args: Iterable[str] = ()
-                 ) -> subprocess.Popen:
+                 env: Mapping[str, str] | None = None, extra_args: Iterable[str] = (),
+                 own_session: bool = False) -> subprocess.Popen:
     """Start thermoDemFoam as a subprocess (serial, or mpirun -np N ... -parallel).
 
-    stdout+stderr go to ``case/log`` (or a pipe if ``log`` is None)."""
+    stdout+stderr go to ``case/log`` (or a pipe if ``log`` is None). ``own_session``:
+    start it in its own session, so that a Ctrl-C in the terminal reaches only the DEM,
+    which then stops the solver cleanly at the end of the coupling step (a solver that
+    gets SIGINT/SIGTERM itself also ends its step, writes and flags FINAL)."""
     case = Path(case).resolve()
     exe = str(solver) if solver else SOLVER_NAME
     args = [exe, "-case", str(case), *extra_args]
@@ -477,10 +480,11 @@ def start_solver(case, *, nprocs: int = 1, solver: str | os.PathLike | None = No
     e = foam_env(env)
     if log is None:
         return subprocess.Popen(args, env=e, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                                text=True)
+                                text=True, start_new_session=own_session)
     logf = open(case / log, "w")
     try:
-        return subprocess.Popen(args, env=e, stdout=logf, stderr=subprocess.STDOUT)
+        return subprocess.Popen(args, env=e, stdout=logf, stderr=subprocess.STDOUT,
+                                start_new_session=own_session)
     finally:
         logf.close()
 

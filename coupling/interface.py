@@ -183,6 +183,32 @@ class CouplingInterface:
         self.eps_sent = eps.copy()
         return eps
 
+    def restart_state(self) -> dict:
+        """State of the exchange fields that the next coupling step reads besides the
+        particles and the gas: eps and Ksl as last sent (the time-smoothing relaxes from
+        them). (The cell hints need not be kept: they only speed up the search.)"""
+        nc = self.V.shape[0]
+        d = dict(eps_sent=np.zeros(0) if self.eps_sent is None else np.asarray(self.eps_sent, float),
+                 ksl_sent=np.zeros(0) if self.ksl_sent is None else np.asarray(self.ksl_sent, float))
+        for k in ("eps_sent", "ksl_sent"):
+            if d[k].size not in (0, nc):
+                raise ValueError(f"{k} has {d[k].size} values, the mesh {nc} cells")
+        return d
+
+    def restore_state(self, d: dict) -> None:
+        """Undo :meth:`restart_state` (after :meth:`initial_void_fraction`): the next
+        ``prepare`` relaxes from exactly the eps and Ksl the gas last received. Raises
+        ValueError naming the array that does not fit this mesh / these particles."""
+        nc = self.V.shape[0]
+        for k in ("eps_sent", "ksl_sent"):
+            a = np.ascontiguousarray(d[k], dtype=np.float64)
+            if a.size == 0:
+                setattr(self, k, None)
+                continue
+            if a.shape != (nc,) or not np.all(np.isfinite(a)):
+                raise ValueError(f"{k} has shape {a.shape}, the mesh {nc} cells (or holds non-finite values)")
+            setattr(self, k, a.copy())
+
     def reset_hints(self):
         """Call after the DEM reordered its particles (sim.sort_particles)."""
         self.hint = None

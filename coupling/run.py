@@ -12,8 +12,11 @@ loop (coupling.interface) and writes
 
 * ``history.csv``, ``particles.pvd`` + ``vtk/``, ``final.npz`` (DEM, dem.output);
 * ``coupling.csv`` (gas and particle energies, heat rate, pressure drop, bed height);
-* ``checkpoint.npz`` (DEM state at the end, or at the failure) and
-  ``checkpoints/checkpoint_<step>.npz`` at every OpenFOAM write (restart points);
+* ``checkpoint.npz`` (DEM state at the end, or at the failure) and a restart point at
+  every OpenFOAM write, at the end of the run and on SIGINT/SIGTERM:
+  ``checkpoints/checkpoint_<step>.npz`` (DEM) + ``checkpoints/coupling_<step>.npz`` (the
+  relaxed eps/Ksl last sent and the gas frame the next DEM interval uses) + the gas time
+  directory (written with 17 significant digits);
 * the OpenFOAM time directories (written by the solver), ``log.thermoDemFoam``;
 * ``timings.json`` (wall time per phase) and ``coupling.png``.
 
@@ -27,9 +30,13 @@ with status 4. ``RunWatch`` warns once per run when the void fraction is clipped
 (solid volume the gas does not see), when a cell's void fraction changes by more than 0.2
 in one coupling step, and when the gas is faster than Mach 0.3; coupling.csv records the
 smallest unclipped void fraction and the number of clipped cells of every output step.
-``--restart`` continues a run in --out from the latest OpenFOAM time that has a DEM
-checkpoint. Under ``mpirun -np 1`` the command works as in serial; more DEM ranks are not
-supported yet.
+``--restart`` continues a run in --out from its latest restart point; the continued run
+equals the uninterrupted one to round-off (bit-identical in tests). SIGINT/SIGTERM (of
+this process, or of the gas solver) end the current coupling step, the solver writes its
+fields there, a restart point is written, one line gives the command to continue, and the
+command exits 130/143 (the ``coupling`` command installs the handlers, dem.interrupt;
+``run_case`` called from Python does not). Under ``mpirun -np 1`` the command works as in
+serial; more DEM ranks are not supported yet.
 """
 from __future__ import annotations
 
@@ -46,6 +53,7 @@ from pathlib import Path
 import numpy as np
 
 from .exchange import CouplingError
+from dem.interrupt import StopRequested, StopSignals, signal_name, stop_requested
 
 EXIT_CHECK = 2
 EXIT_COUPLING = 3
@@ -54,6 +62,15 @@ EXIT_DEM = 4
 
 class CouplingRunError(RuntimeError):
     pass
+
+
+class RunInterrupted(StopRequested):
+    """A coupled run stopped cleanly on SIGINT/SIGTERM (of the DEM or of the gas solver)
+    after writing a restart point; ``message`` is the one line for the user."""
+
+    def __init__(self, signum, message):
+        super().__init__(signum)
+        self.message = message
 
 
 def _scrub_mpi_env():
@@ -324,11 +341,8 @@ def run_case(case_dir, out=None, *, transport=None, end_time=None, restart=False
                               n_satellites=cfg.n_satellites, heat=cfg.heat)
     dt = case.dt_cfd
     k = cfg.coupling_interval
-    # ---- restart: DEM checkpoint matching the latest gas time
-    i0 = 0
-    t_start = 0.0
-    if restart:
-        i0, t_start = _restart(out, sim, iface, dt, log if R.root else _silent, R)
+    # ---- checks of the case (on the scene's packing: the DEM check evaluates the contact
+    # forces, so it must run before a restart loads its checkpoint)
     eps0 = iface.initial_void_fraction()
     rep = R.everywhere(check_coupled_case, case, mesh, eps0=eps0, clip=dict(iface.clip))
     rep = R.bcast(rep)
@@ -339,13 +353,22 @@ def run_case(case_dir, out=None, *, transport=None, end_time=None, restart=False
     if rep["problems"] and not cfg.force:
         raise CouplingRunError(f"{case.config_file}: case refused by the checks:\n  "
                                + "\n  ".join(rep["problems"]))
+    # ---- restart: the latest restart point (gas time + DEM checkpoint + coupling state)
+    i0 = 0
+    t_start = 0.0
+    cstate = None
+    if restart:
+        i0, t_start, cstate = _restart(out, sim, iface, dt, log if R.root else _silent, R, mesh.n_cells)
+        iface.reset_hints()
+        iface.restore_state(cstate["iface"])  # the relaxation continues from what the gas last got
     end = case.end_time if end_time is None else float(end_time)
     n_steps = int(round((end - t_start) / dt))
     if n_steps < 1:
         raise CouplingRunError(f"end time {end:g} s is not after the start time {t_start:g} s")
     def _setup_gas():
         ctl = out / "system" / "controlDict"
-        fc.set_entries(ctl, {"endTime": repr(end), "startFrom": "latestTime"})
+        # 17 significant digits: a written time is a restart point that continues to round-off
+        fc.set_entries(ctl, {"endTime": repr(end), "startFrom": "latestTime", "writePrecision": 17})
         if not restart:
             fc.write_eps(out, eps0)
         # ---- transport
@@ -383,9 +406,10 @@ def run_case(case_dir, out=None, *, transport=None, end_time=None, restart=False
         diag = Diagnostics(out / "coupling.csv", mesh, case.gas, keep)
         outdir.claim(out / "checkpoints")
         (out / "checkpoints").mkdir(exist_ok=True)
+    cont = _continue_command(case_dir, out, end_time, transport, R.size)
     if not R.root:
         return _follow(R, sim, iface, n_steps, i0, t_start, dt, k, out, write_every, out_every,
-                       t_wall0, restart)
+                       t_wall0, restart, cstate, cont)
     if external_solver:
         par = (f"mpirun --allow-run-as-root -np {cfg.gas_processes} " if cfg.gas_processes > 1 else "")
         log("coupling: start the gas solver yourself, in a second terminal:\n"
@@ -396,7 +420,7 @@ def run_case(case_dir, out=None, *, transport=None, end_time=None, restart=False
         proc = _ExternalSolver()
     else:
         outdir.claim(out / "log.thermoDemFoam")
-        proc = fc.start_solver(out, nprocs=cfg.gas_processes, solver=exe)
+        proc = fc.start_solver(out, nprocs=cfg.gas_processes, solver=exe, own_session=True)
     if cfg.solver_nice and proc.pid:
         try:  # a woken solver then does not preempt the DEM (the critical path) on busy cores
             os.setpriority(os.PRIO_PROCESS, proc.pid, cfg.solver_nice)
@@ -408,36 +432,43 @@ def run_case(case_dir, out=None, *, transport=None, end_time=None, restart=False
     t = t_start
     status = "running"
     frame = None
+    stop_sig = 0        # SIGINT/SIGTERM of this process (rank 0 decides for every DEM rank)
+    peer_sig = 0        # the signal that stopped the gas solver, from its FINAL frame
     try:
         with timer("gas_wait"):
-            fluid = _share(R, lambda: check_gas_fields(ex.receive(i0), i0, time_value=t_start, mesh=mesh,
-                                                       cfg=cfg), ex)
+            fluid = _share(R, lambda: _first_frame(ex, i0, t_start, mesh, cfg, cstate), ex)
         _grow_socket_buffers(ex, mesh.n_cells)
         watch = RunWatch(mesh, cfg, log)
         for s in range(1, n_steps + 1):
             step = i0 + s
+            stop_sig = stop_sig or stop_requested()
+            last = s == n_steps or bool(stop_sig)   # a stop request ends this coupling step
             frame = iface.prepare(fluid, dt)
             watch.after_prepare(iface, t)
             if s == 1 and not restart:
                 _output(hist, vtk, diag, sim, iface, fluid, frame, t, step - 1, t_wall0, timer)
             with timer("exchange"):
-                ex.send(step, frame, time_value=t + dt, final=(s == n_steps))
+                ex.send(step, frame, time_value=t + dt, final=last)
             iface.advance_dem(k)
             t = t_start + s * dt
-            if s < n_steps:
+            if s < n_steps:   # (also on a stop step: the other DEM ranks do it too, collectively)
                 iface.map_particles()   # overlaps with the gas solve
             with timer("gas_wait"):
                 fluid = _share(R, lambda: check_gas_fields(ex.receive(step), step, time_value=t, mesh=mesh,
-                                                           cfg=cfg, eps_change=iface.eps_change), ex)
+                                                           cfg=cfg, eps_change=iface.eps_change), ex,
+                               stop_sig=lambda: stop_sig or _peer_signal(ex))
             watch.after_receive(fluid, t)
             outdir.adopt_solver_entries(out)   # the time folders the solver wrote (dem.outdir)
-            if s % out_every == 0 or s == n_steps or ex.peer_final:
+            peer_sig = _peer_signal(ex)
+            done = last or ex.peer_final
+            if s % out_every == 0 or done:
                 _output(hist, vtk, diag, sim, iface, fluid, frame, t, step, t_wall0, timer)
-            if write_every and step % write_every == 0:
+            if done or (write_every and step % write_every == 0):
                 with timer("output"):
-                    sim.write_checkpoint(str(out / "checkpoints" / f"checkpoint_{step:08d}.npz"))
-            if ex.peer_final and s < n_steps:
-                log(f"coupling: the solver reached its endTime at step {step} (t = {t:g} s)")
+                    _write_restart_point(R, sim, iface, out, step, t, fluid)
+            if done:
+                if ex.peer_final and not last and not peer_sig:
+                    log(f"coupling: the solver reached its endTime at step {step} (t = {t:g} s)")
                 break
         status = "finished"
         try:
@@ -454,7 +485,6 @@ def run_case(case_dir, out=None, *, transport=None, end_time=None, restart=False
             _share_failure(R, e)
         with timer("output"):
             sim.write_checkpoint(str(out / "checkpoint.npz"))
-            save_npz(str(out / "coupling_state.npz"), **_coupling_state(iface, step, t))
         if isinstance(e, CouplingError):
             tail = _log_tail(out / "log.thermoDemFoam")
             e.args = (e.args[0] + f"\n  DEM checkpoint at t = {sim.time:.9g} s written to "
@@ -473,10 +503,16 @@ def run_case(case_dir, out=None, *, transport=None, end_time=None, restart=False
     if fa is not None:
         save_npz(str(out / "final.npz"), **fa)
     sim.write_checkpoint(str(out / "checkpoint.npz"))
-    save_npz(str(out / "coupling_state.npz"), **_coupling_state(iface, step, t))
     png = plot(out, f"{case.dir.name}: {cfg.transport} transport")
+    if peer_sig:  # the solver stopped on a signal: did this process get one too (a scheduler's TERM)?
+        stop_sig = stop_sig or stop_requested()
+    signum = stop_sig or peer_sig
+    if signum:
+        raise RunInterrupted(signum, _stopped_line(signum, bool(stop_sig), t, step, out, cont))
     summ = _timings(timer, t_wall0, sim, n_steps=step - i0, k=k)
     summ.update(out=str(out), steps=step - i0, time=t, png=str(png) if png else None, **watch.summary())
+    if cstate is not None:
+        summ["restart_frame_difference"] = cstate.get("frame_difference")
     if not quiet:
         log(_format_timings(summ))
     return summ
@@ -493,19 +529,60 @@ def _write_timings(path, timings, failing):
             raise
 
 
+def _first_frame(ex, i0, t_start, mesh, cfg, cstate):
+    """The gas state the first DEM interval uses. After a restart the solver's frame is
+    replaced by the one the DEM used at that step in the interrupted run (stored in the
+    restart point), so the particles see exactly the same fluid data; the largest
+    difference between the two is kept (0 when the gas fields were restored exactly)."""
+    fluid = check_gas_fields(ex.receive(i0), i0, time_value=t_start, mesh=mesh, cfg=cfg)
+    if cstate is None:
+        return fluid
+    saved = cstate["fluid"]
+    cstate["frame_difference"] = max(float(np.max(np.abs(np.asarray(fluid[k]) - saved[k]), initial=0.0))
+                                     for k in saved)
+    return dict(fluid, **saved)
+
+
+def _peer_signal(ex):
+    """The signal number that stopped the gas solver (flags bits 8-15 of its last frame)."""
+    h = ex.last_header
+    return int((h["flags"] >> 8) & 0xFF) if h and (h["flags"] & 1) else 0
+
+
+def _continue_command(case_dir, out, end_time, transport, nranks):
+    """The exact command that continues this run from its latest restart point."""
+    import shlex
+    cmd = ([f"mpirun -np {nranks}"] if nranks > 1 else []) + [
+        "coupling run", shlex.quote(str(case_dir)), "--out", shlex.quote(str(out)), "--restart"]
+    if end_time is not None:
+        cmd += ["--end-time", repr(float(end_time))]
+    if transport is not None:
+        cmd += ["--transport", transport]
+    return " ".join(cmd)
+
+
+def _stopped_line(signum, own, t, step, out, cont):
+    who = "" if own else " of the gas solver"
+    ck = out / "checkpoints" / f"checkpoint_{step:08d}.npz"
+    return (f"stopped by {signal_name(signum)}{who} at t = {t:.9g} s (coupling step {step}); "
+            f"restart point {ck} (gas: {out}/<time>); continue with: {cont}")
+
+
 def _silent(*a, **k):
     pass
 
 
-def _share(R, receive, ex):
-    """Rank 0 receives the gas fields and passes them (or the failure) to every DEM rank."""
+def _share(R, receive, ex, stop_sig=lambda: 0):
+    """Rank 0 receives the gas fields and passes them (or the failure) to every DEM rank,
+    with the FINAL flag and the number of the signal that ends the run (0 if none)."""
     fluid, err = None, None
     try:
         fluid = receive()
     except Exception as e:  # noqa: BLE001
         err = e
     if R.comm is not None:
-        R.comm.bcast((fluid, bool(ex.peer_final), None if err is None else repr(err)), root=0)
+        R.comm.bcast((fluid, bool(ex.peer_final), None if err is None else repr(err), int(stop_sig())),
+                     root=0)
         R.failure_shared = err is not None
     if err is not None:
         raise err
@@ -649,22 +726,26 @@ def _share_failure(R, e):
         pass
 
 
-def _follow(R, sim, iface, n_steps, i0, t_start, dt, k, out, write_every, out_every, t_wall0, restart):
+def _follow(R, sim, iface, n_steps, i0, t_start, dt, k, out, write_every, out_every, t_wall0, restart,
+            cstate=None, cont=""):
     """The loop of a DEM rank other than 0: the same steps as rank 0 without the solver."""
     from .exchange import CouplingError
     from dem.simulation import SimulationError
     timer = iface.timer
     step = i0
     t = t_start
+    sig = 0
 
     def receive():
-        fluid, final, err = R.comm.bcast(None, root=0)
+        fluid, final, err, signum = R.comm.bcast(None, root=0)
         if err is not None:
             raise CouplingError(f"rank 0: {err}", peer="CFD solver", step=step)
-        return fluid, final
+        return fluid, final, signum
 
     try:
-        fluid, final = receive()
+        fluid, final, sig = receive()
+        if cstate is not None:
+            fluid = dict(fluid, **cstate["fluid"])
         for s in range(1, n_steps + 1):
             step = i0 + s
             frame = iface.prepare(fluid, dt)
@@ -674,18 +755,21 @@ def _follow(R, sim, iface, n_steps, i0, t_start, dt, k, out, write_every, out_ev
             t = t_start + s * dt
             if s < n_steps:
                 iface.map_particles()
-            fluid, final = receive()
-            if s % out_every == 0 or s == n_steps or final:
+            fluid, final, sig = receive()
+            done = final or s == n_steps
+            if s % out_every == 0 or done:
                 _output(None, None, None, sim, iface, fluid, frame, t, step, t_wall0, timer)
-            if write_every and step % write_every == 0:
-                sim.write_checkpoint(str(out / "checkpoints" / f"checkpoint_{step:08d}.npz"))
-            if final and s < n_steps:
+            if done or (write_every and step % write_every == 0):
+                _write_restart_point(R, sim, iface, out, step, t, fluid)
+            if done:
                 break
     except (CouplingError, SimulationError):
         sim.write_checkpoint(str(out / "checkpoint.npz"))
         raise
     sim.final_arrays()
     sim.write_checkpoint(str(out / "checkpoint.npz"))
+    if sig:
+        raise RunInterrupted(sig, _stopped_line(sig, True, t, step, out, cont))
     return {}
 
 
@@ -705,15 +789,86 @@ def _grow_socket_buffers(ex, n_cells):
             pass
 
 
-def _coupling_state(iface, step, t):
-    return dict(step=np.int64(step), time=np.float64(t),
-                eps_sent=iface.eps_sent if iface.eps_sent is not None else np.zeros(0),
-                ksl_sent=iface.ksl_sent if iface.ksl_sent is not None else np.zeros(0))
+COUPLING_STATE_FORMAT = "thermodem coupling state"
+COUPLING_STATE_VERSION = 1
+FLUID_FIELDS = {"U": 3, "T": 1, "gradp": 3, "p": 1}
 
 
-def _restart(out: Path, sim, iface, dt, log, R):
-    """Load the DEM checkpoint of the latest OpenFOAM time that has one; remove later
-    gas time directories. Returns (step index, time)."""
+def _restart_point_files(out: Path, step: int) -> tuple[Path, Path]:
+    """checkpoints/checkpoint_<step>.npz (DEM) and checkpoints/coupling_<step>.npz."""
+    d = out / "checkpoints"
+    return d / f"checkpoint_{step:08d}.npz", d / f"coupling_{step:08d}.npz"
+
+
+def _coupling_state(iface, step, t, fluid):
+    """Arrays of checkpoints/coupling_<step>.npz: the exchange-field state of the
+    interface (eps, Ksl as last sent: the time-smoothing relaxes from them) and the gas
+    frame of this step (U, T, grad p, p), which the next DEM interval uses."""
+    d = dict(format=np.str_(COUPLING_STATE_FORMAT), version=np.int64(COUPLING_STATE_VERSION),
+             step=np.int64(step), time=np.float64(t))
+    for key, a in iface.restart_state().items():
+        d[f"iface_{key}"] = a
+    for key in FLUID_FIELDS:
+        d[f"fluid_{key}"] = np.ascontiguousarray(fluid[key], dtype=np.float64)
+    return d
+
+
+def _write_restart_point(R, sim, iface, out, step, t, fluid):
+    """A restart point at this step (collective): the coupling state first, then the DEM
+    checkpoint, each written atomically; ``--restart`` only takes a step whose DEM
+    checkpoint exists, so a kill between the two writes leaves the previous point."""
+    ck, cs = _restart_point_files(out, step)
+    if R.root:
+        from dem.output import save_npz
+        save_npz(str(cs), durable=True, **_coupling_state(iface, step, t, fluid))
+    sim.write_checkpoint(str(ck))
+    return ck
+
+
+def _load_coupling_state(path: Path, step: int, n_cells: int) -> dict:
+    """Read and check checkpoints/coupling_<step>.npz; CouplingRunError naming the file."""
+    why = ("it holds the exchange-field state and the last gas frame of the restart point, "
+           "written with checkpoints/checkpoint_%08d.npz" % step)
+    if not path.is_file():
+        raise CouplingRunError(f"{path}: missing ({why}); this output cannot be continued exactly: "
+                               f"start the run again without --restart")
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            arrays = {key: z[key] for key in z.files}
+    except Exception as e:  # noqa: BLE001 - zip CRC, truncation, not an npz
+        raise CouplingRunError(f"{path}: cannot be read as a coupling state ({type(e).__name__}: {e}); "
+                               f"the file is damaged: restart from an earlier restart point by removing "
+                               f"the later OpenFOAM time directories, or start again without --restart") from None
+    fmt = str(arrays.get("format", ""))
+    if fmt != COUPLING_STATE_FORMAT:
+        raise CouplingRunError(f"{path}: not a coupling state of thermodem (format {fmt!r})")
+    ver = int(arrays.get("version", -1))
+    if ver != COUPLING_STATE_VERSION:
+        raise CouplingRunError(f"{path}: coupling state version {ver}, this thermodem reads "
+                               f"version {COUPLING_STATE_VERSION}")
+    if int(arrays.get("step", -1)) != step:
+        raise CouplingRunError(f"{path}: holds step {int(arrays.get('step', -1))}, expected {step}")
+    fluid = {}
+    for key, ncomp in FLUID_FIELDS.items():
+        a = arrays.get(f"fluid_{key}")
+        shape = (n_cells, ncomp) if ncomp > 1 else (n_cells,)
+        if a is None or a.shape != shape or a.dtype != np.float64 or not np.all(np.isfinite(a)):
+            raise CouplingRunError(f"{path}: gas field fluid_{key} missing, not float64 of shape {shape} "
+                                   f"(the mesh has {n_cells} cells) or not finite")
+        fluid[key] = a
+    iface = {key[6:]: a for key, a in arrays.items() if key.startswith("iface_")}
+    for key in ("eps_sent", "ksl_sent"):
+        if key not in iface:
+            raise CouplingRunError(f"{path}: iface_{key} missing")
+    return dict(fluid=fluid, iface=iface, time=float(arrays["time"]), path=path)
+
+
+def _restart(out: Path, sim, iface, dt, log, R, n_cells):
+    """Continue from the latest restart point: the latest OpenFOAM time directory whose
+    step has a DEM checkpoint (checkpoints/checkpoint_<step>.npz) and a coupling state
+    (checkpoints/coupling_<step>.npz). Loads both (the coupling state is returned, to be
+    applied after the initial void fraction), removes later gas time directories.
+    Returns (step index, time, coupling state)."""
     cks = {int(m.group(1)): p for p in (out / "checkpoints").glob("checkpoint_*.npz")
            if (m := re.match(r"checkpoint_(\d+)\.npz", p.name))}
     gas_times = [(tv, p) for tv, p in _time_dirs(out) if tv > 0]
@@ -729,6 +884,7 @@ def _restart(out: Path, sim, iface, dt, log, R):
                                f"(checkpoints/checkpoint_<step>.npz); gas times: "
                                f"{[p.name for _, p in gas_times]}, DEM checkpoints: {sorted(cks)}")
     idx, tv, p = best
+    cstate = _load_coupling_state(_restart_point_files(out, idx)[1], idx, n_cells)
     R.barrier()  # every rank has chosen the same restart point before rank 0 prunes
     if R.root:
         for tv2, p2 in gas_times:
@@ -741,8 +897,8 @@ def _restart(out: Path, sim, iface, dt, log, R):
     sim.load_checkpoint(str(cks[idx]))
     if abs(sim.time - tv) > 1e-9 * max(1.0, tv):
         raise CouplingRunError(f"{cks[idx]}: DEM time {sim.time} does not match the gas time {tv}")
-    log(f"coupling: restarting from t = {tv:g} s (step {idx}, {cks[idx].name})")
-    return idx, tv
+    log(f"coupling: restarting from t = {tv:g} s (step {idx}, {cks[idx].name}, {cstate['path'].name})")
+    return idx, tv, cstate
 
 
 def _output(hist, vtk, diag, sim, iface, fluid, frame, t, step, t_wall0, timer):
@@ -812,9 +968,12 @@ def cmd_run(args) -> int:
     why = out_dir_problem(args.out) if args.out is not None else None
     if why:
         raise CouplingRunError(f"--out: {why}")
-    run_case(args.case, args.out, transport=args.transport, end_time=args.end_time,
-             restart=args.restart, quiet=args.quiet, external_solver=args.external_solver,
-             overwrite=args.overwrite)
+    # SIGINT/SIGTERM from here on (also during meshing and compiling) only set a flag: the
+    # coupled loop ends its current coupling step, writes a restart point and stops
+    with StopSignals():
+        run_case(args.case, args.out, transport=args.transport, end_time=args.end_time,
+                 restart=args.restart, quiet=args.quiet, external_solver=args.external_solver,
+                 overwrite=args.overwrite)
     return 0
 
 
@@ -876,8 +1035,12 @@ def main(argv=None) -> int:
             raise
         print(f"coupling: error: {OutputError(e.filename or '(unnamed file)', e)}", file=sys.stderr)
         return EXIT_DEM
-    except KeyboardInterrupt:
-        print("coupling: interrupted (checkpoint written)", file=sys.stderr)
+    except RunInterrupted as e:
+        print(f"coupling: {e.message}", file=sys.stderr)
+        return e.exit_code
+    except KeyboardInterrupt:  # a second signal while the first one was served
+        print("coupling: interrupted (second signal): stopped at once; continue from the latest "
+              "restart point with --restart", file=sys.stderr)
         return 130
 
 

@@ -22,6 +22,11 @@ Description
       loop  : receive step n (eps, Ksl, Us, Simp, Sexp) -> solve -> send step n
     Transport selected in system/couplingDict (file | socket | none).
 
+    Stop signals (coupled runs): SIGINT or SIGTERM finish the current step,
+    write the fields at its time (a restart point), send its frame with FINAL
+    and the signal number (flags bits 8-15) and end with status 0; the DEM then
+    stops at the same step.
+
 \*---------------------------------------------------------------------------*/
 
 #include "fvCFD.H"
@@ -32,10 +37,32 @@ Description
 #include "fixedFluxPressureFvPatchScalarField.H"
 #include "couplingIO.H"
 
+#include <csignal>
+
 // * * * * * * * * * * * * * * * * * * * * * * * * * * * * * * * * * * * * //
 
 namespace
 {
+
+// Number of a stop signal (SIGINT, SIGTERM) received, 0 if none
+volatile std::sig_atomic_t stopSignal = 0;
+
+extern "C" void onStopSignal(int signum)
+{
+    stopSignal = signum;
+}
+
+// Coupled runs: SIGINT/SIGTERM end the run cleanly after the current step
+// (the fields are written there) instead of killing the solver mid-step.
+void catchStopSignals()
+{
+    struct sigaction sa;
+    std::memset(&sa, 0, sizeof(sa));
+    sa.sa_handler = onStopSignal;
+    sigemptyset(&sa.sa_mask);
+    ::sigaction(SIGINT, &sa, nullptr);
+    ::sigaction(SIGTERM, &sa, nullptr);
+}
 
 // Columns sent to the DEM: Ux Uy Uz T dpdx dpdy dpdz p   (SI: m/s, K, Pa/m, Pa)
 Foam::List<Foam::scalarField> outgoingColumns
@@ -114,6 +141,7 @@ int main(int argc, char *argv[])
     // ------------------------------------------------------------- step i0
     if (coupling.active())
     {
+        catchStopSignals();
         coupling.send
         (
             runTime.timeIndex(),
@@ -225,8 +253,13 @@ int main(int argc, char *argv[])
         #include "TEqn.H"
 
         // --------------------------------------------------------- send
+        // a stop signal on any processor ends the run after this step
+        label stopSig = label(stopSignal);
+        reduce(stopSig, maxOp<label>());
+
         const bool lastStep =
             (peerFlags & demCoupling::flagFinal)
+         || stopSig
          || runTime.value() > runTime.endTime().value() - 0.5*runTime.deltaTValue();
 
         if (lastStep)
@@ -245,7 +278,8 @@ int main(int argc, char *argv[])
                 step,
                 runTime.value(),
                 outgoingColumns(U, T, p, rho, phi, eps, fluxVelocity),
-                lastStep ? demCoupling::flagFinal : 0
+                (lastStep ? demCoupling::flagFinal : 0)
+              | (label(stopSig & 0xff) << demCoupling::signalShift)
             );
         }
 
@@ -254,6 +288,12 @@ int main(int argc, char *argv[])
         if (peerFlags & demCoupling::flagFinal)
         {
             Info<< "DEM peer signalled the final step " << step << endl;
+            break;
+        }
+        if (stopSig)
+        {
+            Info<< "Stopped by signal " << stopSig << " after step " << step
+                << " (fields written at t = " << runTime.timeName() << ")" << endl;
             break;
         }
     }
