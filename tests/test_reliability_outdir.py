@@ -148,13 +148,13 @@ def test_dem_run_twice_overwrite_restart(scene, tmp_path):
     assert tree(out) == before
     # without it, --overwrite removes exactly the listed entries (and a leftover temporary file)
     (out / "notes.txt").unlink()
-    (out / ".tmp_k2j4.csv").write_text("left by a kill\n")
+    (out / ".tmp_thermodem_k2j4.csv").write_text("left by a kill\n")
     r = dem("run", scene, "--out", out, "--end-time", "0.0025", "--quiet", "--overwrite")
     assert r.returncode == 0, r.stderr
     h = np.atleast_1d(np.genfromtxt(out / "history.csv", delimiter=",", names=True))
     assert np.allclose(h["time"], [0.0, 0.0025], rtol=0, atol=1e-12)     # a new run, not the old rows
     assert len(os.listdir(out / "vtk")) == 2                               # the old run's 4 files are gone
-    assert not (out / ".tmp_k2j4.csv").exists()
+    assert not (out / ".tmp_thermodem_k2j4.csv").exists()
     assert listed(out) == set(os.listdir(out)) - {MANIFEST}
 
 
@@ -172,7 +172,7 @@ def test_dem_run_user_folder_refused(scene, tmp_path):
     # --out that is a file
     f = tmp_path / "results.txt"
     f.write_text("keep\n")
-    refused(dem("run", scene, "--out", f, "--quiet"), f"--out {f} is a file, not a folder")
+    refused(dem("run", scene, "--out", f, "--quiet"), f"--out: {f} is an existing file, not a folder")
     assert f.read_text() == "keep\n"
     # the default out/<scene name> under the working folder, when it is a user's folder
     user_folder(tmp_path / "cwd" / "out" / "periodic")
@@ -200,7 +200,7 @@ def test_killed_run_is_listed_and_can_be_overwritten(scene, tmp_path):
         if p.poll() is None:
             p.kill()
             p.wait()
-    present = {n for n in os.listdir(out) if n != MANIFEST and not n.startswith(".tmp_")}
+    present = {n for n in os.listdir(out) if n != MANIFEST and not n.startswith(".tmp_thermodem_")}
     assert {"history.csv", "vtk", "particles.pvd"} <= present
     assert present <= listed(out)
     refused(dem("run", scene, "--out", out, "--end-time", "0.0025", "--quiet"), "earlier thermodem output")
