@@ -747,14 +747,14 @@ class Simulation:
                 arr.update(self.thermal.checkpoint_arrays())
             return arr
         local = {}
-        empties = {}
+        empties = {}  # arrays the run does not use: zero-row placeholders on every rank
         for name, (obj, attr) in self.per_particle_arrays().items():
             if name == "sim.external_force":
                 continue
             a = getattr(obj, attr)
-            if a.shape[0] == 0:
+            if name in self.par.absent:
                 empties[self._ck_key(name)] = a
-            else:
+            else:  # a rank that owns no particle contributes zero rows
                 local[self._ck_key(name)] = a[:n]
         local["id"] = st.id[:n]
         parts = self.par.gather((local, rec))  # records travel beside, not ordered by id
