@@ -765,11 +765,12 @@ class Simulation:
             return None
         arr = self._gather_by_id_parts([p[0] for p in parts])
         arr.pop("id")
-        for k in rec:
-            arr[k] = np.concatenate([p[1][k] for p in parts])
+        rkeys = sorted(set().union(*(p[1] for p in parts)))  # a rank owning no particle has no
+        for k in rkeys:                                      # record, nor the optional fields
+            arr[k] = np.concatenate([p[1][k] for p in parts if k in p[1]])
         if "rec_a" in arr:  # a pair across ranks was recorded by both: keep one
             _, first = np.unique(arr["rec_a"] * self.par.key_base + arr["rec_b"], return_index=True)
-            for k in rec:
+            for k in rkeys:
                 arr[k] = arr[k][first]
         arr.update(empties, **common, **extra)
         return arr
