@@ -11,8 +11,8 @@ millisecond in a dense impact (measured on the settling bed: 1e-15 m at the firs
 compared to round-off beyond its first collisions. Each test therefore compares
 trajectories to round-off (positions 1e-12 m = 1e-9 of a radius, velocities 1e-9 m/s,
 temperatures 1e-10 K) over the outputs before the difference has been amplified, and the
-later state by what the physics fixes: heat conservation to 1e-9, bed height and contact
-counts to a few per cent.
+later state by what the physics fixes: heat conservation to 1e-9, bed height, contact count
+and heat taken from the floor to about ten times the spread between two serial runs.
 """
 import csv
 import glob
@@ -138,7 +138,7 @@ def test_settling_bed_drains_the_upper_rank(settle):
     assert parallel_stats(p.stdout)["rebalances"] == 0
     h = history(out)
     peak = max(r["kinetic_energy"] for r in h)
-    assert h[-1]["kinetic_energy"] < 0.02 * peak  # at rest (2 % of the impact energy left)
+    assert h[-1]["kinetic_energy"] < 0.005 * peak  # at rest (measured: 5e-4 of the peak left)
     assert h[-1]["contacts"] > 400
 
 
@@ -158,13 +158,15 @@ def test_settling_bed_same_as_serial(settle, n):
     ref, par = snapshots(settle[1][1]), snapshots(settle[n][1])
     assert_roundoff(ref, par, until_step=2000)
     a, b = ref[max(ref)], par[max(par)]
-    assert np.mean(b["x"][:, 2]) == pytest.approx(np.mean(a["x"][:, 2]), rel=0.02)
-    assert np.max(b["x"][:, 2]) == pytest.approx(np.max(a["x"][:, 2]), rel=0.1)
+    # bounds about 10 times the measured spread (0.09 %, 0.3 %, 1.6 %, 0.03 %), which equals
+    # the spread between two serial runs with another particle order (docs/reliability/mpi.md)
+    assert np.mean(b["x"][:, 2]) == pytest.approx(np.mean(a["x"][:, 2]), rel=0.01)
+    assert np.max(b["x"][:, 2]) == pytest.approx(np.max(a["x"][:, 2]), rel=0.03)
     ha, hb = history(settle[1][1])[-1], history(settle[n][1])[-1]
     assert hb["contacts"] == pytest.approx(ha["contacts"], rel=0.1)
     ga = assert_heat_balance(settle[1][1], "floor")
     gb = assert_heat_balance(settle[n][1], "floor")
-    assert gb == pytest.approx(ga, rel=0.1)
+    assert gb == pytest.approx(ga, rel=0.005)
 
 
 # --------------------------------------------------------------------------- beads thrown across
