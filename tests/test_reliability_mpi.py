@@ -37,8 +37,8 @@ def _have_mpi4py():
         return False
 
 
-pytestmark = pytest.mark.skipif(shutil.which("mpirun") is None or not _have_mpi4py(),
-                                reason="needs Open MPI (mpirun) and mpi4py")
+needs_mpi = pytest.mark.skipif(shutil.which("mpirun") is None or not _have_mpi4py(),
+                               reason="needs Open MPI (mpirun) and mpi4py")
 
 POS, VEL, TEMP = 1e-12, 1e-9, 1e-10  # round-off bounds (m, m/s, K); see the module docstring
 
@@ -127,6 +127,7 @@ def settle(tmp_path_factory):
     return out
 
 
+@needs_mpi
 def test_settling_bed_drains_the_upper_rank(settle):
     """The 2-rank run without re-balancing: the upper box empties as the bed settles (this
     crashed before the fix), the run ends with rank 1 owning no particle and the bed at rest."""
@@ -142,6 +143,7 @@ def test_settling_bed_drains_the_upper_rank(settle):
     assert h[-1]["contacts"] > 400
 
 
+@needs_mpi
 def test_settling_bed_rebalances_on_3_ranks(settle):
     """3 ranks with the default re-balancing re-cut the boxes as the bed settles."""
     p, out = settle[3]
@@ -150,6 +152,7 @@ def test_settling_bed_rebalances_on_3_ranks(settle):
     assert np.all(np.bincount(last["rank"].astype(int), minlength=3) > 50)  # every rank has a share
 
 
+@needs_mpi
 @pytest.mark.parametrize("n", [2, 3])
 def test_settling_bed_same_as_serial(settle, n):
     """Trajectories and temperatures equal to the serial run to round-off until the impacts
@@ -177,6 +180,7 @@ def thrown(tmp_path_factory):
     return {n: (run(n, scene, d / f"np{n}"), d / f"np{n}") for n in (1, 3)}
 
 
+@needs_mpi
 def test_thrown_beads_visit_every_rank(thrown):
     """Two streams thrown at each other across a closed box (1,775 migrations in 5,000
     steps): at the 51 outputs, every rank owned at some time at least 85 % of the beads
@@ -193,6 +197,7 @@ def test_thrown_beads_visit_every_rank(thrown):
     assert history(out)[-1]["E_direct"] > 0.01  # J conducted between hot and cold beads
 
 
+@needs_mpi
 def test_thrown_beads_same_as_serial(thrown):
     """Equal to the serial run to round-off for the first 15 ms (the streams cross and hit
     the walls); at 50 ms the kinetic energy agrees to 1e-4 and the thermal energy to 1e-12."""
@@ -204,6 +209,7 @@ def test_thrown_beads_same_as_serial(thrown):
 
 
 # --------------------------------------------------------------------------- empty from the start
+@needs_mpi
 def test_ranks_empty_from_the_start_and_restart(tmp_path):
     """A pile in a 6 mm periodic channel cut into slabs along x: no cut keeps two halos of
     the axis, so ranks 0 and 1 own no particle from the start while rank 2 owns all of them
@@ -230,3 +236,43 @@ def test_ranks_empty_from_the_start_and_restart(tmp_path):
     assert_heat_balance(tmp_path / "np1", "floor")
     assert hb["E_wall_floor"] == pytest.approx(ha["E_wall_floor"], rel=1e-9) and ha["E_wall_floor"] > 0
     assert hb["thermal_energy"] == pytest.approx(ha["thermal_energy"], rel=1e-12)
+
+
+# --------------------------------------------------------------------------- the cutting rules
+def _cut(n, lo, hi, periodic, x, halo, method="rcb", slab_axis="auto"):
+    from dem.parallel.decomposition import Decomposition
+    d = Decomposition(n, lo, hi, periodic, method, slab_axis)
+    return d.build(None, np.asarray(x, float), np.ones(len(x)), halo)
+
+
+def test_cuts_follow_the_particles_not_the_box():
+    """RCB cuts a flat layer of particles in a tall box across its widest extent (x), at
+    the median, however thin the boxes are compared with the halo on the z axis."""
+    rng = np.random.default_rng(1)
+    x = rng.uniform([0, 0, 0], [0.04, 0.02, 0.003], (1000, 3))
+    d = _cut(2, [0, 0, 0], [0.04, 0.02, 0.2], [False] * 3, x, halo=0.01)
+    (ax, cut, _, _), = d.nodes
+    assert ax == 0 and cut == pytest.approx(np.median(x[:, 0]), abs=0.04 / 256)
+    own = d.owner(x)
+    assert abs(np.count_nonzero(own == 0) - 500) <= 10
+
+
+def test_periodic_cut_keeps_two_halos():
+    """Particles piled at one end of a periodic x axis five halos long: the
+    balanced cut (x = 0.5) would leave the other box wider than L - 2 halo; it is moved to
+    two halos from the box end (x = 2), and every box passes the periodic rule."""
+    x = np.column_stack([np.linspace(0.0, 1.0, 101), np.full(101, 0.5), np.full(101, 0.5)])
+    d = _cut(2, [0, 0, 0], [5.0, 1.0, 1.0], [True, True, True], x, halo=1.0, method="slabs", slab_axis="x")
+    assert d.nodes[0][0] == 0 and d.nodes[0][1] == pytest.approx(2.0)
+    assert d.periodic_ok(1.0)
+
+
+def test_no_legal_cut_merges_ranks():
+    """Every axis periodic and shorter than four halos: nothing can be cut; ranks 0..2 get
+    empty boxes and rank 3 owns every particle (a legal state, not an error)."""
+    rng = np.random.default_rng(2)
+    x = rng.uniform(0.0, 3.0, (200, 3))
+    d = _cut(4, [0, 0, 0], [3.0, 3.0, 3.0], [True] * 3, x, halo=1.0)
+    assert np.all(d.owner(x) == 3)
+    assert d.periodic_ok(1.0)
+    assert all(cut == 0.0 for _, cut, _, _ in d.nodes)
