@@ -276,3 +276,61 @@ def test_no_legal_cut_merges_ranks():
     assert np.all(d.owner(x) == 3)
     assert d.periodic_ok(1.0)
     assert all(cut == 0.0 for _, cut, _, _ in d.nodes)
+
+
+# --------------------------------------------------------------------------- a failure on one rank
+def _mpi_python(n, code, timeout=120):
+    """`python -c CODE` on n ranks; the test fails (instead of hanging) after ``timeout`` s."""
+    env = dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1",
+               OMPI_MCA_mpi_yield_when_idle="1")
+    cmd = ["mpirun", "--oversubscribe", "--allow-run-as-root", "-np", str(n), sys.executable, "-c", code]
+    return subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=timeout)
+
+
+@needs_mpi
+def test_failure_in_the_exchange_stops_every_rank_with_one_message():
+    """A Python error on rank 1 only, while it packs its migrating particles (injected here by
+    replacing Decomposition.owner on that rank): every rank raises the same SimulationError
+    naming rank 1, the stage and the step, at the same exchange; nobody waits forever."""
+    code = f"""
+import sys
+from dem.simulation import Simulation, SimulationError
+from dem.parallel import decomposition
+sim = Simulation.from_file({os.path.join(SCENES, 'rel_mpi_thrown.toml')!r})
+if sim.par.rank == 1:
+    def owner(self, x):
+        raise ValueError("injected fault")
+    decomposition.Decomposition.owner = owner
+try:
+    sim.run(end_time=0.002)
+except SimulationError as exc:
+    print(f"rank {{sim.par.rank}} stopped: {{exc}}", flush=True)
+    sys.exit(3)
+"""
+    p = _mpi_python(2, code)
+    assert p.returncode == 3, p.stderr
+    lines = sorted(l for l in p.stdout.splitlines() if "stopped:" in l)
+    assert len(lines) == 2
+    msgs = {l.split("stopped: ", 1)[1] for l in lines}
+    assert len(msgs) == 1  # the same message on both ranks
+    msg = msgs.pop()
+    assert msg.startswith("rank 1 failed while packing the migrating particles at t = ")
+    assert msg.endswith("ValueError: injected fault")
+
+
+@needs_mpi
+def test_uncaught_exception_on_one_rank_aborts_the_job():
+    """An exception nobody catches on rank 1, while rank 0 waits in a collective: the job
+    ends (MPI_Abort, exit status 3) with the traceback and one line naming the rank, instead
+    of hanging until the scheduler kills it."""
+    code = """
+from dem.parallel import world
+comm = world()
+if comm.Get_rank() == 1:
+    {}["missing"]
+comm.barrier()
+"""
+    p = _mpi_python(2, code)
+    assert p.returncode == 3
+    assert "KeyError: 'missing'" in p.stderr
+    assert "error: rank 1 stopped on an unexpected KeyError; aborting every rank of the run" in p.stderr
