@@ -246,6 +246,9 @@ def _main(argv=None):
             print(f"error: {exc}", file=sys.stderr)
         return 3
     except MemoryError:
+        from .parallel import launched_size
+        if launched_size() > 1:  # one rank out of memory: the abort hook ends the whole job
+            raise
         if root:
             print(f"error: {args.scene if hasattr(args, 'scene') else args.cmd}: out of memory (the scene "
                   "did not fit although `dem check` estimated it would, or simulation.force = true); use "

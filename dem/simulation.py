@@ -750,14 +750,14 @@ class Simulation:
                 arr.update(self.thermal.checkpoint_arrays())
             return arr
         local = {}
-        empties = {}
+        empties = {}  # arrays the run does not use: zero-row placeholders on every rank
         for name, (obj, attr) in self.per_particle_arrays().items():
             if name == "sim.external_force":
                 continue
             a = getattr(obj, attr)
-            if a.shape[0] == 0:
+            if name in self.par.absent:
                 empties[self._ck_key(name)] = a
-            else:
+            else:  # a rank that owns no particle contributes zero rows
                 local[self._ck_key(name)] = a[:n]
         local["id"] = st.id[:n]
         parts = self.par.gather((local, rec))  # records travel beside, not ordered by id
@@ -768,11 +768,12 @@ class Simulation:
             return None
         arr = self._gather_by_id_parts([p[0] for p in parts])
         arr.pop("id")
-        for k in rec:
-            arr[k] = np.concatenate([p[1][k] for p in parts])
+        rkeys = sorted(set().union(*(p[1] for p in parts)))  # a rank owning no particle has no
+        for k in rkeys:                                      # record, nor the optional fields
+            arr[k] = np.concatenate([p[1][k] for p in parts if k in p[1]])
         if "rec_a" in arr:  # a pair across ranks was recorded by both: keep one
             _, first = np.unique(arr["rec_a"] * self.par.key_base + arr["rec_b"], return_index=True)
-            for k in rec:
+            for k in rkeys:
                 arr[k] = arr[k][first]
         arr.update(empties, **common, **extra)
         return arr

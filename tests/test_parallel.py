@@ -142,15 +142,16 @@ def test_restart_across_rank_counts(settle, tmp_path, first, second):
     assert_same(ref, b)
 
 
-def test_too_many_ranks_is_refused(tmp_path):
-    """Slabs thinner than two halos are refused before any step, naming the file and key."""
-    p = mpirun(3, "run", os.path.join(SCENES, "par_periodic.toml"), "--out", str(tmp_path),
-               "--quiet", check=False)
-    assert p.returncode == 0  # 3 slabs of 30 mm are fine
+def test_slabs_thinner_than_the_halo_run(tmp_path):
+    """Slabs thinner than two halos (3 slabs along z through a 4 mm tall layer of beads) are
+    legal on a non-periodic axis: each rank takes ghosts from every rank within one halo of
+    its box, not only the next one (docs/reliability/mpi.md). The run matches the serial one."""
     src = open(os.path.join(SCENES, "par_periodic.toml")).read().replace('slab_axis = "x"', 'slab_axis = "z"')
+    src = src.replace("../../examples/data", os.path.join(HERE, "..", "examples", "data"))
     scene = tmp_path / "thin.toml"
     scene.write_text(src)
-    p = mpirun(3, "run", str(scene), "--out", str(tmp_path / "thin"), "--quiet", check=False)
-    assert p.returncode == 2
-    assert "thin.toml" in p.stderr and "[parallel]" in p.stderr and "fewer ranks" in p.stderr
-    assert p.stderr.count("error:") == 1
+    a = run(1, "par_periodic.toml", tmp_path / "one")
+    p = mpirun(3, "run", str(scene), "--out", str(tmp_path / "thin"), "--quiet")
+    assert "error" not in p.stderr
+    b = np.load(tmp_path / "thin" / "final.npz")
+    assert_same(a, b, pos=1e-14, vel=1e-12, spin=1e-9, temp=1e-11)

@@ -5,6 +5,7 @@ only then (a serial run never initialises MPI). See docs/scaling.md for the desi
 the measured figures.
 """
 import os
+import sys
 
 _ENV_SIZE = ("OMPI_COMM_WORLD_SIZE", "PMI_SIZE", "PMIX_SIZE", "MPI_LOCALNRANKS", "SLURM_NTASKS")
 
@@ -36,4 +37,28 @@ def world():
         return None
     from mpi4py import MPI
     comm = MPI.COMM_WORLD
-    return comm if comm.Get_size() > 1 else None
+    if comm.Get_size() <= 1:
+        return None
+    _abort_on_uncaught(comm)
+    return comm
+
+
+def _abort_on_uncaught(comm):
+    """An exception that no handler catches on one rank would leave the other ranks waiting
+    in their next collective forever: print it, say which rank stopped, and abort the whole
+    job (mpirun then ends every rank). Expected failures (bad input, unstable runs, a failed
+    particle exchange) are shared between the ranks and never get here."""
+    if getattr(sys.excepthook, "_dem_abort", False):
+        return
+    previous = sys.excepthook
+
+    def hook(kind, value, tb):
+        try:
+            previous(kind, value, tb)
+            sys.stderr.write(f"error: rank {comm.Get_rank()} stopped on an unexpected {kind.__name__}; "
+                             "aborting every rank of the run\n")
+            sys.stderr.flush()
+        finally:
+            comm.Abort(130 if issubclass(kind, KeyboardInterrupt) else 3)
+    hook._dem_abort = True
+    sys.excepthook = hook

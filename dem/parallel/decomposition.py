@@ -8,8 +8,20 @@ histograms refined three times (collective: every rank takes part in every cut),
 decomposition needs no gathering of particles and scales to many ranks.
 
 ``slabs`` cuts along one axis only (the longest, or ``slab_axis``); ``rcb`` cuts the box
-with the most ranks along its longest extent, recursively, giving compact 3-D boxes (fewer
-ghosts per owned particle than slabs once there are more than a few ranks).
+with the most ranks along the longest extent of the particles inside it, recursively, giving
+compact 3-D boxes (fewer ghosts per owned particle than slabs once there are more than a few
+ranks; a settled flat bed is cut across, not into thin layers).
+
+Any box width is valid on a non-periodic axis: a rank receives as ghosts the particles of
+every rank within one halo of its box, not only of the next one, so a box narrower than the
+halo (or an empty one) is slower, never wrong. On a periodic axis a box that does not span
+the axis must leave at least two halos of the axis to the others (L - w >= 2 halo), else a
+particle would be needed as two periodic images by the same rank, or a rank's own pair would
+cross the periodic boundary outside its grid. Only the first cut of a box spanning a periodic
+axis can break that: the cut is kept at least two halos from the box ends, and when the axis
+is shorter than four halos the cut moves to another axis; when no axis can be cut (every
+axis periodic and short) the lower half of the ranks get an empty box ("merge": those ranks
+own no particle, a legal state).
 """
 import numpy as np
 
@@ -54,6 +66,7 @@ class Decomposition:
         self.blo = np.zeros((nranks, 3))
         self.bhi = np.zeros((nranks, 3))
         self.nodes = []  # (axis, cut, left, right); a child < 0 is the leaf of rank -1 - child
+        self.halo = 0.0
 
     def _root_box(self):
         blo = np.where(self.periodic, self.lo, -np.inf)
@@ -68,13 +81,41 @@ class Decomposition:
         ext = np.minimum(bhi, self.hi) - np.maximum(blo, self.lo)
         return int(np.argmax(ext))
 
-    def build(self, comm, x, weights):
+    def build(self, comm, x, weights, halo=0.0):
         """Collective: cut the domain so that every rank gets an equal share of the weight.
-        ``x`` and ``weights`` are this rank's particles (any disjoint split of all of them)."""
+        ``x`` and ``weights`` are this rank's particles (any disjoint split of all of them,
+        a rank may hold none); ``halo``: the ghost layer width the periodic cuts respect."""
         self.nodes = []
+        self.halo = float(halo)
         blo, bhi = self._root_box()
         self._split(comm, x, weights, 0, self.nranks, blo, bhi)
         return self
+
+    def _candidate_axes(self, comm, xin, blo, bhi):
+        """Axes to cut box [blo, bhi], best first: slabs its one axis; rcb by decreasing
+        extent of the particles inside the box (global), the box's own extent breaking ties
+        and serving when the box holds no particle."""
+        if self.method == "slabs":
+            return [self._axis(blo, bhi)]
+        ext = np.minimum(bhi, self.hi) - np.maximum(blo, self.lo)
+        lohi = np.concatenate([-xin.min(axis=0), xin.max(axis=0)]) if xin.shape[0] else np.full(6, -np.inf)
+        if comm is not None:
+            glob = np.empty(6)
+            comm.Allreduce(np.ascontiguousarray(lohi, float), glob, op=_mpi_max())
+            lohi = glob
+        pext = lohi[3:] + lohi[:3]
+        pext = np.where(np.isfinite(pext), pext, 0.0)
+        return sorted(range(3), key=lambda k: (-pext[k], -ext[k], k))
+
+    def _cut_range(self, ax, blo, bhi):
+        """Interval where a cut of box [blo, bhi] along ``ax`` keeps both halves valid (see
+        the module docstring), or None."""
+        a = max(blo[ax], self.lo[ax])
+        b = min(bhi[ax], self.hi[ax])
+        if self.periodic[ax] and blo[ax] <= self.lo[ax] and bhi[ax] >= self.hi[ax]:
+            h2 = 2.0 * self.halo
+            return (a + h2, b - h2) if b - a >= 2.0 * h2 else None
+        return a, b
 
     def _split(self, comm, x, w, r0, r1, blo, bhi):
         if r1 - r0 == 1:
@@ -82,12 +123,17 @@ class Decomposition:
             self.bhi[r0] = bhi
             return -1 - r0
         nl = (r1 - r0) // 2
-        ax = self._axis(blo, bhi)
-        a = max(blo[ax], self.lo[ax])
-        b = min(bhi[ax], self.hi[ax])
         inside = np.all((x >= blo) & (x < bhi), axis=1)
-        xs = np.clip(x[inside, ax], a, b)
-        cut = _weighted_cut(comm, xs, w[inside], a, b, nl / (r1 - r0))
+        axes = self._candidate_axes(comm, x[inside], blo, bhi)
+        ax, rng = next(((k, r) for k in axes for r in [self._cut_range(k, blo, bhi)] if r is not None),
+                       (axes[0], None))
+        if rng is None:  # nothing can be cut: the lower ranks get an empty box at the domain's start
+            cut = float(self.lo[ax])
+        else:
+            a, b = max(blo[ax], self.lo[ax]), min(bhi[ax], self.hi[ax])
+            xs = np.clip(x[inside, ax], a, b)
+            cut = _weighted_cut(comm, xs, w[inside], a, b, nl / (r1 - r0))
+            cut = float(min(max(cut, rng[0]), rng[1]))
         me = len(self.nodes)
         self.nodes.append([ax, cut, 0, 0])
         lhi = bhi.copy()
@@ -164,7 +210,21 @@ class Decomposition:
         w = np.minimum(self.bhi, self.hi) - np.maximum(self.blo, self.lo)
         return float(w.min())
 
+    def periodic_ok(self, halo):
+        """True when every box leaves at least two halos of each periodic axis it does not
+        span to the other boxes (see the module docstring)."""
+        L = self.hi - self.lo
+        w = np.minimum(self.bhi, self.hi) - np.maximum(self.blo, self.lo)
+        spans = (self.blo <= self.lo) & (self.bhi >= self.hi)
+        bad = self.periodic[None, :] & ~spans & (L[None, :] - w < 2.0 * halo * (1 - 1e-12))
+        return not bool(np.any(bad))
+
     def describe(self):
         names = "xyz"
         cuts = ", ".join(f"{names[int(a)]}={c:.4g}" for a, c, _, _ in self.nodes)
         return f"{self.method} over {self.nranks} ranks (cuts {cuts})"
+
+
+def _mpi_max():
+    from mpi4py import MPI
+    return MPI.MAX

@@ -45,6 +45,7 @@ class ParallelDomain:
         self.rebalances = 0
         self.migrated = 0
         self.sort_pending = False
+        self.absent = set()  # per-particle arrays this run does not use (select_initial)
         self.imbalance = 1.0
         self._bufs = {}
 
@@ -69,30 +70,33 @@ class ParallelDomain:
         return self.comm.gather(obj, root=0)
 
     # ------------------------------------------------------------------ arrays
-    @staticmethod
-    def _take(reg, rows):
+    def _present(self, reg):
+        """(name, obj, attr, array) of the per-particle arrays this run uses. An array the run
+        does not use is a zero-row placeholder whatever the particle count (found once, when
+        every rank holds the whole scene): it is never cut, sent or padded, so a rank that
+        owns no particle (zero rows everywhere) keeps the same arrays as the others."""
         for name, (obj, attr) in reg.items():
             a = getattr(obj, attr)
-            if a is None or a.shape[0] == 0:
-                continue
+            if a is not None and name not in self.absent:
+                yield name, obj, attr, a
+
+    def _take(self, reg, rows):
+        for _name, obj, attr, a in self._present(reg):
             setattr(obj, attr, np.ascontiguousarray(a[rows]))
 
     def select_initial(self, sim):
         """Every rank holds every particle of the scene at start-up: cut the boxes on a
-        disjoint split (row % size) and keep the owned rows."""
+        disjoint split (row % size) and keep the owned rows (possibly none)."""
         st = sim.state
+        reg = sim.per_particle_arrays()
+        self.absent = {name for name, (obj, attr) in reg.items()
+                       if getattr(obj, attr) is None or getattr(obj, attr).shape[0] != st.n}
         x = st.position
         part = np.arange(self.rank, st.n, self.size)
-        self.dec.build(self.comm, x[part], np.ones(part.size))
         halo = sim.halo()
-        w = self.dec.min_width()
-        if w < 2 * halo:
-            raise ParallelError(
-                f"{sim.scene.file}: [parallel] {self.size} ranks cut the domain into boxes {w:.4g} m wide, "
-                f"less than two halos (2 x {halo:.4g} m = 2 r_max + reach + skin): run on fewer ranks, "
-                f"or use [parallel] decomposition = \"rcb\" / another slab_axis")
+        self.dec.build(self.comm, x[part], np.ones(part.size), halo)
         own = np.nonzero(self.dec.owner(x) == self.rank)[0]
-        self._take(sim.per_particle_arrays(), own)
+        self._take(reg, own)
         st.n_owned = own.size
         st.n_ghost = 0
         self.neigh = self.dec.neighbours(self.rank, halo)
@@ -101,76 +105,98 @@ class ParallelDomain:
     def exchange(self, sim, rec, weights=None):
         """Drop ghosts, re-balance if needed, migrate, sort if asked, send ghosts.
         ``rec``: contact records of this rank (dem.parallel.records); returns the records
-        this rank needs after the exchange."""
+        this rank needs after the exchange. Any rank may own no particle before or after.
+        A failure on one rank reaches every rank through the next collective of the
+        exchange, and all of them raise the same SimulationError (no rank is left waiting)."""
         st = sim.state
-        nown = st.n_owned
-        reg = sim.per_particle_arrays()
-        self._take(reg, np.arange(nown))
-        st.n_ghost = 0
         halo = sim.halo()
-        # ---- load balance
-        if weights is None:
-            weights = np.ones(nown)
-        cost = float(weights.sum())
-        cmax = self.allmax(cost)
-        cmean = self.allsum(cost) / self.size
-        self.imbalance = cmax / max(cmean, 1e-300)
-        if self.imbalance > self.cfg["balance_threshold"]:
-            self.dec.build(self.comm, st.position, weights)
-            if self.dec.min_width() >= 2 * halo:
-                self.rebalances += 1
-                self.neigh = self.dec.neighbours(self.rank, halo)
-            else:  # keep the previous cuts: the balanced ones would be too narrow
-                self.dec = self._previous_dec
-        self._previous_dec = _copy_dec(self.dec)
-        # ---- migration
-        dest = self.dec.owner(st.position)
-        leave = dest != self.rank
+        err = None
+        cost = 0.0
+        try:
+            reg = sim.per_particle_arrays()
+            self._take(reg, np.arange(st.n_owned))
+            st.n_ghost = 0
+            if weights is None:
+                weights = np.ones(st.n_owned)
+            cost = float(weights.sum())
+        except Exception as exc:  # noqa: BLE001 - shared below, raised on every rank
+            err = self._error_text(sim, exc, "dropping the ghosts")
+        costs = self.comm.allgather((cost, err))
+        _raise_shared([e for _, e in costs])
+        self._rebalance(sim, np.array([c for c, _ in costs]), weights, halo)
+        rec = self._migrate(sim, reg, rec)
+        self._send_ghosts(sim, reg, halo)
+        self.exchanges += 1
+        self._bufs = {}
+        return rec
+
+    def _rebalance(self, sim, costs, weights, halo):
+        """Re-cut the boxes (collective) when the largest rank cost exceeds the mean by more
+        than [parallel] balance_threshold. Every cut is legal (decomposition.py), so the new
+        cuts are always taken."""
+        cmean = float(costs.sum()) / self.size
+        self.imbalance = float(costs.max()) / max(cmean, 1e-300)
+        if self.imbalance <= self.cfg["balance_threshold"]:
+            return
+        before = [list(n) for n in self.dec.nodes]
+        self.dec.build(self.comm, sim.state.position, weights, halo)
+        if self.dec.nodes != before:
+            self.rebalances += 1
+        self.neigh = self.dec.neighbours(self.rank, halo)
+
+    def _migrate(self, sim, reg, rec):
+        """Send the particles that left this rank's box to their owners, with their contact
+        records; take in the particles that arrive."""
+        st = sim.state
         out = [None] * self.size
-        if np.any(leave):
+        leave = np.zeros(0, bool)
+        try:
+            dest = self.dec.owner(st.position)
+            leave = dest != self.rank
             for q in np.unique(dest[leave]):
                 rows = np.nonzero(dest == q)[0]
-                pkg = {name: getattr(obj, attr)[rows] for name, (obj, attr) in reg.items()
-                       if getattr(obj, attr) is not None and getattr(obj, attr).shape[0] > 0}
+                pkg = {name: a[rows] for name, _o, _a, a in self._present(reg)}
                 pkg["__records"] = R.involving(rec, st.id[rows]) if rec is not None else None
                 out[q] = pkg
+        except Exception as exc:  # noqa: BLE001
+            out = [{"__error": self._error_text(sim, exc, "packing the migrating particles")}] * self.size
         inc = self.comm.alltoall(out)
+        _raise_shared([p.get("__error") if p is not None else None for p in inc])
+        inc = [p for p in inc if p is not None]
         keep = np.nonzero(~leave)[0]
-        nmig = int(leave.sum())
-        self.migrated += nmig
-        for name, (obj, attr) in reg.items():
-            a = getattr(obj, attr)
-            if a is None or a.shape[0] == 0:
-                continue
-            parts = [a[keep]] + [p[name] for p in inc if p is not None]
+        self.migrated += int(leave.sum())
+        for name, obj, attr, a in self._present(reg):
+            parts = [a[keep]] + [p[name] for p in inc]
             setattr(obj, attr, np.ascontiguousarray(np.concatenate(parts)))
         if rec is not None:
-            rec = R.concat([rec] + [p["__records"] for p in inc if p is not None])
-        nown = st.id.shape[0]
-        st.n_owned = nown
-        # ---- spatial sort of the owned rows (cache locality)
-        if self.sort_pending:
+            rec = R.concat([rec] + [p["__records"] for p in inc])
+        st.n_owned = st.id.shape[0]
+        if self.sort_pending:  # spatial sort of the owned rows (cache locality)
             from ..neighbors import sort_permutation
-            cell = halo
-            self._take(reg, sort_permutation(st.position, sim.lo, sim.hi, cell))
+            self._take(reg, sort_permutation(st.position, sim.lo, sim.hi, sim.halo()))
             self.sort_pending = False
-        # ---- ghosts
+        return rec
+
+    def _send_ghosts(self, sim, reg, halo):
+        """Send every neighbour rank this rank's particles within one halo of its box
+        (shifted by the periodic image nearest to it); append the ghosts received."""
+        st = sim.state
+        nown = st.n_owned
         self.sends = []
         out = [None] * self.size
-        for q in self.neigh:
-            d, shift = self.dec.box_distance(st.position, q)
-            rows = np.nonzero(d < halo)[0]
-            sh = np.ascontiguousarray(shift[rows])
-            self.sends.append((q, rows, sh))
-            pkg = {}
-            for name in GHOST_FIELDS:
-                if name in reg:
-                    obj, attr = reg[name]
-                    a = getattr(obj, attr)
-                    if a is not None and a.shape[0] > 0:
-                        pkg[name] = a[rows] + sh if name == "state.position" else a[rows]
-            out[q] = pkg
+        try:
+            present = {name: a for name, _o, _a, a in self._present(reg)}
+            for q in self.neigh:
+                d, shift = self.dec.box_distance(st.position, q)
+                rows = np.nonzero(d < halo)[0]
+                sh = np.ascontiguousarray(shift[rows])
+                self.sends.append((q, rows, sh))
+                out[q] = {name: (present[name][rows] + sh if name == "state.position" else present[name][rows])
+                          for name in GHOST_FIELDS if name in present}
+        except Exception as exc:  # noqa: BLE001
+            out = [{"__error": self._error_text(sim, exc, "packing the ghosts")}] * self.size
         inc = self.comm.alltoall(out)
+        _raise_shared([p.get("__error") if p is not None else None for p in inc])
         self.recvs = []
         off = nown
         got = []
@@ -180,19 +206,17 @@ class ParallelDomain:
             self.recvs.append((q, off, cnt))
             off += cnt
             got.append(pkg)
-        for name, (obj, attr) in reg.items():
-            a = getattr(obj, attr)
-            if a is None or a.shape[0] == 0:
-                continue
+        for name, obj, attr, a in self._present(reg):
             if name in GHOST_FIELDS:
                 parts = [a] + [p[name] for p in got]
             else:
                 parts = [a, np.zeros((off - nown,) + a.shape[1:], a.dtype)]
             setattr(obj, attr, np.ascontiguousarray(np.concatenate(parts)))
         st.n_ghost = off - nown
-        self.exchanges += 1
-        self._bufs = {}
-        return rec
+
+    def _error_text(self, sim, exc, doing):
+        return (f"rank {self.rank} failed while {doing} at t = {sim.time:.9g} s (step {sim.step_count}): "
+                f"{type(exc).__name__}: {exc}")
 
     def grid_box(self, sim):
         """Cell-grid box of this rank: the domain on periodic axes the box spans (the grid
@@ -281,9 +305,10 @@ def _mpi():
     return MPI
 
 
-def _copy_dec(d):
-    c = Decomposition(d.nranks, d.lo, d.hi, d.periodic, d.method, d.slab_axis)
-    c.blo = d.blo.copy()
-    c.bhi = d.bhi.copy()
-    c.nodes = [list(n) for n in d.nodes]
-    return c
+def _raise_shared(errors):
+    """Raise on every rank the first error any rank reported in a collective (the same
+    message everywhere, so that the run stops on all ranks at the same point)."""
+    msg = next((e for e in errors if e), None)
+    if msg is not None:
+        from ..simulation import SimulationError
+        raise SimulationError(msg)
