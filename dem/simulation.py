@@ -15,7 +15,7 @@ from . import scene as scene_mod
 from .contact.damping import damping_factor, mixed_tables, rayleigh_time, hertz_collision_time
 from .contact.registry import CONTACT_MODELS, ROLLING_MODELS, DAMPING_MODELS
 from .contact import walls as W
-from .neighbors import build_half_list, sort_permutation
+from .neighbors import build_half_list, grid_bytes, sort_permutation
 from .output import History, VTKSeries, save_npz
 from .state import State
 from . import step as K
@@ -229,6 +229,23 @@ class Simulation:
         self.fp[K.F_TBUILD] = self.time
 
     # ------------------------------------------------------------------ checks
+    def _memory_estimate(self):
+        """(peak bytes of this process's particle arrays, bytes of one neighbour build).
+
+        Peak = the per-particle arrays + the neighbour list and its history slots + during a
+        rebuild, the new list beside the old one and the cell grid of the build (the box of
+        occupied cells or sorted keys: O(n), independent of the domain size)."""
+        st = self.state
+        lists = self.nb.nbytes + self.nnb.nbytes + self.hist.nbytes + self.rhist.nbytes + self.age.nbytes
+        if self.par is None:
+            glo, ghi, gwrap = self.lo, self.hi, self.periodic
+        else:
+            glo, ghi, gwrap = self.par.grid_box(self)
+        grid = grid_bytes(st.position, st.radius, st.n, glo, ghi, gwrap, self.reach, self.fp[K.F_SKIN])
+        mem = st.memory_bytes() + lists + self.whist.nbytes + self.wrhist.nbytes + self.wnb.nbytes \
+            + self.wnn.nbytes + self.Hd.nbytes + self.Hi.nbytes + self.rnear.nbytes
+        return mem + lists + grid, lists + grid
+
     def check(self):
         """Derived quantities and the time-step verdict; raises SceneError when the step is
         above the documented fraction and the scene does not say force = true."""
@@ -274,9 +291,7 @@ class Simulation:
         rep["dt_over_hertz"] = self.dt / th
         rep["mechanics"] = bool(sc.simulation["mechanics"])
         rep["steps"] = int(round(self.end_time / self.dt))
-        mem = st.memory_bytes() + self.nb.nbytes + self.nnb.nbytes + self.hist.nbytes + self.rhist.nbytes \
-            + self.whist.nbytes + self.wrhist.nbytes + self.age.nbytes + self.Hd.nbytes + self.Hi.nbytes \
-            + self.rnear.nbytes
+        mem, rep["memory_neighbor_build_bytes"] = self._memory_estimate()
         rep["memory_bytes"] = int(mem)
         rep["memory_per_particle"] = mem / max(st.n, 1)
         runs, skipped = self.models_report()
