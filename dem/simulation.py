@@ -229,6 +229,38 @@ class Simulation:
         self.fp[K.F_TBUILD] = self.time
 
     # ------------------------------------------------------------------ checks
+    def time_scales(self):
+        """(Rayleigh time, Hertz collision time at the characteristic velocity, largest Hertz
+        impact overlap / radius) of the smallest particle of each material (and its walls)."""
+        sc = self.scene
+        st = self.state
+        vchar = self.fp[K.F_VCHAR]
+        tr, th = math.inf, math.inf
+        for k, m in enumerate(sc.materials):
+            sel = st.material == k
+            if not np.any(sel):
+                continue
+            rmin = float(st.radius[sel].min())
+            G = m["youngs_modulus"] / (2 * (1 + m["poisson_ratio"]))
+            tr = min(tr, rayleigh_time(rmin, m["density"], G, m["poisson_ratio"]))
+            mmin = 4 / 3 * math.pi * rmin ** 3 * m["density"]
+            estar = self.tab[K.T_ESTAR, k, k]
+            th = min(th, hertz_collision_time(mmin / 2, rmin / 2, estar, vchar))
+            for w in sc.walls:
+                th = min(th, hertz_collision_time(mmin, rmin, self.tab[K.T_ESTAR, k, w["material"]], vchar))
+        # largest Hertz overlap of an impact at the characteristic velocity (smallest, softest particle)
+        ovmax = 0.0
+        for k, m in enumerate(sc.materials):
+            sel = st.material == k
+            if not np.any(sel):
+                continue
+            rmin = float(st.radius[sel].min())
+            mmin = 4 / 3 * math.pi * rmin ** 3 * m["density"]
+            estar = self.tab[K.T_ESTAR, k, k]
+            d = (15 * (mmin / 2) * vchar ** 2 / (16 * estar * math.sqrt(rmin / 2))) ** 0.4
+            ovmax = max(ovmax, d / rmin)
+        return tr, th, ovmax
+
     def _memory_estimate(self):
         """(peak bytes of this process's particle arrays, bytes of one neighbour build).
 
@@ -257,31 +289,8 @@ class Simulation:
         rep["mass_max"] = float(st.mass.max())
         rep["radius_min"] = float(st.radius.min())
         rep["radius_max"] = float(st.radius.max())
+        tr, th, ovmax = self.time_scales()
         vchar = self.fp[K.F_VCHAR]
-        tr, th = math.inf, math.inf
-        for k, m in enumerate(sc.materials):
-            sel = st.material == k
-            if not np.any(sel):
-                continue
-            rmin = float(st.radius[sel].min())
-            G = m["youngs_modulus"] / (2 * (1 + m["poisson_ratio"]))
-            tr = min(tr, rayleigh_time(rmin, m["density"], G, m["poisson_ratio"]))
-            mmin = 4 / 3 * math.pi * rmin ** 3 * m["density"]
-            estar = self.tab[K.T_ESTAR, k, k]
-            th = min(th, hertz_collision_time(mmin / 2, rmin / 2, estar, vchar))
-            for w in sc.walls:
-                th = min(th, hertz_collision_time(mmin, rmin, self.tab[K.T_ESTAR, k, w["material"]], vchar))
-        # largest Hertz overlap of an impact at the characteristic velocity (smallest, softest particle)
-        ovmax = 0.0
-        for k, m in enumerate(sc.materials):
-            sel = st.material == k
-            if not np.any(sel):
-                continue
-            rmin = float(st.radius[sel].min())
-            mmin = 4 / 3 * math.pi * rmin ** 3 * m["density"]
-            estar = self.tab[K.T_ESTAR, k, k]
-            d = (15 * (mmin / 2) * vchar ** 2 / (16 * estar * math.sqrt(rmin / 2))) ** 0.4
-            ovmax = max(ovmax, d / rmin)
         rep["impact_overlap_ratio"] = ovmax
         rep["rayleigh_time"] = tr
         rep["hertz_time"] = th
@@ -339,6 +348,12 @@ class Simulation:
                         f"re-balanced above {self.scene.parallel['balance_threshold']:g}")
         else:
             skipped.append("parallel decomposition: one process (mpirun -np N dem run ... splits the domain)")
+        from .energy_guard import inputs_of
+        why = inputs_of(self)
+        if why:
+            skipped.append(f"energy guard: {', '.join(why)} (energy enters the system)")
+        else:
+            runs.append("energy guard: the mechanical energy of this closed system may not grow")
         if self.thermal is None:
             skipped.append("heat transfer: no [thermal] section (no thermal arrays, no thermal cost)")
         else:
@@ -909,6 +924,8 @@ class Simulation:
                 self._write_output(writers)
         prog = Progress(self.step_count, end_step, self.dt, self.n_particles, self.compile_seconds,
                         enabled=progress and self.is_root, stream=log or sys.stderr)
+        from .energy_guard import EnergyGuard
+        self.energy_guard = guard = EnergyGuard(self)  # closed systems must not gain energy
         try:
             while self.step_count < end_step:
                 s = self.step_count
@@ -917,6 +934,7 @@ class Simulation:
                     if every:
                         nxt = min(nxt, (s // every + 1) * every)
                 self._advance(nxt - s)
+                guard.check()  # between compiled chunks: raises SimulationError on an energy gain
                 s = self.step_count
                 if sort_every and s % sort_every == 0:
                     self.sort_particles()
