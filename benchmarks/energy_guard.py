@@ -52,6 +52,24 @@ def wall_rebound(f, v=1.0, restitution=0.5, end=0.004, out=None, z0=1.05):
             "walls": [{"type": "plane", "point": [0, 0, 0], "normal": [0, 0, 1], "material": "glass"}]}
 
 
+def oblique_rebound(f, v=1.0, restitution=0.9, end=0.004):
+    """One bead thrown at 45 degrees on a frictional plane (tangential spring loaded, sliding)."""
+    sc = wall_rebound(f, v=v, restitution=restitution, end=end)
+    sc["particles"][0]["velocities"] = [[v / 2 ** 0.5, 0, -v / 2 ** 0.5]]
+    return sc
+
+
+def sliding_columns():
+    """tests/scenes/par_periodic.toml: 18 columns of 2 beads sliding at 3.5 m/s on a frictional
+    floor (periodic x, y), a check every 25 steps."""
+    import tomllib
+    with open(os.path.join(ROOT, "tests", "scenes", "par_periodic.toml"), "rb") as fh:
+        sc = tomllib.load(fh)
+    sc["simulation"]["output_interval"] = 25 * sc["simulation"]["time_step"]
+    sc.pop("parallel", None)
+    return sc
+
+
 def settle_box(end, out):
     import tomllib
     with open(os.path.join(ROOT, "examples", "settle_box.toml"), "rb") as fh:
@@ -94,9 +112,14 @@ def main(argv=None):
         for e in (0.5, 0.9, 1.0):
             cases.append((f"3 beads, 0.5 m/s each, e = {e}, dt = {f} t_R", three_beads(f, restitution=e)))
             cases.append((f"wall rebound 1 m/s, e = {e}, dt = {f} t_R", wall_rebound(f, restitution=e)))
+    for f in (0.1, 0.3):
+        cases.append((f"oblique wall impact 1 m/s at 45 deg, e = 0.9, dt = {f} t_R", oblique_rebound(f)))
+    cases.append(("sliding columns (tests/scenes/par_periodic.toml, dt = 0.117 t_R), check every 25 steps",
+                   sliding_columns()))
     end = 0.05 if a.quick else 0.25
     cases.append((f"examples/settle_box.toml, {end} s, check every 1 ms", settle_box(end, 0.001)))
     for f in (1.0, 2.0, 2.7):
+        cases.append((f"oblique wall impact 1 m/s at 45 deg, e = 0.9, dt = {f} t_R (forced)", oblique_rebound(f)))
         for e in (0.5, 0.9):
             cases.append((f"3 beads, 0.5 m/s each, e = {e}, dt = {f} t_R (forced)", three_beads(f, restitution=e)))
             cases.append((f"wall rebound 0.3 m/s, e = {e}, dt = {f} t_R (forced)",

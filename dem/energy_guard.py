@@ -20,6 +20,8 @@ Spring energies: Hertz normal 8/15 E* sqrt(R*) delta^(5/2), Mindlin tangential
 1/2 S_t |xi|^2 with S_t = 8 G* sqrt(R* delta) at the current overlap (the no-slip spring
 the force law uses; exact only for a fixed overlap, so the tangential part carries a small
 error of the order of the tangential energy); linear 1/2 k_n delta^2 and 1/2 k_t |xi|^2.
+The tangential part is capped at (mu F_n,el)^2 / (2 S_t), the most a spring at the Coulomb
+limit can give back (while sliding, the stored xi also balances the tangential damping force).
 Rolling springs (epsd) are not counted (their energy is a small part of the contact
 energy; the tolerance covers it). GAIN_TOLERANCE is justified by measurements in
 docs/reliability/memory_guard.md (benchmarks/energy_guard.py).
@@ -67,7 +69,7 @@ def particle_energies(nown, x, v, w, r, m, inv_i, mat, nb, nnb, hist, wf, wi, wn
             rstar = r[i] * r[j] / rs
             mstar = m[i] * m[j] / (m[i] + m[j])
             e = _spring_energy(model, delta, rstar, mstar, tab[0, mat[i], mat[j]], tab[1, mat[i], mat[j]],
-                               lin_kn, vchar, ktr, hist[i, s, 0], hist[i, s, 1], hist[i, s, 2])
+                               tab[3, mat[i], mat[j]], lin_kn, vchar, ktr, hist[i, s, 0], hist[i, s, 1], hist[i, s, 2])
             el_tot += e if j < nown else 0.5 * e
             out[i, 2] += 0.5 * e
             if j < nown:
@@ -79,23 +81,36 @@ def particle_energies(nown, x, v, w, r, m, inv_i, mat, nb, nnb, hist, wf, wi, wn
                 continue
             mw = wi[wl, 1]
             e = _spring_energy(model, r[i] - dist, r[i], m[i], tab[0, mat[i], mw], tab[1, mat[i], mw],
-                               lin_kn, vchar, ktr, whist[i, wl, 0], whist[i, wl, 1], whist[i, wl, 2])
+                               tab[3, mat[i], mw], lin_kn, vchar, ktr, whist[i, wl, 0], whist[i, wl, 1], whist[i, wl, 2])
             el_tot += e
             out[i, 2] += e
     return el_tot
 
 
 @njit(cache=True, error_model="numpy")
-def _spring_energy(model, delta, rstar, mstar, estar, gstar, lin_kn, vchar, ktr, hx, hy, hz):
+def _spring_energy(model, delta, rstar, mstar, estar, gstar, mu, lin_kn, vchar, ktr, hx, hy, hz):
+    """Normal spring energy + the recoverable tangential spring energy of one contact.
+
+    The tangential part is 1/2 S_t |xi|^2, capped at (mu F_n,el)^2 / (2 S_t): a spring held
+    at the Coulomb limit while sliding stores xi = -(F_t + c_t v_t) / S_t (the damping part
+    included), of which only what the Coulomb force can give back is recoverable."""
     h2 = hx * hx + hy * hy + hz * hz
     if model == 0:  # Hertz-Mindlin
         sq = math.sqrt(rstar * delta)
-        return 8.0 / 15.0 * estar * sq * delta * delta + 4.0 * gstar * sq * h2
-    kn = lin_kn
-    if kn <= 0.0:
-        sr = math.sqrt(rstar)
-        kn = 16.0 / 15.0 * sr * estar * (15.0 * mstar * vchar * vchar / (16.0 * sr * estar)) ** 0.2
-    return 0.5 * kn * delta * delta + 0.5 * ktr * kn * h2
+        en = 8.0 / 15.0 * estar * sq * delta * delta
+        fn = 4.0 / 3.0 * estar * sq * delta
+        st = 8.0 * gstar * sq
+    else:
+        kn = lin_kn
+        if kn <= 0.0:
+            sr = math.sqrt(rstar)
+            kn = 16.0 / 15.0 * sr * estar * (15.0 * mstar * vchar * vchar / (16.0 * sr * estar)) ** 0.2
+        en = 0.5 * kn * delta * delta
+        fn = kn * delta
+        st = ktr * kn
+    if st <= 0.0:
+        return en
+    return en + 0.5 * min(st * h2, (mu * fn) ** 2 / st)
 
 
 def inputs_of(sim):

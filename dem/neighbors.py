@@ -52,7 +52,8 @@ def cell_grid(x, r, n, glo, ghi, gwrap, reach, skin):
     Returns (ncell, cc, cmin, ext, order, table, dense): ncell cells per axis over [glo, ghi]
     (1 on a wrapped axis shorter than 3 cut-offs: all pairs by minimum image there), cc the
     cell of each particle (clamped into the grid), cmin/ext the first cell and the number of
-    cells of the box of occupied cells (the whole axis on a wrapped axis), order the particles
+    cells of the box of occupied cells (neighbour cells outside it are empty, wrapped or not:
+    they are skipped), order the particles
     sorted by cell key (stable), table the start of each key of the box (dense, size box + 1)
     or the sorted keys (sparse, size n).
     """
@@ -88,10 +89,7 @@ def cell_grid(x, r, n, glo, ghi, gwrap, reach, skin):
             cc[i, k] = c
             lo_c = min(lo_c, c)
             hi_c = max(hi_c, c)
-        if gwrap[k] or n == 0:
-            cmin[k] = 0
-            ext[k] = ncell[k] if gwrap[k] else 1
-        else:
+        if n > 0:  # the box of occupied cells (on a wrapped axis too: the cells beyond are empty)
             cmin[k] = lo_c
             ext[k] = hi_c - lo_c + 1
     key = np.empty(n, np.int64)
@@ -150,7 +148,7 @@ def _axis_cell(c, o, ncell, wrap, cmin, ext):
         return -1
     a = c + o
     if wrap:
-        return a % ncell
+        a %= ncell
     if a < cmin or a >= cmin + ext:
         return -1
     return a
