@@ -229,55 +229,6 @@ class Simulation:
         self.fp[K.F_TBUILD] = self.time
 
     # ------------------------------------------------------------------ checks
-    def time_scales(self):
-        """(Rayleigh time, Hertz collision time at the characteristic velocity, largest Hertz
-        impact overlap / radius) of the smallest particle of each material (and its walls)."""
-        sc = self.scene
-        st = self.state
-        vchar = self.fp[K.F_VCHAR]
-        tr, th = math.inf, math.inf
-        for k, m in enumerate(sc.materials):
-            sel = st.material == k
-            if not np.any(sel):
-                continue
-            rmin = float(st.radius[sel].min())
-            G = m["youngs_modulus"] / (2 * (1 + m["poisson_ratio"]))
-            tr = min(tr, rayleigh_time(rmin, m["density"], G, m["poisson_ratio"]))
-            mmin = 4 / 3 * math.pi * rmin ** 3 * m["density"]
-            estar = self.tab[K.T_ESTAR, k, k]
-            th = min(th, hertz_collision_time(mmin / 2, rmin / 2, estar, vchar))
-            for w in sc.walls:
-                th = min(th, hertz_collision_time(mmin, rmin, self.tab[K.T_ESTAR, k, w["material"]], vchar))
-        # largest Hertz overlap of an impact at the characteristic velocity (smallest, softest particle)
-        ovmax = 0.0
-        for k, m in enumerate(sc.materials):
-            sel = st.material == k
-            if not np.any(sel):
-                continue
-            rmin = float(st.radius[sel].min())
-            mmin = 4 / 3 * math.pi * rmin ** 3 * m["density"]
-            estar = self.tab[K.T_ESTAR, k, k]
-            d = (15 * (mmin / 2) * vchar ** 2 / (16 * estar * math.sqrt(rmin / 2))) ** 0.4
-            ovmax = max(ovmax, d / rmin)
-        return tr, th, ovmax
-
-    def _memory_estimate(self):
-        """(peak bytes of this process's particle arrays, bytes of one neighbour build).
-
-        Peak = the per-particle arrays + the neighbour list and its history slots + during a
-        rebuild, the new list beside the old one and the cell grid of the build (the box of
-        occupied cells or sorted keys: O(n), independent of the domain size)."""
-        st = self.state
-        lists = self.nb.nbytes + self.nnb.nbytes + self.hist.nbytes + self.rhist.nbytes + self.age.nbytes
-        if self.par is None:
-            glo, ghi, gwrap = self.lo, self.hi, self.periodic
-        else:
-            glo, ghi, gwrap = self.par.grid_box(self)
-        grid = grid_bytes(st.position, st.radius, st.n, glo, ghi, gwrap, self.reach, self.fp[K.F_SKIN])
-        mem = st.memory_bytes() + lists + self.whist.nbytes + self.wrhist.nbytes + self.wnb.nbytes \
-            + self.wnn.nbytes + self.Hd.nbytes + self.Hi.nbytes + self.rnear.nbytes
-        return mem + lists + grid, lists + grid
-
     def check(self):
         """Derived quantities and the time-step verdict; raises SceneError when the step is
         above the documented fraction and the scene does not say force = true."""
@@ -361,6 +312,55 @@ class Simulation:
             runs += r
             skipped += s
         return runs, skipped
+
+    def time_scales(self):
+        """(Rayleigh time, Hertz collision time at the characteristic velocity, largest Hertz
+        impact overlap / radius) of the smallest particle of each material (and its walls)."""
+        sc = self.scene
+        st = self.state
+        vchar = self.fp[K.F_VCHAR]
+        tr, th = math.inf, math.inf
+        for k, m in enumerate(sc.materials):
+            sel = st.material == k
+            if not np.any(sel):
+                continue
+            rmin = float(st.radius[sel].min())
+            G = m["youngs_modulus"] / (2 * (1 + m["poisson_ratio"]))
+            tr = min(tr, rayleigh_time(rmin, m["density"], G, m["poisson_ratio"]))
+            mmin = 4 / 3 * math.pi * rmin ** 3 * m["density"]
+            estar = self.tab[K.T_ESTAR, k, k]
+            th = min(th, hertz_collision_time(mmin / 2, rmin / 2, estar, vchar))
+            for w in sc.walls:
+                th = min(th, hertz_collision_time(mmin, rmin, self.tab[K.T_ESTAR, k, w["material"]], vchar))
+        # largest Hertz overlap of an impact at the characteristic velocity (smallest, softest particle)
+        ovmax = 0.0
+        for k, m in enumerate(sc.materials):
+            sel = st.material == k
+            if not np.any(sel):
+                continue
+            rmin = float(st.radius[sel].min())
+            mmin = 4 / 3 * math.pi * rmin ** 3 * m["density"]
+            estar = self.tab[K.T_ESTAR, k, k]
+            d = (15 * (mmin / 2) * vchar ** 2 / (16 * estar * math.sqrt(rmin / 2))) ** 0.4
+            ovmax = max(ovmax, d / rmin)
+        return tr, th, ovmax
+
+    def _memory_estimate(self):
+        """(peak bytes of this process's particle arrays, bytes of one neighbour build).
+
+        Peak = the per-particle arrays + the neighbour list and its history slots + during a
+        rebuild, the new list beside the old one and the cell grid of the build (the box of
+        occupied cells or sorted keys: O(n), independent of the domain size)."""
+        st = self.state
+        lists = self.nb.nbytes + self.nnb.nbytes + self.hist.nbytes + self.rhist.nbytes + self.age.nbytes
+        if self.par is None:
+            glo, ghi, gwrap = self.lo, self.hi, self.periodic
+        else:
+            glo, ghi, gwrap = self.par.grid_box(self)
+        grid = grid_bytes(st.position, st.radius, st.n, glo, ghi, gwrap, self.reach, self.fp[K.F_SKIN])
+        mem = st.memory_bytes() + lists + self.whist.nbytes + self.wrhist.nbytes + self.wnb.nbytes \
+            + self.wnn.nbytes + self.Hd.nbytes + self.Hi.nbytes + self.rnear.nbytes
+        return mem + lists + grid, lists + grid
 
     # ------------------------------------------------------------------ stepping
     def _compute_forces(self):
