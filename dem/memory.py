@@ -9,9 +9,9 @@ anyway. :func:`check_insertion` does the same for the candidate arrays of a
 ``count = ...`` insertion, while the scene is parsed.
 
 The neighbour-grid term (:func:`neighbor_grid_cells`) mirrors what
-``dem.neighbors.build_half_list`` allocates: one cell per ``cut``-sized cube of the whole
-domain (``cut = 2 r_max + reach + skin``), two int64 arrays of that length. If the grid
-changes (e.g. bounded by the particles' extent), change this one function with it.
+``dem.neighbors.cell_grid`` allocates: cells of size ``cut = 2 r_max + reach + skin``, but
+only over the box of occupied cells, and at most ``8 n + 4097`` of them (beyond that it
+switches to sorted cell keys), so the grid grows with the particles, not with the domain.
 """
 import math
 import os
@@ -64,7 +64,8 @@ def _reach(scene, rmax):
 
 
 def neighbor_grid_cells(lo, hi, periodic, cut):
-    """Cells of the serial neighbour grid (dem.neighbors.build_half_list), as a Python int."""
+    """Cells of the domain's neighbour grid, as a Python int (the grid actually stored is
+    bounded by :func:`stored_grid_cells`)."""
     total = 1
     for k in range(3):
         nc = max(1, int(math.floor((hi[k] - lo[k]) / cut)))
@@ -72,6 +73,13 @@ def neighbor_grid_cells(lo, hi, periodic, cut):
             nc = 1
         total *= nc
     return total
+
+
+def stored_grid_cells(n, domain_cells):
+    """Cells the neighbour search stores for ``n`` particles: the occupied box of the domain's
+    grid, at most 8 n + 4097 cells (dem.neighbors.cell_grid: a dense table up to that size,
+    sorted cell keys beyond it)."""
+    return min(int(domain_cells), 8 * int(n) + 4097)
 
 
 def scene_bytes(scene):
@@ -90,8 +98,9 @@ def scene_bytes(scene):
     if thermal:
         per += THERMAL_STATE_BYTES + nw * 16
     cut = 2.0 * rmax + _reach(scene, rmax) + float(scene.simulation["neighbor_skin"])
-    cells = neighbor_grid_cells(scene.domain["min"], scene.domain["max"], scene.domain["periodic"], cut)
-    grid = GRID_BYTES_PER_CELL * (cells + 1)
+    cells = stored_grid_cells(n, neighbor_grid_cells(scene.domain["min"], scene.domain["max"],
+                                                     scene.domain["periodic"], cut))
+    grid = GRID_BYTES_PER_CELL * (cells + 1) + 48 * n   # + per-particle cell keys and order
     return dict(total=per * n + grid, particles=per * n, grid=grid, cells=cells, per_particle=per)
 
 
@@ -136,7 +145,7 @@ def check_scene(scene):
     from .scene import SceneError
     est = scene_bytes(scene)
     if est["grid"] > est["particles"]:
-        what = (f"neighbour grid of the domain {fmt(est['grid'])}: {est['cells']:.3g} cells of the "
+        what = (f"neighbour grid {fmt(est['grid'])}: {est['cells']:.3g} cells of the "
                 f"largest particle size; particles {fmt(est['particles'])}")
         key, advice = "domain", "shrink [domain] to where the particles go"
     else:

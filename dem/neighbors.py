@@ -33,21 +33,143 @@ def pair_distance(x, i, j, lo, hi, periodic):
     return math.sqrt(d2)
 
 
+# The cell grid keeps the geometry of a grid over the whole box [glo, ghi] (cells of at least
+# the cut-off, at most MAX_CELLS_PER_AXIS along an axis), but stores only the box of occupied
+# cells: a dense table of cell starts when that box holds at most
+# DENSE_CELLS_PER_PARTICLE * n + DENSE_MIN_CELLS cells (a bed: the usual case, one lookup per
+# cell), else the sorted cell keys of the particles (binary search). Memory is O(n) either way,
+# whatever the size of the domain; the neighbour rows come out in the same order as with a
+# table over the whole box (particles by cell, then by index).
+DENSE_CELLS_PER_PARTICLE = 8
+DENSE_MIN_CELLS = 4096
+MAX_CELLS_PER_AXIS = 1 << 20
+
+
 @njit(cache=True, error_model="numpy")
-def cell_index(x, lo, inv_cell, ncell, n):
-    """Cell of each particle (clamped into the grid) and the flat index."""
-    out = np.empty(n, np.int64)
+def cell_grid(x, r, n, glo, ghi, gwrap, reach, skin):
+    """Cells of the particles and the table to find each cell's particles.
+
+    Returns (ncell, cc, cmin, ext, order, table, dense): ncell cells per axis over [glo, ghi]
+    (1 on a wrapped axis shorter than 3 cut-offs: all pairs by minimum image there), cc the
+    cell of each particle (clamped into the grid), cmin/ext the first cell and the number of
+    cells of the box of occupied cells (neighbour cells outside it are empty, wrapped or not:
+    they are skipped), order the particles
+    sorted by cell key (stable), table the start of each key of the box (dense, size box + 1)
+    or the sorted keys (sparse, size n).
+    """
+    rmax = 0.0
     for i in range(n):
-        c = 0
-        for k in range(3):
-            ck = int(math.floor((x[i, k] - lo[k]) * inv_cell[k]))
-            if ck < 0:
-                ck = 0
-            elif ck >= ncell[k]:
-                ck = ncell[k] - 1
-            c = c * ncell[k] + ck
-        out[i] = c
-    return out
+        if r[i] > rmax:
+            rmax = r[i]
+    cut = 2.0 * rmax + reach + skin
+    ncell = np.empty(3, np.int64)
+    inv_cell = np.empty(3)
+    for k in range(3):
+        glen = ghi[k] - glo[k]
+        q = glen / cut
+        nc = MAX_CELLS_PER_AXIS if q >= MAX_CELLS_PER_AXIS else int(math.floor(q))
+        if nc < 1:
+            nc = 1
+        if gwrap[k] and nc < 3:
+            nc = 1  # all pairs by minimum image along this axis
+        ncell[k] = nc
+        inv_cell[k] = nc / glen
+    cc = np.empty((n, 3), np.int64)
+    cmin = np.zeros(3, np.int64)
+    ext = np.ones(3, np.int64)
+    for k in range(3):
+        lo_c = ncell[k] - 1
+        hi_c = 0
+        for i in range(n):
+            c = int(math.floor((x[i, k] - glo[k]) * inv_cell[k]))
+            if c < 0:
+                c = 0
+            elif c >= ncell[k]:
+                c = ncell[k] - 1
+            cc[i, k] = c
+            lo_c = min(lo_c, c)
+            hi_c = max(hi_c, c)
+        if n > 0:  # the box of occupied cells (on a wrapped axis too: the cells beyond are empty)
+            cmin[k] = lo_c
+            ext[k] = hi_c - lo_c + 1
+    key = np.empty(n, np.int64)
+    for i in range(n):
+        key[i] = ((cc[i, 0] - cmin[0]) * ext[1] + (cc[i, 1] - cmin[1])) * ext[2] + (cc[i, 2] - cmin[2])
+    nbox = ext[0] * ext[1] * ext[2]
+    dense = nbox <= DENSE_CELLS_PER_PARTICLE * n + DENSE_MIN_CELLS
+    order = np.empty(n, np.int64)
+    if dense:  # counting sort: table[c] = first slot of cell c in ``order``
+        table = np.zeros(nbox + 1, np.int64)
+        for i in range(n):
+            table[key[i] + 1] += 1
+        for c in range(nbox):
+            table[c + 1] += table[c]
+        for i in range(n - 1, -1, -1):  # backwards: each cell keeps its particles in index order
+            table[key[i] + 1] -= 1
+            order[table[key[i] + 1]] = i
+        # table[c + 1] now holds the start of cell c; shift down by one
+        for c in range(nbox):
+            table[c] = table[c + 1]
+        table[nbox] = n
+    else:
+        order[:] = np.argsort(key, kind="mergesort")
+        table = np.empty(n, np.int64)
+        for q in range(n):
+            table[q] = key[order[q]]
+    return ncell, cc, cmin, ext, order, table, dense
+
+
+@njit(cache=True, error_model="numpy")
+def _lower_bound(a, v):
+    """First index q with a[q] >= v (a sorted)."""
+    lo = 0
+    hi = a.shape[0]
+    while lo < hi:
+        mid = (lo + hi) >> 1
+        if a[mid] < v:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
+
+
+@njit(cache=True, error_model="numpy")
+def _key_range(table, dense, k0, k1):
+    """Slots [q0, q1) of ``order`` holding the particles of cell keys k0..k1."""
+    if dense:
+        return table[k0], table[k1 + 1]
+    return _lower_bound(table, k0), _lower_bound(table, k1 + 1)
+
+
+@njit(cache=True, error_model="numpy")
+def _axis_cell(c, o, ncell, wrap, cmin, ext):
+    """Neighbour cell c + o along an axis (wrapped), or -1 when it holds no particle."""
+    if ncell == 1 and o != 0:
+        return -1
+    a = c + o
+    if wrap:
+        a %= ncell
+    if a < cmin or a >= cmin + ext:
+        return -1
+    return a
+
+
+@njit(cache=True, error_model="numpy")
+def _scan(i, q0, q1, order, x, r, length, periodic, reach, skin, nb, cnt, slots):
+    """Add the particles j > i of order[q0:q1] within the list cut-off to row i."""
+    for q in range(q0, q1):
+        j = order[q]
+        if j <= i:
+            continue
+        dx = _min_image(x[j, 0] - x[i, 0], length[0], periodic[0])
+        dy = _min_image(x[j, 1] - x[i, 1], length[1], periodic[1])
+        dz = _min_image(x[j, 2] - x[i, 2], length[2], periodic[2])
+        rc = r[i] + r[j] + reach + skin
+        if dx * dx + dy * dy + dz * dz < rc * rc:
+            if cnt < slots:
+                nb[i, cnt] = j
+            cnt += 1
+    return cnt
 
 
 @njit(cache=True, error_model="numpy")
@@ -58,42 +180,16 @@ def build_half_list(x, r, n, nown, lo, hi, periodic, glo, ghi, gwrap, reach, ski
     Rows [nown, n) are ghosts (another rank's particles): they get no row of their own, so
     ghost-ghost pairs are never listed. Distances use the minimum image of the domain
     (lo, hi, periodic); the cell grid covers [glo, ghi] and wraps on the axes of ``gwrap``
-    (in a serial run the grid is the domain; a rank's grid is its box plus the halo).
-    Returns (nb, nnb, hist, rhist, age, max_count). When a row overflows the slots the
-    build is redone with more slots (the arrays returned are then larger).
+    (in a serial run the grid is the domain; a rank's grid is its box plus the halo); only
+    the box of occupied cells is stored (``cell_grid``), so memory grows with n, not with
+    the domain. Returns (nb, nnb, hist, rhist, age, max_count). When a row overflows the
+    slots the build is redone with more slots (the arrays returned are then larger).
     """
-    rmax = 0.0
-    for i in range(n):
-        if r[i] > rmax:
-            rmax = r[i]
-    cut = 2.0 * rmax + reach + skin
-    ncell = np.empty(3, np.int64)
-    inv_cell = np.empty(3)
+    ncell, cc, cmin, ext, order, table, dense = cell_grid(x, r, n, glo, ghi, gwrap, reach, skin)
     length = np.empty(3)
-    glen = np.empty(3)
     for k in range(3):
         length[k] = hi[k] - lo[k]
-        glen[k] = ghi[k] - glo[k]
-        nc = int(math.floor(glen[k] / cut))
-        if nc < 1:
-            nc = 1
-        if gwrap[k] and nc < 3:
-            nc = 1  # all pairs by minimum image along this axis
-        ncell[k] = nc
-        inv_cell[k] = nc / glen[k]
-    cidx = cell_index(x, glo, inv_cell, ncell, n)
-    ntot = ncell[0] * ncell[1] * ncell[2]
-    head = np.full(ntot + 1, 0, np.int64)
-    for i in range(n):
-        head[cidx[i] + 1] += 1
-    for c in range(ntot):
-        head[c + 1] += head[c]
-    order = np.empty(n, np.int64)
-    fill = head[:-1].copy()
-    for i in range(n):
-        order[fill[cidx[i]]] = i
-        fill[cidx[i]] += 1
-
+    zc = np.empty(3, np.int64)
     rolling = rhist_old.shape[0] == nb_old.shape[0] and rhist_old.shape[0] > 0
     use_age = age_old.shape[0] == nb_old.shape[0] and age_old.shape[0] > 0
     while True:
@@ -101,48 +197,33 @@ def build_half_list(x, r, n, nown, lo, hi, periodic, glo, ghi, gwrap, reach, ski
         nnb = np.zeros(n, np.int32)
         maxc = 0
         for i in range(nown):
-            ci = cidx[i]
-            cz = ci % ncell[2]
-            cy = (ci // ncell[2]) % ncell[1]
-            cx = ci // (ncell[2] * ncell[1])
             cnt = 0
             for ox in range(-1, 2):
-                ax = cx + ox
-                if ncell[0] == 1 and ox != 0:
+                ax = _axis_cell(cc[i, 0], ox, ncell[0], gwrap[0], cmin[0], ext[0])
+                if ax < 0:
                     continue
-                if ax < 0 or ax >= ncell[0]:
-                    if not gwrap[0]:
-                        continue
-                    ax %= ncell[0]
                 for oy in range(-1, 2):
-                    ay = cy + oy
-                    if ncell[1] == 1 and oy != 0:
+                    ay = _axis_cell(cc[i, 1], oy, ncell[1], gwrap[1], cmin[1], ext[1])
+                    if ay < 0:
                         continue
-                    if ay < 0 or ay >= ncell[1]:
-                        if not gwrap[1]:
-                            continue
-                        ay %= ncell[1]
+                    # the z cells in offset order, scanned as runs of consecutive keys
+                    nz = 0
                     for oz in range(-1, 2):
-                        az = cz + oz
-                        if ncell[2] == 1 and oz != 0:
-                            continue
-                        if az < 0 or az >= ncell[2]:
-                            if not gwrap[2]:
-                                continue
-                            az %= ncell[2]
-                        c = (ax * ncell[1] + ay) * ncell[2] + az
-                        for q in range(head[c], head[c + 1]):
-                            j = order[q]
-                            if j <= i:
-                                continue
-                            dx = _min_image(x[j, 0] - x[i, 0], length[0], periodic[0])
-                            dy = _min_image(x[j, 1] - x[i, 1], length[1], periodic[1])
-                            dz = _min_image(x[j, 2] - x[i, 2], length[2], periodic[2])
-                            rc = r[i] + r[j] + reach + skin
-                            if dx * dx + dy * dy + dz * dz < rc * rc:
-                                if cnt < slots:
-                                    nb[i, cnt] = j
-                                cnt += 1
+                        az = _axis_cell(cc[i, 2], oz, ncell[2], gwrap[2], cmin[2], ext[2])
+                        if az >= 0:
+                            zc[nz] = az
+                            nz += 1
+                    base = ((ax - cmin[0]) * ext[1] + (ay - cmin[1])) * ext[2] - cmin[2]
+                    t = 0
+                    while t < nz:
+                        za = zc[t]
+                        zb = za
+                        while t + 1 < nz and zc[t + 1] == zb + 1:
+                            t += 1
+                            zb = zc[t]
+                        t += 1
+                        q0, q1 = _key_range(table, dense, base + za, base + zb)
+                        cnt = _scan(i, q0, q1, order, x, r, length, periodic, reach, skin, nb, cnt, slots)
             if cnt > maxc:
                 maxc = cnt
             nnb[i] = min(cnt, slots)
@@ -191,8 +272,14 @@ def build_half_list(x, r, n, nown, lo, hi, periodic, glo, ghi, gwrap, reach, ski
 
 
 def sort_permutation(x, lo, hi, cell):
-    """Permutation that orders particles by cell along a z-order-like key (cache locality)."""
+    """Permutation that orders particles by cell (z, then y, then x; stable) for cache
+    locality. O(n) memory: a lexicographic sort of the cell coordinates, no table of cells."""
     ncell = np.maximum(1, np.floor((hi - lo) / cell)).astype(np.int64)
     c = np.clip(np.floor((x - lo) / cell).astype(np.int64), 0, ncell - 1)
-    key = (c[:, 2] * ncell[1] + c[:, 1]) * ncell[0] + c[:, 0]
-    return np.argsort(key, kind="stable")
+    return np.lexsort((c[:, 0], c[:, 1], c[:, 2]))
+
+
+def grid_bytes(x, r, n, glo, ghi, gwrap, reach, skin):
+    """Bytes of the transient arrays of one neighbour build (cells, keys, order, table)."""
+    ncell, cc, cmin, ext, order, table, dense = cell_grid(x, r, n, glo, ghi, gwrap, reach, skin)
+    return int(cc.nbytes + order.nbytes + table.nbytes + 8 * n)  # + the keys (int64 per particle)

@@ -15,7 +15,7 @@ from . import scene as scene_mod
 from .contact.damping import damping_factor, mixed_tables, rayleigh_time, hertz_collision_time
 from .contact.registry import CONTACT_MODELS, ROLLING_MODELS, DAMPING_MODELS
 from .contact import walls as W
-from .neighbors import build_half_list, sort_permutation
+from .neighbors import build_half_list, grid_bytes, sort_permutation
 from .output import History, OutputError, VTKSeries, prepare_output_folder, save_npz  # noqa: F401
 from .outdir import claim_collective
 from .state import State
@@ -243,31 +243,8 @@ class Simulation:
         rep["mass_max"] = float(st.mass.max())
         rep["radius_min"] = float(st.radius.min())
         rep["radius_max"] = float(st.radius.max())
+        tr, th, ovmax = self.time_scales()
         vchar = self.fp[K.F_VCHAR]
-        tr, th = math.inf, math.inf
-        for k, m in enumerate(sc.materials):
-            sel = st.material == k
-            if not np.any(sel):
-                continue
-            rmin = float(st.radius[sel].min())
-            G = m["youngs_modulus"] / (2 * (1 + m["poisson_ratio"]))
-            tr = min(tr, rayleigh_time(rmin, m["density"], G, m["poisson_ratio"]))
-            mmin = 4 / 3 * math.pi * rmin ** 3 * m["density"]
-            estar = self.tab[K.T_ESTAR, k, k]
-            th = min(th, hertz_collision_time(mmin / 2, rmin / 2, estar, vchar))
-            for w in sc.walls:
-                th = min(th, hertz_collision_time(mmin, rmin, self.tab[K.T_ESTAR, k, w["material"]], vchar))
-        # largest Hertz overlap of an impact at the characteristic velocity (smallest, softest particle)
-        ovmax = 0.0
-        for k, m in enumerate(sc.materials):
-            sel = st.material == k
-            if not np.any(sel):
-                continue
-            rmin = float(st.radius[sel].min())
-            mmin = 4 / 3 * math.pi * rmin ** 3 * m["density"]
-            estar = self.tab[K.T_ESTAR, k, k]
-            d = (15 * (mmin / 2) * vchar ** 2 / (16 * estar * math.sqrt(rmin / 2))) ** 0.4
-            ovmax = max(ovmax, d / rmin)
         rep["impact_overlap_ratio"] = ovmax
         rep["rayleigh_time"] = tr
         rep["hertz_time"] = th
@@ -277,9 +254,7 @@ class Simulation:
         rep["dt_over_hertz"] = self.dt / th
         rep["mechanics"] = bool(sc.simulation["mechanics"])
         rep["steps"] = int(round(self.end_time / self.dt))
-        mem = st.memory_bytes() + self.nb.nbytes + self.nnb.nbytes + self.hist.nbytes + self.rhist.nbytes \
-            + self.whist.nbytes + self.wrhist.nbytes + self.age.nbytes + self.Hd.nbytes + self.Hi.nbytes \
-            + self.rnear.nbytes
+        mem, rep["memory_neighbor_build_bytes"] = self._memory_estimate()
         rep["memory_bytes"] = int(mem)
         rep["memory_per_particle"] = mem / max(st.n, 1)
         runs, skipped = self.models_report()
@@ -327,6 +302,12 @@ class Simulation:
                         f"re-balanced above {self.scene.parallel['balance_threshold']:g}")
         else:
             skipped.append("parallel decomposition: one process (mpirun -np N dem run ... splits the domain)")
+        from .energy_guard import inputs_of
+        why = inputs_of(self)
+        if why:
+            skipped.append(f"energy guard: {', '.join(why)} (energy enters the system)")
+        else:
+            runs.append("energy guard: the mechanical energy of this closed system may not grow")
         if self.thermal is None:
             skipped.append("heat transfer: no [thermal] section (no thermal arrays, no thermal cost)")
         else:
@@ -334,6 +315,55 @@ class Simulation:
             runs += r
             skipped += s
         return runs, skipped
+
+    def time_scales(self):
+        """(Rayleigh time, Hertz collision time at the characteristic velocity, largest Hertz
+        impact overlap / radius) of the smallest particle of each material (and its walls)."""
+        sc = self.scene
+        st = self.state
+        vchar = self.fp[K.F_VCHAR]
+        tr, th = math.inf, math.inf
+        for k, m in enumerate(sc.materials):
+            sel = st.material == k
+            if not np.any(sel):
+                continue
+            rmin = float(st.radius[sel].min())
+            G = m["youngs_modulus"] / (2 * (1 + m["poisson_ratio"]))
+            tr = min(tr, rayleigh_time(rmin, m["density"], G, m["poisson_ratio"]))
+            mmin = 4 / 3 * math.pi * rmin ** 3 * m["density"]
+            estar = self.tab[K.T_ESTAR, k, k]
+            th = min(th, hertz_collision_time(mmin / 2, rmin / 2, estar, vchar))
+            for w in sc.walls:
+                th = min(th, hertz_collision_time(mmin, rmin, self.tab[K.T_ESTAR, k, w["material"]], vchar))
+        # largest Hertz overlap of an impact at the characteristic velocity (smallest, softest particle)
+        ovmax = 0.0
+        for k, m in enumerate(sc.materials):
+            sel = st.material == k
+            if not np.any(sel):
+                continue
+            rmin = float(st.radius[sel].min())
+            mmin = 4 / 3 * math.pi * rmin ** 3 * m["density"]
+            estar = self.tab[K.T_ESTAR, k, k]
+            d = (15 * (mmin / 2) * vchar ** 2 / (16 * estar * math.sqrt(rmin / 2))) ** 0.4
+            ovmax = max(ovmax, d / rmin)
+        return tr, th, ovmax
+
+    def _memory_estimate(self):
+        """(peak bytes of this process's particle arrays, bytes of one neighbour build).
+
+        Peak = the per-particle arrays + the neighbour list and its history slots + during a
+        rebuild, the new list beside the old one and the cell grid of the build (the box of
+        occupied cells or sorted keys: O(n), independent of the domain size)."""
+        st = self.state
+        lists = self.nb.nbytes + self.nnb.nbytes + self.hist.nbytes + self.rhist.nbytes + self.age.nbytes
+        if self.par is None:
+            glo, ghi, gwrap = self.lo, self.hi, self.periodic
+        else:
+            glo, ghi, gwrap = self.par.grid_box(self)
+        grid = grid_bytes(st.position, st.radius, st.n, glo, ghi, gwrap, self.reach, self.fp[K.F_SKIN])
+        mem = st.memory_bytes() + lists + self.whist.nbytes + self.wrhist.nbytes + self.wnb.nbytes \
+            + self.wnn.nbytes + self.Hd.nbytes + self.Hi.nbytes + self.rnear.nbytes
+        return mem + lists + grid, lists + grid
 
     # ------------------------------------------------------------------ stepping
     def _compute_forces(self):
@@ -960,6 +990,8 @@ class Simulation:
                 self._settle_writes()
         prog = Progress(self.step_count, end_step, self.dt, self.n_particles, self.compile_seconds,
                         enabled=progress and self.is_root, stream=log or sys.stderr)
+        from .energy_guard import EnergyGuard
+        self.energy_guard = guard = EnergyGuard(self)  # closed systems must not gain energy
         clock = ChunkClock()
         try:
             with StopSignals():
@@ -974,6 +1006,8 @@ class Simulation:
                             nxt = min(nxt, (s // every + 1) * every)
                     clock.start()
                     clock.done(self._advance(min(nxt - s, chunk)))
+                    if self.step_count == nxt:  # at the same steps whatever the chunking
+                        guard.check()  # raises SimulationError on an energy gain
                     s = self.step_count
                     if sort_every and s % sort_every == 0:
                         self.sort_particles()

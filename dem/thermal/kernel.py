@@ -221,6 +221,14 @@ class ThermalModel:
                 warnings.append(f"euler thermal step {s.dt:.3g} s exceeds the radiation limit "
                                 f"C / (4 eps sigma A T^3) = {rl:.3g} s at {tmax:.0f} K: use "
                                 f"thermal.integrator = \"exponential\" or a smaller step")
+            if self.cfg["integrator"] == "exponential" and s.dt > rl:
+                from .step_error import expected_radiation_error
+                err = expected_radiation_error(s.dt / rl)
+                rep["radiation_expected_error"] = err
+                warnings.append(f"exponential thermal step {s.dt:.3g} s is {s.dt / rl:.3g} times the radiation "
+                                f"accuracy limit {rl:.3g} s at {tmax:.0f} K: expected error up to {err:.2g} % of "
+                                f"the temperature change (measured for radiation alone, "
+                                f"benchmarks/radiation_step_error.py); lower thermal.time_step for accuracy")
         if self.thi[TI_CONV] >= 0:
             from .convection import nusselt_gas
             g = self.gas
