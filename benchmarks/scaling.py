@@ -11,6 +11,7 @@ import argparse
 import os
 import re
 import subprocess
+import tempfile
 import sys
 
 HERE = os.path.dirname(os.path.abspath(__file__))
@@ -23,10 +24,11 @@ ENV = dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIR
 
 def ours(size, heat, steps, ranks):
     scene = os.path.join(HERE, f"shared_bed{'_heat' if heat else ''}_{size}.toml")
-    out = os.path.join("/tmp", f"scaling_{size}_{heat}_{ranks}")
-    cmd = ["mpirun", "-np", str(ranks), sys.executable, "-m", "dem", "run", scene, "--end-time",
-           repr(steps * 1e-5), "--out", out, "--quiet", "--overwrite"]
-    p = subprocess.run(cmd, capture_output=True, text=True, env=ENV)
+    with tempfile.TemporaryDirectory(prefix=f"scaling_{size}_{heat}_{ranks}_") as tmp:  # ours alone
+        out = os.path.join(tmp, "out")
+        cmd = ["mpirun", "-np", str(ranks), sys.executable, "-m", "dem", "run", scene, "--end-time",
+               repr(steps * 1e-5), "--out", out, "--quiet"]
+        p = subprocess.run(cmd, capture_output=True, text=True, env=ENV)
     if p.returncode:
         raise SystemExit(p.stdout + p.stderr)
     pps = float(re.search(r"([0-9.e+]+) particle-steps/s", p.stdout).group(1))
