@@ -32,6 +32,7 @@ import numpy as np
 from numba import njit
 
 from .contact.walls import wall_distance, OX, VX
+from .neighbors import pair_distance
 
 # relative energy gain between two checks that stops a run (see the module docstring)
 GAIN_TOLERANCE = 0.05
@@ -55,17 +56,11 @@ def particle_energies(nown, x, v, w, r, m, inv_i, mat, nb, nnb, hist, wf, wi, wn
     for i in range(nown):
         for s in range(nnb[i]):
             j = nb[i, s]
-            d2 = 0.0
-            for k in range(3):
-                d = x[j, k] - x[i, k]
-                if periodic[k]:
-                    L = hi[k] - lo[k]
-                    d -= L * math.floor(d / L + 0.5)
-                d2 += d * d
+            dist = pair_distance(x, i, j, lo, hi, periodic)
             rs = r[i] + r[j]
-            if d2 >= rs * rs:
+            if dist >= rs:
                 continue
-            delta = rs - math.sqrt(d2)
+            delta = rs - dist
             rstar = r[i] * r[j] / rs
             mstar = m[i] * m[j] / (m[i] + m[j])
             e = _spring_energy(model, delta, rstar, mstar, tab[0, mat[i], mat[j]], tab[1, mat[i], mat[j]],
