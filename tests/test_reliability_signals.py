@@ -14,6 +14,7 @@
 - A full disk (2 MiB tmpfs as --out): exit 3, one line naming the file, no traceback, no 0-byte or
   temporary file, the earlier checkpoint byte-identical.
 """
+import contextlib
 import glob
 import hashlib
 import os
@@ -254,18 +255,26 @@ def processes_mentioning(text):
     return pids
 
 
-@pytest.fixture
-def small_disk(tmp_path):
-    """A 2 MiB tmpfs, unmounted at the end whatever happens (skip where mounting is refused)."""
+@contextlib.contextmanager
+def tiny_disk(tmp_path, size):
+    """A tmpfs of ``size`` at tmp_path/disk, unmounted at the end whatever happens (the test
+    is skipped where mounting is refused)."""
     d = tmp_path / "disk"
     d.mkdir()
-    r = mount_tmpfs(d, "2m")
+    r = mount_tmpfs(d, size)
     if r.returncode != 0:
         pytest.skip(f"cannot mount a tmpfs here: {r.stderr.strip()}")
     try:
         yield d
     finally:
         subprocess.run(["umount", "-l", str(d)], capture_output=True)
+
+
+@pytest.fixture
+def small_disk(tmp_path):
+    """A 2 MiB tmpfs."""
+    with tiny_disk(tmp_path, "2m") as d:
+        yield d
 
 
 def sha(path):
@@ -329,12 +338,7 @@ def test_coupled_run_on_a_full_disk(tmp_path, solver):
     """`coupling run` whose output disk fills (1 MiB tmpfs; the gas solver's log fills it):
     exit 4, one line naming the file, no traceback, no 0-byte or temporary file (timings.json
     used to be left empty), the solver stopped."""
-    disk = tmp_path / "disk"
-    disk.mkdir()
-    r = mount_tmpfs(disk, "1m")
-    if r.returncode != 0:
-        pytest.skip(f"cannot mount a tmpfs here: {r.stderr.strip()}")
-    try:
+    with tiny_disk(tmp_path, "1m") as disk:
         case = tmp_path / "case"
         shutil.copytree(os.path.join(ROOT, "openfoam_cases", "single_particle_heating"), case)
         out = disk / "out"
@@ -355,5 +359,3 @@ def test_coupled_run_on_a_full_disk(tmp_path, solver):
                 load_all(f)
         # the gas solver was stopped: no process left running on this case
         assert not processes_mentioning(str(out))
-    finally:
-        subprocess.run(["umount", "-l", str(disk)], capture_output=True)
