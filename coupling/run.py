@@ -964,10 +964,6 @@ def cmd_check(args) -> int:
 
 
 def cmd_run(args) -> int:
-    from dem.args import out_dir_problem
-    why = out_dir_problem(args.out) if args.out is not None else None
-    if why:
-        raise CouplingRunError(f"--out: {why}")
     # SIGINT/SIGTERM from here on (also during meshing and compiling) only set a flag: the
     # coupled loop ends its current coupling step, writes a restart point and stops
     with StopSignals():

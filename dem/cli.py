@@ -14,15 +14,6 @@ def _load(path):
     return Simulation.from_file(path)  # refuses a scene over the available memory (dem.memory)
 
 
-def _check_out(out):
-    """SceneError naming --out when it cannot be an output folder (nothing is created)."""
-    from .args import out_dir_problem
-    from .scene import SceneError
-    why = out_dir_problem(out)
-    if why:
-        raise SceneError("--out", "", why)
-
-
 def cmd_check(args):
     sim = _load(args.scene)
     rep = sim.check()
@@ -72,7 +63,6 @@ def cmd_run(args):
     from .output import OutputError
     from . import outdir
     out = args.out or os.path.join("out", os.path.splitext(os.path.basename(args.scene))[0])
-    _check_out(out)
     rule = dict(overwrite=args.overwrite, restart=bool(args.restart), keep=[args.scene])
     outdir.check(out, **rule)          # a user's folder is refused before the scene is even read
     with StopSignals():  # a signal during loading or compiling stops at the first chunk boundary

@@ -147,6 +147,8 @@ def check(out, *, overwrite=False, restart=False, protect=(), keep=(), what="--o
         raise OutputFolderError("--overwrite and --restart exclude each other: --restart continues the run in "
                                 f"{what} {out}, --overwrite starts a new one there (removing what the earlier run "
                                 "wrote); give one of them")
+    if not os.fspath(out):
+        raise OutputFolderError(f"{what} is empty; give a folder")
     real = _real(out)
     for p in protect:
         rp = _real(p)

@@ -172,7 +172,7 @@ def test_dem_run_user_folder_refused(scene, tmp_path):
     # --out that is a file
     f = tmp_path / "results.txt"
     f.write_text("keep\n")
-    refused(dem("run", scene, "--out", f, "--quiet"), f"--out: {f} is an existing file, not a folder")
+    refused(dem("run", scene, "--out", f, "--quiet"), f"--out {f} is a file, not a folder")
     assert f.read_text() == "keep\n"
     # the default out/<scene name> under the working folder, when it is a user's folder
     user_folder(tmp_path / "cwd" / "out" / "periodic")
