@@ -323,6 +323,7 @@ class Simulation:
         st = self.state
         vchar = self.fp[K.F_VCHAR]
         tr, th = math.inf, math.inf
+        ovmax = 0.0
         for k, m in enumerate(sc.materials):
             sel = st.material == k
             if not np.any(sel):
@@ -335,15 +336,7 @@ class Simulation:
             th = min(th, hertz_collision_time(mmin / 2, rmin / 2, estar, vchar))
             for w in sc.walls:
                 th = min(th, hertz_collision_time(mmin, rmin, self.tab[K.T_ESTAR, k, w["material"]], vchar))
-        # largest Hertz overlap of an impact at the characteristic velocity (smallest, softest particle)
-        ovmax = 0.0
-        for k, m in enumerate(sc.materials):
-            sel = st.material == k
-            if not np.any(sel):
-                continue
-            rmin = float(st.radius[sel].min())
-            mmin = 4 / 3 * math.pi * rmin ** 3 * m["density"]
-            estar = self.tab[K.T_ESTAR, k, k]
+            # largest Hertz overlap of an impact at the characteristic velocity (smallest particle)
             d = (15 * (mmin / 2) * vchar ** 2 / (16 * estar * math.sqrt(rmin / 2))) ** 0.4
             ovmax = max(ovmax, d / rmin)
         return tr, th, ovmax
