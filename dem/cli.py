@@ -163,24 +163,21 @@ def cmd_compile(args):
 
 
 def _compile_parallel_entry_points(sim):
-    """The kernels an MPI run calls one step at a time (dem.Simulation._advance_parallel)."""
+    """The phases an MPI run calls one step at a time (dem.Simulation._advance_parallel), on a
+    throwaway simulation: they must be in the cache before the ranks start."""
     from . import step as K
-    from .thermal.heat import heat_step, cross_rates
+    from .thermal.heat import cross_rates
     st = sim.state
     sim.warmup()
-    K.kick_drift(st.n_owned, st.position, st.velocity, st.angular_velocity, st.force, st.torque, st.inv_mass,
-                 st.inv_inertia, st.x_build, sim.lo, sim.hi, sim.periodic, 0.0)
-    K.kick(st.n_owned, st.velocity, st.angular_velocity, st.force, st.torque, st.inv_mass, st.inv_inertia, 0.0)
-    sim.Hd, sim.Hi, sim.rnear = K.heat_slot_arrays(st.n, sim.nb.shape[1], sim.Hd, sim.Hi, sim.rnear)
-    TH = sim.TH
-    cross_rates(st.n_owned, TH[K.H_CINV], sim.nb, sim.nnb, sim.Hd, sim.Hi, TH[K.H_WORK])
-    heat_step(st.n, st.n_owned, sim.dt, 0.0, TH[K.H_T], TH[K.H_CINV], TH[K.H_Q], st.velocity, st.radius,
-              st.position, st.material, sim.nb, sim.nnb, sim.Hd, sim.Hi, sim.rnear, sim.wnb, sim.wnn,
-              TH[K.H_HW], TH[K.H_WTH], TH[K.H_WTAB], TH[K.H_TF], TH[K.H_UF], TH[K.H_POR], TH[K.H_QGEN],
-              TH[K.H_QSRC], TH[K.H_SRCBOX], TH[K.H_TMAT], TH[K.H_GAS], TH[K.H_THI], TH[K.H_TOT],
-              TH[K.H_WTOT], TH[K.H_WORK])
-
-
+    P, C, W, TB, prm = st.bundles()
+    K.drift(P, prm, st.n_owned, sim.time)
+    K.outside(P, prm, st.n_owned)
+    for hon in (None, True):
+        K.rebuild(P, C, W, prm, st.n, st.n_owned, sim.lo, sim.hi, sim.periodic, sim.time, C.nb.shape[1], False, hon)
+    maxov, i, j, _ = K.compute_forces(P, C, W, TB, prm, st.n, sim.time, True)
+    K.kick_guard(P, prm, st.n_owned, maxov, i, j)
+    cross_rates(st.n_owned, st.inv_heat_capacity, st.nb, st.nnb, st.Hd, st.Hi, st.work)
+    K.heat_phase(P, C, W, TB, prm, st.n, st.n_owned, sim.time)
 
 
 def cmd_render(args):

@@ -119,7 +119,7 @@ def inputs_of(sim):
     g = np.asarray(sim.fp[1:4])
     if np.any(sim.periodic & (g != 0.0)):
         why.append("gravity along a periodic axis")
-    if getattr(sim, "external_force", None) is not None:
+    if sim.state.features.get("fluid"):
         why.append("fluid forces")
     return why
 

@@ -21,6 +21,10 @@ from .outdir import claim_collective
 from .state import State
 from . import step as K
 from .thermal.kernel import MECHANISMS as THERMAL_MECHANISMS
+from . import schema as S
+from .schema import BY_NAME as _SCHEMA
+
+_SCHEMA_NAMES = frozenset(_SCHEMA)
 
 
 class SimulationError(RuntimeError):
@@ -41,10 +45,12 @@ class Simulation:
         self.end_time = sim["end_time"]
         mats = scene.materials
         self.state = State(scene.id, scene.position, scene.velocity, scene.angular_velocity,
-                           scene.radius, scene.material, scene.group, [m["density"] for m in mats])
-        self.lo = np.ascontiguousarray(scene.domain["min"], float)
-        self.hi = np.ascontiguousarray(scene.domain["max"], float)
-        self.periodic = np.array(scene.domain["periodic"], np.bool_)
+                           scene.radius, scene.material, scene.group, [m["density"] for m in mats],
+                           walls=len(scene.walls))
+        st = self.state
+        st.lo = np.ascontiguousarray(scene.domain["min"], float)
+        st.hi = np.ascontiguousarray(scene.domain["max"], float)
+        st.periodic = np.array(scene.domain["periodic"], np.bool_)
         # wrap periodic axes
         L = self.hi - self.lo
         for k in range(3):
@@ -56,7 +62,10 @@ class Simulation:
         self.thermal = None
         if scene.thermal is not None:
             from .thermal.kernel import ThermalModel
-            self.thermal = ThermalModel(self)
+            self.thermal = ThermalModel(scene, self.state)
+        else:
+            from .thermal.kernel import no_heat_tables
+            no_heat_tables(self.state)
         self.reach = self.thermal.reach if self.thermal is not None else 0.0
         self.fp[K.F_REACH] = self.reach
         self.rmax = float(self.state.radius.max(initial=0.0))
@@ -72,14 +81,9 @@ class Simulation:
             self.par.select_initial(self)
         self._init_neighbors()
         if self.thermal is not None:
-            self.TH = self.thermal.th_tuple()
-            self.Hd, self.Hi, self.rnear = self.thermal.slot_arrays(self.nb.shape[1])
-            self.thermal.update_porosity()
+            self.thermal.update_porosity(self.time)
             if self.par is not None:
                 self.par.forward(self, motion=False, porosity=True)
-        else:
-            self.TH = K.empty_thermal(self.nwalls)
-            self.Hd, self.Hi, self.rnear = np.zeros((0, 1)), np.zeros((0, 1)), np.zeros((0, 1), np.uint8)
         self.compile_seconds = None
         self._forces_ready = False
         self.last_contacts = 0
@@ -111,7 +115,7 @@ class Simulation:
         for a in range(nm):
             for b in range(nm):
                 tab[K.T_DAMP, a, b] = damping_factor(t["restitution"][a, b], model, damping)
-        self.tab = np.ascontiguousarray(tab)
+        self.state.tab = np.ascontiguousarray(tab)
         self.pair_tables = t
 
     def _build_walls(self):
@@ -138,13 +142,8 @@ class Simulation:
                 wf[k, W.RAD] = w["radius"]
                 wf[k, W.EU] = w["length"] / 2
                 wf[k, W.SIDE] = 1.0 if w["inside"] else -1.0
-        self.wf, self.wi, self.nwalls = wf, wi, nw
-        n = self.state.n
-        self.whist = np.zeros((n, max(nw, 1), 3))
-        rolling = ROLLING_MODELS[self.scene.contact["rolling"]]
-        self.wrhist = np.zeros((n, max(nw, 1), 3)) if rolling == 2 else np.zeros((0, 1, 3))
-        self.wnb = np.zeros((n, max(nw, 1)), np.int32)
-        self.wnn = np.zeros(n, np.int32)
+        self.state.wf, self.state.wi, self.nwalls = wf, wi, nw
+        self.state.enable(epsd=ROLLING_MODELS[self.scene.contact["rolling"]] == 2)
         self.wall_speed = max([float(np.linalg.norm(w["velocity"])) for w in walls], default=0.0)
 
     def _build_params(self):
@@ -165,7 +164,7 @@ class Simulation:
         fp[K.F_ETAR] = sc.contact["rolling_damping"]
         fp[K.F_MAXOV] = sc.simulation["max_overlap_ratio"]
         fp[K.F_VWALL] = self.wall_speed
-        self.ip, self.fp = ip, fp
+        self.state.ip, self.state.fp = ip, fp
 
     def characteristic_velocity(self):
         """Impact velocity used for the Hertz time and the linear stiffness: the scene's
@@ -189,47 +188,40 @@ class Simulation:
         """Ghost layer width: the longest pair reach 2 r_max + reach + skin."""
         return 2.0 * self.rmax + self.reach + self.fp[K.F_SKIN]
 
-    def per_particle_arrays(self):
-        """Every array with one row per particle, by name (what migrates with a particle)."""
-        st = self.state
-        reg = {f"state.{f}": (st, f) for f in st.fields()}
-        for k in ("whist", "wrhist", "wnb", "wnn"):
-            reg[f"sim.{k}"] = (self, k)
-        if getattr(self, "external_force", None) is not None:
-            reg["sim.external_force"] = (self, "external_force")
-        if self.thermal is not None:
-            for k in ("Hw", "por", "qgen", "wage", "tf", "uf", "qsrc", "work"):
-                reg[f"th.{k}"] = (self.thermal, k)
-        return reg
+    def __getattr__(self, name):
+        """The run's arrays by their dem.schema names (``sim.nb`` is ``sim.state.nb``)."""
+        if name in _SCHEMA_NAMES and "state" in self.__dict__:
+            return getattr(self.__dict__["state"], name)
+        raise AttributeError(name)
+
+    def __setattr__(self, name, value):
+        if name in _SCHEMA_NAMES:  # one owner for every array: the state
+            raise AttributeError(f"Simulation.{name} is dem.state.State.{name}: assign sim.state.{name}")
+        object.__setattr__(self, name, value)
 
     def _init_neighbors(self):
         if self.par is not None:
             self._par_rebuild(self.time, initial=True)
             return
+        self._rebuild(self.time, self.lo, self.hi, self.periodic, initial=True)
+
+    def _rebuild(self, t, glo, ghi, gwrap, initial=False):
+        """The rebuild phase (dem.step.rebuild) from Python: a first build sizes the slots
+        tightly (the largest count + 2); the history starts empty (restored by the caller)."""
         st = self.state
-        n = st.n
-        rolling = self.ip[K.I_ROLLING] == 2
-        age = self.thermal.needs_age if self.thermal is not None else False
-        nb0 = np.zeros((0, 1), np.int32)
-        slots = 12
-        for _ in range(2):  # second pass sizes the slots tightly (max count + 2)
-            self.nb, self.nnb, self.hist, self.rhist, self.age, maxc = build_half_list(
-                st.position, st.radius, n, n, self.lo, self.hi, self.periodic, self.lo, self.hi,
-                self.periodic, self.reach,
-                self.fp[K.F_SKIN], slots, nb0, np.zeros(0, np.int32), np.zeros((0, 1, 3)),
-                np.zeros((0, 1, 3)), np.zeros((0, 1, 2)))
-            if maxc + 2 >= slots:
+        slots = 12 if initial else st.nb.shape[1]
+        for _ in range(2):
+            P, C, W, _T, prm = st.bundles()
+            C, maxc = K.rebuild(P, C, W, prm, st.n, st.n_owned, glo, ghi, gwrap, t, slots, False, self._hon)
+            if not initial or maxc + 2 >= slots:
                 break
             slots = maxc + 2
-        if rolling:
-            self.rhist = np.zeros(self.hist.shape)
-        if age:
-            self.age = np.zeros(self.nb.shape + (2,))
-        st.x_build[:] = st.position
-        K.build_wall_list(st.position, st.radius, n, self.wf, self.wi, self.nwalls,
-                          self.reach + self.fp[K.F_SKIN], self.time, self.wnb, self.wnn,
-                          self.whist, self.wrhist)
-        self.fp[K.F_TBUILD] = self.time
+        self._set_pairs(C)
+
+    def _set_pairs(self, C):
+        st = self.state
+        for name, a in zip(C._fields, C):
+            setattr(st, name, a)
 
     # ------------------------------------------------------------------ checks
     def check(self):
@@ -266,7 +258,7 @@ class Simulation:
                             f"{self.fp[K.F_MAXOV]:g}: the overlap guard may stop the run (raise "
                             f"youngs_modulus, or the bound if such overlaps are acceptable)")
         if self.thermal is not None:
-            rep.update(self.thermal.check())
+            rep.update(self.thermal.check(self.dt, self._compute_forces))
         rep["warnings"] = warnings + rep.get("warnings", [])
         problems = []
         if sc.simulation["mechanics"]:
@@ -348,29 +340,24 @@ class Simulation:
         rebuild, the new list beside the old one and the cell grid of the build (the box of
         occupied cells or sorted keys: O(n), independent of the domain size)."""
         st = self.state
-        lists = self.nb.nbytes + self.nnb.nbytes + self.hist.nbytes + self.rhist.nbytes + self.age.nbytes
+        lists = sum(getattr(st, f.name).nbytes for f in S.of("pair") if f.name in ("nb", "nnb") or f.record)
         if self.par is None:
             glo, ghi, gwrap = self.lo, self.hi, self.periodic
         else:
             glo, ghi, gwrap = self.par.grid_box(self)
         grid = grid_bytes(st.position, st.radius, st.n, glo, ghi, gwrap, self.reach, self.fp[K.F_SKIN])
-        mem = st.memory_bytes() + lists + self.whist.nbytes + self.wrhist.nbytes + self.wnb.nbytes \
-            + self.wnn.nbytes + self.Hd.nbytes + self.Hi.nbytes + self.rnear.nbytes
+        mem = st.memory_bytes("particle") + st.memory_bytes("pair")
         return mem + lists + grid, lists + grid
 
     # ------------------------------------------------------------------ stepping
     def _compute_forces(self):
+        """The interact phase at the current time (no step): forces, torques and (with heat)
+        the conductances; the heat totals are left as they were."""
         st = self.state
-        if self.thermal is not None:  # the initial force evaluation exchanges no heat
-            saved = (self.thermal.tot.copy(), self.thermal.wtot.copy())
-        maxov, i, j, nc = K.compute_forces(
-            st.n, st.position, st.velocity, st.angular_velocity, st.radius, st.mass, st.material,
-            st.force, st.torque, self._fext(), self.nb, self.nnb, self.hist, self.rhist,
-            self.wf, self.wi, self.wnb, self.wnn, self.whist, self.wrhist, self.tab, self.ip, self.fp,
-            self.lo, self.hi, self.periodic, self.time, self.age, self.Hd, self.Hi, self.rnear, self.TH,
-            self._hon)
-        if self.thermal is not None:
-            self.thermal.tot[:], self.thermal.wtot[:] = saved
+        saved = (st.tot.copy(), st.wtot.copy())  # the initial force evaluation exchanges no heat
+        P, C, W, TB, prm = st.bundles()
+        maxov, i, j, nc = K.compute_forces(P, C, W, TB, prm, st.n, self.time, self._hon)
+        st.tot[:], st.wtot[:] = saved
         self._nc2 = nc
         self.last_contacts = nc // 2
         return maxov
@@ -382,10 +369,6 @@ class Simulation:
         (docs/benchmarks.md, "Cost of each mechanism": a run-time flag alone cost ~5 %)."""
         return True if self.thermal is not None else None
 
-    def _fext(self):
-        f = getattr(self, "external_force", None)
-        return f if f is not None else np.zeros((0, 3))
-
     def _advance(self, nsteps):
         if self.par is not None:
             return self._advance_parallel(nsteps)
@@ -393,14 +376,10 @@ class Simulation:
         if not self._forces_ready:
             self._compute_forces()
             self._forces_ready = True
-        res = K.advance(nsteps, self.step_count, st.n, st.position, st.velocity,
-                        st.angular_velocity, st.radius, st.mass, st.inv_mass, st.inv_inertia,
-                        st.material, st.force, st.torque, self._fext(), st.x_build,
-                        self.nb, self.nnb, self.hist, self.rhist, self.age, self.wf, self.wi,
-                        self.wnb, self.wnn, self.whist, self.wrhist, self.tab, self.ip, self.fp, self.lo, self.hi,
-                        self.periodic, self.Hd, self.Hi, self.rnear, self.TH, self._hon)
-        done, status, who, other, value, nc, nreb = res[:7]
-        self.nb, self.nnb, self.hist, self.rhist, self.age, self.Hd, self.Hi, self.rnear = res[7:15]
+        P, C, W, TB, prm = st.bundles()
+        done, status, who, other, value, nc, nreb, C = K.advance(nsteps, self.step_count, st.n, P, C, W, TB, prm,
+                                                                 self._hon)
+        self._set_pairs(C)
         self.step_count += done
         self.time = self.step_count * self.dt
         if self.ip[K.I_MECH]:  # frozen packings keep the contact count of their set-up
@@ -441,87 +420,59 @@ class Simulation:
 
     # ------------------------------------------------------------------ parallel stepping
     def _par_rebuild(self, t, initial=False, rec=None, weights_from_list=True):
-        """Exchange particles and ghosts with the other ranks, rebuild the neighbour and
-        wall lists, bring the contact history back (dem.parallel.records)."""
+        """Exchange particles and ghosts with the other ranks, then the rebuild phase
+        (dem.step.rebuild, the same as a serial run's) and the contact history brought back
+        from its id-keyed records (dem.parallel.records)."""
         from .parallel import records
-        from .thermal.heat import local_porosity, TI_LOCALPOR
         par = self.par
         st = self.state
         weights = None
         if not initial:
             nown = st.n_owned
-            x = st.position[:nown]
-            out = (~self.periodic) & ((x < self.lo) | (x > self.hi))
-            if np.any(out) and self._pending is None:
-                i, k = np.argwhere(out)[0]
+            P, _C, _W, _T, prm = st.bundles()
+            i, k = K.outside(P, prm, nown)
+            if i >= 0 and self._pending is None:
                 self._pending = (K.LEFT_DOMAIN, self._instability_message(K.LEFT_DOMAIN, int(i), -1,
-                                                                          float(x[i, k])))
+                                                                          float(st.position[i, k])))
             if rec is None:
-                rec = records.extract(st.id, self.nb, self.nnb, self.hist, self.rhist, self.age)
+                rec = records.extract(st)
             if weights_from_list:
-                weights = 1.0 + self.scene.parallel["pair_weight"] * self.nnb[:nown]
+                weights = 1.0 + self.scene.parallel["pair_weight"] * st.nnb[:nown]
         resort_vor = par.sort_pending and self.thermal is not None and self.thermal.voronoi
         rec = par.exchange(self, rec, weights)
-        n, nown = st.n, st.n_owned
         glo, ghi, gwrap = par.grid_box(self)
-        slots = self.nb.shape[1] if not initial else 12
-        e0 = np.zeros(0, np.int32)
-        for _ in range(2):
-            nb, nnb, hist, _r, _a, maxc = build_half_list(
-                st.position, st.radius, n, nown, self.lo, self.hi, self.periodic, glo, ghi, gwrap,
-                self.reach, self.fp[K.F_SKIN], slots, np.zeros((0, 1), np.int32), e0,
-                np.zeros((0, 1, 3)), np.zeros((0, 1, 3)), np.zeros((0, 1, 2)))
-            if not initial or maxc + 2 >= slots:
-                break
-            slots = maxc + 2
-        rhist = np.zeros(hist.shape) if self.ip[K.I_ROLLING] == 2 else np.zeros((0, 1, 3))
-        needs_age = self.thermal is not None and self.thermal.needs_age
-        age = np.zeros(nb.shape + (2,)) if needs_age else np.zeros((0, 1, 2))
-        records.restore(rec, st.id, nb, nnb, hist, rhist, age, par.key_base)
-        self.nb, self.nnb, self.hist, self.rhist, self.age = nb, nnb, hist, rhist, age
-        K.build_wall_list(st.position, st.radius, nown, self.wf, self.wi, self.nwalls,
-                          self.reach + self.fp[K.F_SKIN], t, self.wnb, self.wnn, self.whist, self.wrhist)
-        self.wnn[nown:] = 0
-        st.x_build[:nown] = st.position[:nown]
-        self.fp[K.F_TBUILD] = t
-        self.ip[K.I_NOWN] = nown
+        self._rebuild(t, glo, ghi, gwrap, initial=initial)
+        records.restore(rec, st, par.key_base)
+        self.ip[K.I_NOWN] = st.n_owned
         if self.thermal is not None and not initial:
-            self.Hd, self.Hi, self.rnear = K.heat_slot_arrays(n, nb.shape[1], self.Hd, self.Hi, self.rnear)
-            th = self.thermal
-            if th.thi[TI_LOCALPOR] == 1:
-                local_porosity(n, st.position, st.radius, nb, nnb, self.lo, self.hi, self.periodic, self.reach,
-                               self.wf, self.wi, self.wnb, self.wnn, t, th.por, 0.2)
+            from .thermal.heat import TI_LOCALPOR
+            if self.thermal.thi[TI_LOCALPOR] == 1:
                 par.forward(self, motion=False, porosity=True)
             elif resort_vor:
-                th.update_porosity()
+                self.thermal.update_porosity(self.time)
                 par.forward(self, motion=False, porosity=True)
-            self.TH = th.th_tuple()
 
     def _advance_parallel(self, nsteps):
-        """The step of dem.step.advance, one step at a time with the ghost communication
-        between the drift and the force evaluation (one Allreduce per step carries the
-        rebuild decision and the previous step's stability status)."""
-        from .thermal.heat import heat_step, cross_rates, TI_INTEG
+        """The phases of dem.step.advance (drift, rebuild, interact, kick + guards, heat),
+        one step at a time with the ghost messages between them (one Allreduce per step
+        carries the rebuild decision and the previous step's stability status)."""
+        from .thermal.heat import cross_rates, TI_INTEG
         par = self.par
-        self._expo_cross = self.thermal is not None and self.thermal.thi[TI_INTEG] != 0
         st = self.state
+        expo_cross = self.thermal is not None and self.thermal.thi[TI_INTEG] != 0
         if not self._forces_ready:
             self._compute_forces()
             self._forces_ready = True
         dt = self.dt
-        fp = self.fp
         mech = bool(self.ip[K.I_MECH])
         heat = self.thermal is not None
-        half_skin = 0.5 * fp[K.F_SKIN]
         done = 0
         for _ in range(nsteps):
             t = (self.step_count + 1) * dt
             need = 0.0
             if mech:
-                maxd2 = K.kick_drift(st.n_owned, st.position, st.velocity, st.angular_velocity, st.force,
-                                     st.torque, st.inv_mass, st.inv_inertia, st.x_build, self.lo, self.hi,
-                                     self.periodic, dt)
-                need = 1.0 if math.sqrt(maxd2) + fp[K.F_VWALL] * (t - fp[K.F_TBUILD]) > half_skin else 0.0
+                P, _C, _W, _T, prm = st.bundles()
+                need = 1.0 if K.drift(P, prm, st.n_owned, t) else 0.0
             code, need = par.flags(self._pending[0] if self._pending else 0.0, need)
             if code:
                 self._raise_collective()
@@ -530,36 +481,22 @@ class Simulation:
                     self._par_rebuild(t)
                 else:
                     par.forward(self, motion=True, temperature=heat)
-                TH = self.TH
-                maxov, wi_, wj_, nc = K.compute_forces(
-                    st.n, st.position, st.velocity, st.angular_velocity, st.radius, st.mass, st.material,
-                    st.force, st.torque, self._fext(), self.nb, self.nnb, self.hist, self.rhist,
-                    self.wf, self.wi, self.wnb, self.wnn, self.whist, self.wrhist, self.tab, self.ip, fp,
-                    self.lo, self.hi, self.periodic, t, self.age, self.Hd, self.Hi, self.rnear, TH, self._hon)
+                P, C, W, TB, prm = st.bundles()
+                maxov, wi_, wj_, nc = K.compute_forces(P, C, W, TB, prm, st.n, t, self._hon)
                 self._nc2 = nc
-                bad = K.kick(st.n_owned, st.velocity, st.angular_velocity, st.force, st.torque, st.inv_mass,
-                             st.inv_inertia, dt)
-                if self._pending is None:
-                    if bad >= 0:
-                        self._pending = (K.NONFINITE, self._instability_message(K.NONFINITE, bad, -1, 0.0))
-                    elif maxov > fp[K.F_MAXOV]:
-                        self._pending = (K.OVERLAP, self._instability_message(K.OVERLAP, wi_, wj_, maxov))
+                status, who, other, value = K.kick_guard(P, prm, st.n_owned, maxov, wi_, wj_)
+                if status != K.OK and self._pending is None:
+                    self._pending = (status, self._instability_message(status, who, other, value))
             elif heat:
                 par.forward(self, motion=False, temperature=True)
             if heat:
-                TH = self.TH
-                if self._expo_cross:
-                    cross_rates(st.n_owned, TH[K.H_CINV], self.nb, self.nnb, self.Hd, self.Hi, TH[K.H_WORK])
+                if expo_cross:
+                    cross_rates(st.n_owned, st.inv_heat_capacity, st.nb, st.nnb, st.Hd, st.Hi, st.work)
                     par.forward(self, motion=False, rate=True)
-                badt = heat_step(st.n, st.n_owned, dt, t, TH[K.H_T], TH[K.H_CINV], TH[K.H_Q], st.velocity,
-                                 st.radius, st.position, st.material, self.nb, self.nnb, self.Hd, self.Hi,
-                                 self.rnear, self.wnb, self.wnn, TH[K.H_HW], TH[K.H_WTH], TH[K.H_WTAB],
-                                 TH[K.H_TF], TH[K.H_UF], TH[K.H_POR], TH[K.H_QGEN], TH[K.H_QSRC],
-                                 TH[K.H_SRCBOX], TH[K.H_TMAT], TH[K.H_GAS], TH[K.H_THI], TH[K.H_TOT],
-                                 TH[K.H_WTOT], TH[K.H_WORK])
-                if badt >= 0 and self._pending is None:
-                    self._pending = (K.BAD_TEMPERATURE, self._instability_message(
-                        K.BAD_TEMPERATURE, badt, -1, float(st.temperature[badt])))
+                P, C, W, TB, prm = st.bundles()
+                status, who, value = K.heat_phase(P, C, W, TB, prm, st.n, st.n_owned, t)
+                if status != K.OK and self._pending is None:
+                    self._pending = (status, self._instability_message(status, who, -1, value))
             self.step_count += 1
             self.time = self.step_count * dt
             done += 1
@@ -574,67 +511,38 @@ class Simulation:
         raise SimulationError(msg)
 
     def sort_particles(self):
-        """Reorder particles by cell for cache locality; neighbour rows and every history
-        follow, so the physics is unchanged."""
+        """Reorder particles by cell for cache locality; every sorted array of dem.schema
+        follows (neighbour rows renumbered), so the physics is unchanged."""
         if self.par is not None:  # done at the next exchange with the other ranks
             self.par.sort_pending = True
             return
         st = self.state
         cell = 2 * float(st.radius.max()) + self.reach + self.fp[K.F_SKIN]
-        perm = sort_permutation(st.position, self.lo, self.hi, cell)
-        inv = np.empty_like(perm)
-        inv[perm] = np.arange(perm.size)
-        st.permute(perm)
-        nb = self.nb[perm]
-        nnb = self.nnb[perm]
-        mask = np.arange(nb.shape[1])[None, :] < nnb[:, None]
-        nb = np.where(mask, inv[np.where(mask, nb, 0)], 0).astype(np.int32)
-        self.nb, self.nnb = np.ascontiguousarray(nb), np.ascontiguousarray(nnb)
-        self.hist = np.ascontiguousarray(self.hist[perm])
-        if self.rhist.shape[0]:
-            self.rhist = np.ascontiguousarray(self.rhist[perm])
-        if self.age.shape[0]:
-            self.age = np.ascontiguousarray(self.age[perm])
-        self.whist = np.ascontiguousarray(self.whist[perm])
-        self.wnb = np.ascontiguousarray(self.wnb[perm])
-        self.wnn = np.ascontiguousarray(self.wnn[perm])
-        if self.wrhist.shape[0]:
-            self.wrhist = np.ascontiguousarray(self.wrhist[perm])
-        if self.Hd.shape[0]:
-            self.Hd = np.ascontiguousarray(self.Hd[perm])
-        if self.Hi.shape[0]:
-            self.Hi = np.ascontiguousarray(self.Hi[perm])
-        if self.rnear.shape[0]:
-            self.rnear = np.ascontiguousarray(self.rnear[perm])
-        if self.thermal is not None:
-            self.thermal.permute(perm)
-            if self.thermal.voronoi and self.scene.simulation["mechanics"]:
-                self.thermal.update_porosity()
-            self.TH = self.thermal.th_tuple()
-        if getattr(self, "external_force", None) is not None:
-            self.external_force = np.ascontiguousarray(self.external_force[perm])
+        st.permute(sort_permutation(st.position, self.lo, self.hi, cell))
+        if self.thermal is not None and self.thermal.voronoi and self.scene.simulation["mechanics"]:
+            self.thermal.update_porosity(self.time)
 
     def set_fluid(self, force=None, velocity=None, temperature=None, porosity=None):
         """Fluid data at each owned particle (rows of ``state``) for the next steps of a
         coupled run: force (N, drag + pressure gradient + buoyancy, added every step),
         gas velocity (m/s) and temperature (K) for convection, void fraction (replaces the
         locally measured porosity in the heat models)."""
-        n = self.state.n
-        k = self.state.n_owned
+        st = self.state
+        k = st.n_owned
         if force is not None:
-            if getattr(self, "external_force", None) is None or self.external_force.shape[0] != n:
-                self.external_force = np.zeros((n, 3))
-            self.external_force[:k] = force
-            self.external_force[k:] = 0.0
+            if not st.features.get("fluid"):
+                st.enable(fluid=True)
+            st.external_force[:k] = force
+            st.external_force[k:] = 0.0
         th = self.thermal
         if th is None:
             return
         if velocity is not None:
-            th.uf[:k] = velocity
+            st.uf[:k] = velocity
         if temperature is not None:
-            th.tf[:k] = temperature
+            st.tf[:k] = temperature
         if porosity is not None:
-            th.por[:k] = porosity
+            st.por[:k] = porosity
             th.local_porosity = False
             from .thermal.heat import TI_LOCALPOR
             th.thi[TI_LOCALPOR] = 0  # the CFD void fraction is used instead
@@ -701,7 +609,7 @@ class Simulation:
     def _overlap_stats(self):
         from .stats import max_overlap_ratio
         st = self.state
-        return max_overlap_ratio(st.n, st.position, st.radius, self.nb, self.nnb, self.lo, self.hi,
+        return max_overlap_ratio(st.n, st.position, st.radius, st.nb, st.nnb, self.lo, self.hi,
                                  self.periodic, self.wf, self.wi, self.nwalls, self.time)
 
     def history_columns(self):
@@ -710,17 +618,19 @@ class Simulation:
             cols += self.thermal.history_columns()
         return cols
 
-    def particle_fields(self):
+    def _output_arrays(self):
+        """The owned rows of every enabled array declared with an output name (dem.schema)."""
         st = self.state
         n = st.n_owned
-        f = {"id": st.id[:n].astype(np.float64), "radius": st.radius[:n],
-             "material": st.material[:n].astype(np.float64), "velocity": st.velocity[:n],
-             "angular_velocity": st.angular_velocity[:n]}
-        if self.thermal is not None:
-            f["temperature"] = st.temperature[:n]
-            f["heat_rate"] = st.heat_rate[:n]
+        return {f.output: getattr(st, f.name)[:n] for f in S.FIELDS
+                if f.output and f.owner == "particle" and S.enabled(f, st.features)}
+
+    def particle_fields(self):
+        """Per-particle fields of the VTK output (float64; the position goes apart)."""
+        f = {k: (a if a.dtype == np.float64 else a.astype(np.float64))
+             for k, a in self._output_arrays().items() if k != "position"}
         if self.par is not None:
-            f["rank"] = np.full(n, float(self.par.rank))
+            f["rank"] = np.full(self.state.n_owned, float(self.par.rank))
         return f
 
     def _gather_by_id(self, arrays):
@@ -731,62 +641,42 @@ class Simulation:
 
     def final_arrays(self):
         """Per-particle results ordered by id (collective; None on ranks other than the root)."""
-        st = self.state
-        n = st.n_owned
-        out = dict(id=st.id[:n], position=st.position[:n], velocity=st.velocity[:n],
-                   angular_velocity=st.angular_velocity[:n], radius=st.radius[:n],
-                   material=st.material[:n])
-        if self.thermal is not None:
-            out["temperature"] = st.temperature[:n]
-            out["heat_rate"] = st.heat_rate[:n]
-        out = self._gather_by_id(out)
+        out = self._gather_by_id(self._output_arrays())
         if out is not None:
             out["time"] = np.float64(self.time)
         return out
 
     # ------------------------------------------------------------------ checkpoints
-    @staticmethod
-    def _ck_key(name):
-        kind, attr = name.split(".", 1)
-        return {"state": "state_", "sim": "", "th": "th_"}[kind] + attr
+    def _checkpointed(self, owner):
+        """The enabled arrays of ``owner`` with a checkpoint key (dem.schema)."""
+        st = self.state
+        return [f for f in S.of(owner) if f.checkpoint and S.enabled(f, st.features)]
 
     def checkpoint_arrays(self):
-        """Everything needed to continue the run. A serial checkpoint holds the neighbour
-        list and its history slots (bit-exact restart); every checkpoint also holds the
-        per-particle arrays ordered by id and the contact history as id-keyed records, so
-        that any number of ranks can continue it (collective; None off the root)."""
+        """Everything needed to continue the run, as declared in dem.schema. A serial
+        checkpoint holds the neighbour list and its history slots (bit-exact restart); every
+        checkpoint also holds the per-particle arrays ordered by id and the contact history as
+        id-keyed records, so that any number of ranks can continue it (collective; None off
+        the root)."""
         from .parallel import records
         st = self.state
         n = st.n_owned
-        rec = records.extract(st.id, self.nb, self.nnb, self.hist, self.rhist, self.age)
+        rec = records.extract(st)
         rec = {f"rec_{k}": v for k, v in rec.items() if v is not None}
         common = dict(fp_tbuild=np.float64(self.fp[K.F_TBUILD]), step_count=np.int64(self.step_count),
                       dt=np.float64(self.dt), forces_ready=np.bool_(self._forces_ready),
                       scene_file=np.str_(os.path.abspath(self.scene.file)),
                       ranks=np.int64(1 if self.par is None else self.par.size))
+        totals = {f.checkpoint: getattr(st, f.name) for f in self._checkpointed("wall") + self._checkpointed("param")
+                  if self.thermal is not None}
         if self.par is None:
-            arr = {f"state_{k}": getattr(st, k) for k in st.fields()}
-            arr.update(nb=self.nb, nnb=self.nnb, hist=self.hist, rhist=self.rhist, age=self.age,
-                       whist=self.whist, wrhist=self.wrhist, wnb=self.wnb, wnn=self.wnn,
-                       Hd=self.Hd, Hi=self.Hi, rnear=self.rnear, **common, **rec)
-            if self.thermal is not None:
-                arr.update(self.thermal.checkpoint_arrays())
+            arr = {f.checkpoint: getattr(st, f.name) for f in self._checkpointed("particle") + self._checkpointed("pair")}
+            arr.update(**common, **rec, **totals)
             return arr
-        local = {}
-        empties = {}  # arrays the run does not use: zero-row placeholders on every rank
-        for name, (obj, attr) in self.per_particle_arrays().items():
-            if name == "sim.external_force":
-                continue
-            a = getattr(obj, attr)
-            if name in self.par.absent:
-                empties[self._ck_key(name)] = a
-            else:  # a rank that owns no particle contributes zero rows
-                local[self._ck_key(name)] = a[:n]
+        local = {f.checkpoint: getattr(st, f.name)[:n] for f in self._checkpointed("particle")}
         local["id"] = st.id[:n]
         parts = self.par.gather((local, rec))  # records travel beside, not ordered by id
-        extra = {}
-        if self.thermal is not None:
-            extra = dict(th_tot=self.par.allsum(self.thermal.tot), th_wtot=self.par.allsum(self.thermal.wtot))
+        totals = {k: self.par.allsum(v) for k, v in totals.items()}
         if parts is None:
             return None
         arr = self._gather_by_id_parts([p[0] for p in parts])
@@ -798,7 +688,7 @@ class Simulation:
             _, first = np.unique(arr["rec_a"] * self.par.key_base + arr["rec_b"], return_index=True)
             for k in rkeys:
                 arr[k] = arr[k][first]
-        arr.update(empties, **common, **extra)
+        arr.update(**common, **totals)
         return arr
 
     @staticmethod
@@ -852,34 +742,37 @@ class Simulation:
                 print(f"restart: applied {line}", flush=True)
 
     def _load_serial(self, z):
-        """The serial layout: every array as written (bit-exact continuation)."""
+        """The serial layout: every checkpointed array as written (bit-exact continuation)."""
         st = self.state
-        for k in st.fields():
-            setattr(st, k, np.ascontiguousarray(z[f"state_{k}"]))
-        for k in ("nb", "nnb", "hist", "rhist", "age", "whist", "wrhist", "wnb", "wnn", "Hd", "Hi", "rnear"):
-            setattr(self, k, np.ascontiguousarray(z[k]))
+        for f in self._checkpointed("particle") + self._checkpointed("pair"):
+            if f.checkpoint not in z.files:
+                raise SimulationError(f"checkpoint lacks {f.checkpoint!r} (thermal or contact settings changed?)")
+            setattr(st, f.name, np.ascontiguousarray(z[f.checkpoint], f.dtype))
+        self._load_totals(z, root=True)
         self.fp[K.F_TBUILD] = float(z["fp_tbuild"])
         self.step_count = int(z["step_count"])
         self.time = self.step_count * self.dt
         self._forces_ready = bool(z["forces_ready"])
-        if self.thermal is not None:
-            self.thermal.load_checkpoint(z)
-            self.TH = self.thermal.th_tuple()
+
+    def _load_totals(self, z, root):
+        """Run totals (heat per mechanism and per wall): on the root only, zero elsewhere."""
+        if self.thermal is None:
+            return
+        st = self.state
+        for f in self._checkpointed("wall") + self._checkpointed("param"):
+            getattr(st, f.name)[:] = z[f.checkpoint] if root else 0.0
 
     def _recompute_forces_keeping_history(self):
         """Forces at the restart time with the edited physics (masses, tables, walls,
         gravity); the contact springs, ages and temperatures stay as in the checkpoint so
         that the next step increments them once, as an uninterrupted run does (collective
         in a parallel run: the ghosts were exchanged by the loader)."""
-        keep = [a.copy() for a in (self.hist, self.rhist, self.whist, self.wrhist, self.age)]
         st = self.state
-        th = self.thermal
-        if th is not None:
-            tkeep = (st.temperature.copy(), st.heat_rate.copy())
+        keep = [(f.name, getattr(st, f.name).copy()) for f in S.FIELDS
+                if f.record or f.name in ("whist", "wrhist", "temperature", "heat_rate")]
         self._compute_forces()
-        self.hist[...], self.rhist[...], self.whist[...], self.wrhist[...], self.age[...] = keep
-        if th is not None:
-            st.temperature[:], st.heat_rate[:] = tkeep
+        for name, a in keep:
+            getattr(st, name)[...] = a
         self._forces_ready = True
 
     def _load_portable(self, path, z):
@@ -892,18 +785,15 @@ class Simulation:
             rows = np.nonzero(self.par.dec.owner(pos) == self.par.rank)[0]
         else:
             rows = np.arange(pos.shape[0])
-        self.external_force = None
-        for name, (obj, attr) in self.per_particle_arrays().items():
-            key = self._ck_key(name)
-            if name == "th.work":  # scratch
-                obj.work = np.zeros((rows.size, 3))
-                continue
-            if key not in z.files:
-                raise SimulationError(f"{path}: checkpoint lacks {key!r} (thermal or contact settings changed?)")
-            a = z[key]
-            setattr(obj, attr, np.ascontiguousarray(a[rows]) if a.shape[0] else np.ascontiguousarray(a))
+        st.enable(fluid=False)  # the coupling sets the fluid data again
+        for f in self._checkpointed("particle"):
+            if f.checkpoint not in z.files:
+                raise SimulationError(f"{path}: checkpoint lacks {f.checkpoint!r} (thermal or contact settings "
+                                      f"changed?)")
+            setattr(st, f.name, np.ascontiguousarray(z[f.checkpoint][rows], f.dtype))
         st.n_owned = rows.size
         st.n_ghost = 0
+        st.allocate()  # the arrays a checkpoint does not hold (scratch), sized for these rows
         self.ip[K.I_NOWN] = rows.size
         rec = {k: (z[f"rec_{k}"] if f"rec_{k}" in z.files else None) for k in records.FIELDS}
         if rec["a"] is None:
@@ -911,21 +801,15 @@ class Simulation:
         self.step_count = int(z["step_count"])
         self.time = self.step_count * self.dt
         self._forces_ready = bool(z["forces_ready"])
-        th = self.thermal
-        if th is not None:
-            root = self.is_root
-            th.tot = np.ascontiguousarray(z["th_tot"]) if root else np.zeros_like(z["th_tot"])
-            th.wtot = np.ascontiguousarray(z["th_wtot"]) if root else np.zeros_like(z["th_wtot"])
+        self._load_totals(z, root=self.is_root)
         if self.par is not None:
             self._par_rebuild(self.time, rec=rec, weights_from_list=False)
         else:
             self._init_neighbors()
-            records.restore(rec, st.id, self.nb, self.nnb, self.hist, self.rhist, self.age,
-                            int(st.id.max(initial=0)) + 1)
+            records.restore(rec, st, int(st.id.max(initial=0)) + 1)
+        th = self.thermal
         if th is not None:
-            self.Hd, self.Hi, self.rnear = th.slot_arrays(self.nb.shape[1])
-            self.TH = th.th_tuple()
-            th.update_porosity()
+            th.update_porosity(self.time)
             if self.par is not None:
                 self.par.forward(self, motion=False, porosity=True)
             if not self.scene.simulation["mechanics"]:

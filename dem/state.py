@@ -1,23 +1,28 @@
-"""Structure-of-arrays particle state (float64, C-contiguous).
+"""The run's arrays, as declared in dem.schema (structure of arrays, float64, C-contiguous).
 
 Particles carry global ids. Rows [0, n_owned) are owned by this rank; rows
 [n_owned, n_owned + n_ghost) are ghosts (copies of neighbours' particles, filled by the
 parallel layer); kernels integrate owned rows only. A serial run has no ghosts.
+
+Every array of dem.schema.FIELDS is an attribute of the same name; an array a scene does not
+enable is the empty array of its row (zero rows, same dtype and axes). The kernels get the
+arrays as the named bundles of dem.schema (:meth:`bundles`).
 """
 import numpy as np
 
-# per-particle arrays that move with a particle (permutation, checkpoint, migration)
-VEC_FIELDS = ("position", "velocity", "angular_velocity", "force", "torque", "x_build")
-SCALAR_FIELDS = ("radius", "mass", "inv_mass", "inv_inertia")
-INT_FIELDS = ("id", "material", "group")
-THERMAL_FIELDS = ("temperature", "heat_rate", "inv_heat_capacity")
+from . import schema as S
 
 
 class State:
-    def __init__(self, ids, position, velocity, angular_velocity, radius, material, group, densities):
+    def __init__(self, ids, position, velocity, angular_velocity, radius, material, group, densities,
+                 walls=0):
         n = len(ids)
         self.n_owned = n
         self.n_ghost = 0
+        self.walls = max(int(walls), 1)
+        self.features = {}
+        for f in S.FIELDS:  # every array declared, disabled until allocated
+            setattr(self, f.name, f.empty())
         self.id = np.ascontiguousarray(ids, np.int64)
         self.position = np.ascontiguousarray(position, float).reshape(n, 3).copy()
         self.velocity = np.ascontiguousarray(velocity, float).reshape(n, 3).copy()
@@ -29,32 +34,69 @@ class State:
         self.mass = 4.0 / 3.0 * np.pi * self.radius ** 3 * rho
         self.inv_mass = 1.0 / self.mass
         self.inv_inertia = 1.0 / (0.4 * self.mass * self.radius ** 2)
-        self.force = np.zeros((n, 3))
-        self.torque = np.zeros((n, 3))
+        self.allocate()
         self.x_build = self.position.copy()
-        self.thermal = False
 
     @property
     def n(self):
         return self.n_owned + self.n_ghost
 
-    def enable_thermal(self, temperature, heat_capacity_per_material):
+    @property
+    def thermal(self):
+        return bool(self.features.get("heat"))
+
+    def enable(self, **features):
+        """Switch features on or off (dem.schema.FEATURES) and allocate what they need."""
+        self.features.update(features)
+        self.allocate()
+
+    def allocate(self):
+        """Zeros for every enabled per-particle array not yet of n rows; the disabled ones
+        empty. Pair arrays are sized by the neighbour build, not here."""
         n = self.n
-        self.thermal = True
+        for f in S.FIELDS:
+            if f.owner != "particle":
+                continue
+            a = getattr(self, f.name)
+            if not S.enabled(f, self.features):
+                if a.shape[0]:
+                    setattr(self, f.name, f.empty())
+            elif a.shape != f.shape(n, self.walls):
+                setattr(self, f.name, np.zeros(f.shape(n, self.walls), f.dtype))
+
+    def enable_thermal(self, temperature, heat_capacity_per_material):
+        self.enable(heat=True)
         self.temperature = np.ascontiguousarray(temperature, float).copy()
-        self.heat_rate = np.zeros(n)
         cp = np.asarray(heat_capacity_per_material, float)[self.material]
         self.inv_heat_capacity = 1.0 / (self.mass * cp)
 
-    def fields(self):
-        f = list(VEC_FIELDS + SCALAR_FIELDS + INT_FIELDS)
-        if self.thermal:
-            f += list(THERMAL_FIELDS)
-        return f
+    def fields(self, owner="particle", **flags):
+        """Names of the enabled arrays of ``owner`` whose flags match (e.g. sort=True)."""
+        return [f.name for f in S.FIELDS if f.owner == owner and S.enabled(f, self.features)
+                and all(bool(getattr(f, k)) == v for k, v in flags.items())]
 
     def permute(self, perm):
-        for name in self.fields():
-            setattr(self, name, np.ascontiguousarray(getattr(self, name)[perm]))
+        """Reorder the particles (spatial sort): every sorted per-particle array follows; the
+        pair arrays follow with their neighbour indices renumbered."""
+        inv = np.empty_like(perm)
+        inv[perm] = np.arange(perm.size)
+        for f in S.FIELDS:
+            if f.owner not in ("particle", "pair") or not f.sort:
+                continue
+            a = getattr(self, f.name)
+            if a.shape[0] == 0:
+                continue
+            if not f.scratch:  # scratch: rewritten before it is read
+                setattr(self, f.name, np.ascontiguousarray(a[perm]))
+        nb, nnb = self.nb, self.nnb
+        mask = np.arange(nb.shape[1])[None, :] < nnb[:, None]
+        self.nb = np.ascontiguousarray(np.where(mask, inv[np.where(mask, nb, 0)], 0).astype(np.int32))
+
+    def bundles(self):
+        """(Particles, Pairs, Walls, Tables, Params) over the current arrays."""
+        return tuple(B(*[getattr(self, f.name) for f in S.of(owner, kernel_only=True)])
+                     for B, owner in ((S.Particles, "particle"), (S.Pairs, "pair"), (S.Walls, "wall"),
+                                      (S.Tables, "table"), (S.Params, "param")))
 
     def kinetic_energy(self):
         n = self.n_owned
@@ -63,5 +105,5 @@ class State:
                           / self.inv_inertia[:n])
         return float(et), float(er)
 
-    def memory_bytes(self):
-        return sum(getattr(self, f).nbytes for f in self.fields())
+    def memory_bytes(self, owner="particle"):
+        return sum(getattr(self, f).nbytes for f in self.fields(owner))

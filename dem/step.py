@@ -22,6 +22,7 @@ from .contact.linear import linear_spring_dashpot
 from .contact.rolling import constant_torque, epsd
 from .contact.walls import wall_distance, wall_velocity, WMAT
 from .neighbors import build_half_list
+from .schema import Pairs
 from .thermal.contact_radius import (contact_radius_pw, hertz_force, hertz_overlap, geometric_pp_inv,
                                      apply_correction, HERTZ_FORCE, HERTZ_OVERLAP)
 from .thermal.direct import direct_pp, direct_pw, batchelor_obrien_keff
@@ -44,21 +45,6 @@ T_ESTAR, T_GSTAR, T_DAMP, T_MU, T_MUR = range(5)
 NTAB = 5
 # status
 OK, OVERLAP, NONFINITE, LEFT_DOMAIN, BAD_TEMPERATURE = 0, 1, 2, 3, 4
-# thermal tuple TH (see dem.thermal.kernel.ThermalModel.th_tuple)
-(H_THI, H_THF, H_TMAT, H_GAS, H_EREAL, H_HW, H_WTH, H_WTAB, H_POR, H_QGEN, H_WAGE, H_T, H_CINV,
- H_Q, H_TF, H_UF, H_QSRC, H_SRCBOX, H_TOT, H_WTOT, H_WORK, H_KEFF) = range(22)
-
-
-def empty_thermal(nwalls=1):
-    """The thermal tuple of a scene without heat (tiny arrays of the right types)."""
-    z1 = np.zeros(0)
-    z2 = np.zeros((0, 1))
-    thi = np.full(NTI, -1, np.int64)
-    thi[TI_HEAT] = 0
-    return (thi, np.zeros(8), np.zeros((1, 11)), np.zeros(20), np.zeros((1, 1)), z2,
-            np.zeros((max(nwalls, 1), 4)), np.zeros((max(nwalls, 1), 1, 2)), z1, z1,
-            np.zeros((0, 1, 2)), z1, z1, z1, z1, np.zeros((0, 3)), z1, np.zeros((0, 7)),
-            np.zeros(8), np.zeros(max(nwalls, 1)), np.zeros((0, 3)), np.zeros((1, 1)))
 
 
 @njit(cache=True, error_model="numpy", fastmath={"nsz", "arcp", "contract", "afn", "reassoc"})
@@ -114,9 +100,7 @@ def _rotate_history(h, i, s, nx, ny, nz):
 
 
 @njit(cache=True, error_model="numpy", fastmath={"nsz", "arcp", "contract", "afn", "reassoc"})
-def compute_forces(n, x, v, w, r, m, mat, f, tq, fext, nb, nnb, hist, rhist,
-                   wf, wi, wnb, wnn, whist, wrhist, tab, ip, fp, lo, hi, periodic, t,
-                   age, Hd, Hi, rnear, TH, hon):
+def compute_forces(P, C, W, TB, prm, n, t, hon):
     """Contact + wall + body forces, and (when heat is on) the conductances of every
     neighbour slot and wall candidate for the heat step: Hd, Hi, Hw, the radiation
     neighbour flags and the friction heat. Returns (max overlap ratio, i, j (-1-wall),
@@ -125,7 +109,12 @@ def compute_forces(n, x, v, w, r, m, mat, f, tq, fext, nb, nnb, hist, rhist,
     (copies of another rank's particles, no pairs of their own); a pair with a ghost is
     computed on both ranks, so it counts 1 (of 2) and half its exchanged heat goes into the
     totals here."""
-    thi = TH[H_THI]
+    x, v, w, r, m, mat, f, tq = (P.position, P.velocity, P.angular_velocity, P.radius, P.mass, P.material,
+                                 P.force, P.torque)
+    fext, wnb, wnn, whist, wrhist = P.external_force, P.wnb, P.wnn, P.whist, P.wrhist
+    nb, nnb, hist, rhist, age, Hd, Hi, rnear = C.nb, C.nnb, C.hist, C.rhist, C.age, C.Hd, C.Hi, C.rnear
+    wf, wi, tab, ip, fp, lo, hi, periodic = W.wf, W.wi, TB.tab, prm.ip, prm.fp, prm.lo, prm.hi, prm.periodic
+    thi = prm.thi
     heat = hon is not None and thi[TI_HEAT] != 0
     dmodel = thi[TI_DIRECT]
     crm = thi[TI_CR]
@@ -135,24 +124,24 @@ def compute_forces(n, x, v, w, r, m, mat, f, tq, fext, nb, nnb, hist, rhist,
     fric = thi[TI_FRIC]
     pmodel = thi[TI_PART]
     use_age = thi[TI_AGE] != 0
-    thf = TH[H_THF]
-    tmat = TH[H_TMAT]
-    gas = TH[H_GAS]
-    ereal = TH[H_EREAL]
-    Hw = TH[H_HW]
-    wth = TH[H_WTH]
-    por = TH[H_POR]
-    qgen = TH[H_QGEN]
-    wage = TH[H_WAGE]
+    thf = prm.thf
+    tmat = TB.tmat
+    gas = TB.gas
+    ereal = TB.ereal
+    Hw = P.Hw
+    wth = W.wth
+    por = P.por
+    qgen = P.qgen
+    wage = P.wage
     dfac = thf[TF_DFACTOR]
     radrange = thf[TF_RADRANGE]
     fused = heat and thi[TI_FUSED] == 1
-    T = TH[H_T]
-    Q = TH[H_Q]
-    tot = TH[H_TOT]
-    wtot = TH[H_WTOT]
-    wtab = TH[H_WTAB]
-    keff = TH[H_KEFF]
+    T = P.temperature
+    Q = P.heat_rate
+    tot = prm.tot
+    wtot = W.wtot
+    wtab = W.wtab
+    keff = TB.keff
     bo = dmodel == DIRECT_BATCHELOR_OBRIEN
     e_dir = 0.0
     e_ind = 0.0
@@ -508,18 +497,6 @@ def build_wall_list(x, r, n, wf, wi, nwalls, reach, t, wnb, wnn, whist, wrhist):
 
 
 @njit(cache=True, error_model="numpy")
-def heat_slot_arrays(n, slots, Hd, Hi, rnear):
-    """Per-slot heat arrays sized for n rows of ``slots`` (reallocated only when needed)."""
-    if Hd.shape[1] != slots or Hd.shape[0] != n:
-        Hd = np.zeros((n, slots))
-        if Hi.shape[0] > 0:
-            Hi = np.zeros((n, slots))
-        if rnear.shape[0] > 0:
-            rnear = np.zeros((n, slots), np.uint8)
-    return Hd, Hi, rnear
-
-
-@njit(cache=True, error_model="numpy")
 def kick_drift(n, x, v, w, f, tq, inv_m, inv_i, xb, lo, hi, periodic, dt):
     """First half of velocity Verlet for rows [0, n): half kick, drift, periodic wrap.
     Returns the largest squared displacement since the last neighbour build."""
@@ -570,66 +547,139 @@ def kick(n, v, w, f, tq, inv_m, inv_i, dt):
 
 
 @njit(cache=True, error_model="numpy")
-def advance(nsteps, s0, n, x, v, w, r, m, inv_m, inv_i, mat, f, tq, fext, xb,
-            nb, nnb, hist, rhist, age, wf, wi, wnb, wnn, whist, wrhist, tab, ip, fp, lo, hi, periodic,
-            Hd, Hi, rnear, TH, hon):
-    """Advance ``nsteps`` steps from step number s0, time s0 dt (f, tq hold the forces then).
-    Step k ends at time (s0 + k) dt, computed from the step number alone, so that splitting a
-    run into calls of any length gives the same arithmetic (bit-identical results).
+def drift(P, prm, nown, t):
+    """Phase "kick-drift": half kick, drift and periodic wrap of the owned rows; returns True
+    when the neighbour lists must be rebuilt before the forces at time t (a particle moved
+    more than half the skin since the last build, counting the walls' motion)."""
+    fp = prm.fp
+    maxd2 = kick_drift(nown, P.position, P.velocity, P.angular_velocity, P.force, P.torque, P.inv_mass,
+                       P.inv_inertia, P.x_build, prm.lo, prm.hi, prm.periodic, fp[F_DT])
+    return math.sqrt(maxd2) + fp[F_VWALL] * (t - fp[F_TBUILD]) > 0.5 * fp[F_SKIN]
 
-    Mechanics on: velocity Verlet, neighbour rebuilds, then (with heat) one heat step on
-    the conductances found in the force loop. Mechanics off (frozen packing): only the
-    heat step, on the conductances computed once.
-    Returns (steps done, status, particle, other (j, or -1-wall), value, contacts,
-    rebuilds, nb, nnb, hist, rhist, age, Hd, Hi, rnear): arrays may have been reallocated.
+
+@njit(cache=True, error_model="numpy")
+def outside(P, prm, nown):
+    """(row, axis) of the first owned particle outside the domain along a closed axis, or (-1, -1)."""
+    x = P.position
+    lo = prm.lo
+    hi = prm.hi
+    for i in range(nown):
+        for k in range(3):
+            if not prm.periodic[k] and (x[i, k] < lo[k] or x[i, k] > hi[k]):
+                return i, k
+    return -1, -1
+
+
+@njit(cache=True, error_model="numpy")
+def _slot_arrays(n, slots, C, heat, thi):
+    """Per-slot heat arrays (Hd, Hi, rnear) for n rows of ``slots``: kept when the shape is
+    unchanged (every used slot is rewritten by the next force evaluation), else new."""
+    if not heat or (C.Hd.shape[0] == n and C.Hd.shape[1] == slots):
+        return C.Hd, C.Hi, C.rnear
+    Hi = np.zeros((n, slots)) if thi[TI_INDIRECT] >= 0 else C.Hi
+    rnear = np.zeros((n, slots), np.uint8) if thi[TI_RAD] >= 0 else C.rnear
+    return np.zeros((n, slots)), Hi, rnear
+
+
+@njit(cache=True, error_model="numpy")
+def rebuild(P, C, W, prm, n, nown, glo, ghi, gwrap, t, slots, carry, hon):
+    """Phase "rebuild": the half neighbour list of rows [0, nown) over rows [0, n) (the rest
+    are ghosts) with the cell grid over [glo, ghi] (wrapped on ``gwrap``), the wall candidate
+    lists, the per-slot heat arrays, the local porosity (when measured) and the build
+    position and time. ``carry``: the contact history is carried over from ``C`` (same rows:
+    a serial rebuild); otherwise it starts empty (a first build, or after an exchange with
+    other ranks, where dem.parallel.records brings it back). Returns (new Pairs, largest count)."""
+    fp = prm.fp
+    ip = prm.ip
+    thi = prm.thi
+    heat = hon is not None and thi[TI_HEAT] != 0
+    x = P.position
+    if carry:
+        nb, nnb, hist, rhist, age, maxc = build_half_list(
+            x, P.radius, n, nown, prm.lo, prm.hi, prm.periodic, glo, ghi, gwrap, fp[F_REACH], fp[F_SKIN],
+            slots, C.nb, C.nnb, C.hist, C.rhist, C.age)
+    else:
+        nb, nnb, hist, rhist, age, maxc = build_half_list(
+            x, P.radius, n, nown, prm.lo, prm.hi, prm.periodic, glo, ghi, gwrap, fp[F_REACH], fp[F_SKIN],
+            slots, np.zeros((0, 1), np.int32), np.zeros(0, np.int32), np.zeros((0, 1, 3)), np.zeros((0, 1, 3)),
+            np.zeros((0, 1, 2)))
+        if ip[I_ROLLING] == 2:
+            rhist = np.zeros(hist.shape)
+        if heat and thi[TI_AGE] != 0:
+            age = np.zeros((nb.shape[0], nb.shape[1], 2))
+    build_wall_list(x, P.radius, nown, W.wf, W.wi, ip[I_NWALLS], fp[F_REACH] + fp[F_SKIN], t, P.wnb, P.wnn,
+                    P.whist, P.wrhist)
+    for i in range(nown, n):
+        P.wnn[i] = 0
+    Hd, Hi, rnear = _slot_arrays(n, nb.shape[1], C, heat, thi)
+    C = Pairs(nb, nnb, hist, rhist, age, Hd, Hi, rnear)
+    if heat and thi[TI_LOCALPOR] == 1:
+        local_porosity(n, x, P.radius, nb, nnb, prm.lo, prm.hi, prm.periodic, fp[F_REACH], W.wf, W.wi, P.wnb,
+                       P.wnn, t, P.por, 0.2)
+    xb = P.x_build
+    for i in range(nown):
+        for k in range(3):
+            xb[i, k] = x[i, k]
+    fp[F_TBUILD] = t
+    return C, maxc
+
+
+@njit(cache=True, error_model="numpy")
+def kick_guard(P, prm, nown, maxov, who_i, who_j):
+    """Phase "kick" and the mechanical guards: second half kick of the owned rows, then
+    (status, particle, other, value): NONFINITE (a non-finite velocity), OVERLAP (the largest
+    overlap ratio of the force evaluation above simulation.max_overlap_ratio) or OK."""
+    bad = kick(nown, P.velocity, P.angular_velocity, P.force, P.torque, P.inv_mass, P.inv_inertia,
+               prm.fp[F_DT])
+    if bad >= 0:
+        return NONFINITE, bad, -1, 0.0
+    if maxov > prm.fp[F_MAXOV]:
+        return OVERLAP, who_i, who_j, maxov
+    return OK, -1, -1, 0.0
+
+
+@njit(cache=True, error_model="numpy")
+def heat_phase(P, C, W, TB, prm, n, nown, t):
+    """Phase "heat": one thermal step of the owned rows on the conductances of the force
+    evaluation (dem.thermal.heat.heat_step); (BAD_TEMPERATURE, particle, value) or (OK, -1, 0)."""
+    badt = heat_step(P, C, W, TB, prm, n, nown, prm.fp[F_DT], t)
+    if badt >= 0:
+        return BAD_TEMPERATURE, badt, P.temperature[badt]
+    return OK, -1, 0.0
+
+
+@njit(cache=True, error_model="numpy")
+def advance(nsteps, s0, n, P, C, W, TB, prm, hon):
+    """Advance ``nsteps`` steps from step number s0, time s0 dt (the forces of that time are in
+    P.force, P.torque), composing the phases of one step: drift, rebuild (when due), interact
+    (compute_forces), kick + guards, heat. Step k ends at time (s0 + k) dt, computed from the
+    step number alone, so that splitting a run into calls of any length gives the same
+    arithmetic (bit-identical results). A run on several ranks calls the same phases from
+    dem.simulation with the ghost messages between them.
+
+    Mechanics off (frozen packing): only the heat phase, on the conductances computed once.
+    Returns (steps done, status, particle, other (j, or -1-wall), value, contacts, rebuilds,
+    Pairs): the neighbour arrays may have been reallocated.
     """
-    dt = fp[F_DT]
-    skin = fp[F_SKIN]
-    maxov_bound = fp[F_MAXOV]
     nreb = 0
     ncont = 0
-    nwalls = ip[I_NWALLS]
-    mech = ip[I_MECH] != 0
-    thi = TH[H_THI]
-    heat = hon is not None and thi[TI_HEAT] != 0
-    local_por = thi[TI_LOCALPOR] == 1
+    mech = prm.ip[I_MECH] != 0
+    heat_on = hon is not None and prm.thi[TI_HEAT] != 0
     for step in range(nsteps):
-        t = (s0 + step + 1) * dt
+        t = (s0 + step + 1) * prm.fp[F_DT]
         if mech:
-            maxd2 = kick_drift(n, x, v, w, f, tq, inv_m, inv_i, xb, lo, hi, periodic, dt)
-            if math.sqrt(maxd2) + fp[F_VWALL] * (t - fp[F_TBUILD]) > 0.5 * skin:
-                for i in range(n):
-                    for k in range(3):
-                        if not periodic[k] and (x[i, k] < lo[k] or x[i, k] > hi[k]):
-                            return (step + 1, LEFT_DOMAIN, i, -1, x[i, k], ncont, nreb,
-                                    nb, nnb, hist, rhist, age, Hd, Hi, rnear)
-                nb, nnb, hist, rhist, age, _ = build_half_list(
-                    x, r, n, n, lo, hi, periodic, lo, hi, periodic, fp[F_REACH], skin, nb.shape[1],
-                    nb, nnb, hist, rhist, age)
-                build_wall_list(x, r, n, wf, wi, nwalls, fp[F_REACH] + skin, t, wnb, wnn, whist, wrhist)
-                if heat:
-                    Hd, Hi, rnear = heat_slot_arrays(n, nb.shape[1], Hd, Hi, rnear)
-                    if local_por:
-                        local_porosity(n, x, r, nb, nnb, lo, hi, periodic, fp[F_REACH], wf, wi, wnb, wnn,
-                                       t, TH[H_POR], 0.2)
-                xb[:n] = x[:n]
-                fp[F_TBUILD] = t
+            if drift(P, prm, n, t):
+                i, k = outside(P, prm, n)
+                if i >= 0:
+                    return step + 1, LEFT_DOMAIN, i, -1, P.position[i, k], ncont, nreb, C
+                C, _ = rebuild(P, C, W, prm, n, n, prm.lo, prm.hi, prm.periodic, t, C.nb.shape[1], True, hon)
                 nreb += 1
-            maxov, wi_, wj_, ncont = compute_forces(
-                n, x, v, w, r, m, mat, f, tq, fext, nb, nnb, hist, rhist,
-                wf, wi, wnb, wnn, whist, wrhist, tab, ip, fp, lo, hi, periodic, t,
-                age, Hd, Hi, rnear, TH, hon)
-            bad = kick(n, v, w, f, tq, inv_m, inv_i, dt)
-            if bad >= 0:
-                return (step + 1, NONFINITE, bad, -1, 0.0, ncont, nreb, nb, nnb, hist, rhist, age, Hd, Hi, rnear)
-            if maxov > maxov_bound:
-                return (step + 1, OVERLAP, wi_, wj_, maxov, ncont, nreb, nb, nnb, hist, rhist, age, Hd, Hi, rnear)
-        if heat:
-            badt = heat_step(n, n, dt, t, TH[H_T], TH[H_CINV], TH[H_Q], v, r, x, mat, nb, nnb, Hd, Hi, rnear,
-                             wnb, wnn, TH[H_HW], TH[H_WTH], TH[H_WTAB], TH[H_TF], TH[H_UF], TH[H_POR],
-                             TH[H_QGEN], TH[H_QSRC], TH[H_SRCBOX], TH[H_TMAT], TH[H_GAS], thi,
-                             TH[H_TOT], TH[H_WTOT], TH[H_WORK])
-            if badt >= 0:
-                return (step + 1, BAD_TEMPERATURE, badt, -1, TH[H_T][badt], ncont, nreb, nb, nnb, hist, rhist,
-                        age, Hd, Hi, rnear)
-    return nsteps, OK, -1, -1, 0.0, ncont, nreb, nb, nnb, hist, rhist, age, Hd, Hi, rnear
+            maxov, wi_, wj_, ncont = compute_forces(P, C, W, TB, prm, n, t, hon)
+            status, who, other, value = kick_guard(P, prm, n, maxov, wi_, wj_)
+            if status != OK:
+                return step + 1, status, who, other, value, ncont, nreb, C
+        if heat_on:
+            status, who, value = heat_phase(P, C, W, TB, prm, n, n, t)
+            if status != OK:
+                return step + 1, status, who, -1, value, ncont, nreb, C
+    return nsteps, OK, -1, -1, 0.0, ncont, nreb, C

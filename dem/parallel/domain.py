@@ -17,11 +17,7 @@ import numpy as np
 
 from .decomposition import Decomposition
 from . import records as R
-
-GHOST_FIELDS = ("state.id", "state.position", "state.velocity", "state.angular_velocity",
-                "state.radius", "state.mass", "state.inv_mass", "state.inv_inertia",
-                "state.material", "state.group", "state.temperature", "state.inv_heat_capacity",
-                "th.por")
+from .. import schema as S
 
 
 class ParallelError(RuntimeError):
@@ -45,7 +41,6 @@ class ParallelDomain:
         self.rebalances = 0
         self.migrated = 0
         self.sort_pending = False
-        self.absent = set()  # per-particle arrays this run does not use (select_initial)
         self.imbalance = 1.0
         self._bufs = {}
 
@@ -70,33 +65,29 @@ class ParallelDomain:
         return self.comm.gather(obj, root=0)
 
     # ------------------------------------------------------------------ arrays
-    def _present(self, reg):
-        """(name, obj, attr, array) of the per-particle arrays this run uses. An array the run
-        does not use is a zero-row placeholder whatever the particle count (found once, when
-        every rank holds the whole scene): it is never cut, sent or padded, so a rank that
-        owns no particle (zero rows everywhere) keeps the same arrays as the others."""
-        for name, (obj, attr) in reg.items():
-            a = getattr(obj, attr)
-            if a is not None and name not in self.absent:
-                yield name, obj, attr, a
+    @staticmethod
+    def _moving(st):
+        """(name, array) of the per-particle arrays that travel with a particle (dem.schema
+        ``migrate``) and that this run enables: the disabled ones are empty arrays on every
+        rank, never cut, sent or padded, whatever the particles a rank owns."""
+        for f in S.of("particle"):
+            if f.migrate and S.enabled(f, st.features):
+                yield f.name, getattr(st, f.name)
 
-    def _take(self, reg, rows):
-        for _name, obj, attr, a in self._present(reg):
-            setattr(obj, attr, np.ascontiguousarray(a[rows]))
+    def _take(self, st, rows):
+        for name, a in list(self._moving(st)):
+            setattr(st, name, np.ascontiguousarray(a[rows]))
 
     def select_initial(self, sim):
         """Every rank holds every particle of the scene at start-up: cut the boxes on a
         disjoint split (row % size) and keep the owned rows (possibly none)."""
         st = sim.state
-        reg = sim.per_particle_arrays()
-        self.absent = {name for name, (obj, attr) in reg.items()
-                       if getattr(obj, attr) is None or getattr(obj, attr).shape[0] != st.n}
         x = st.position
         part = np.arange(self.rank, st.n, self.size)
         halo = sim.halo()
         self.dec.build(self.comm, x[part], np.ones(part.size), halo)
         own = np.nonzero(self.dec.owner(x) == self.rank)[0]
-        self._take(reg, own)
+        self._take(st, own)
         st.n_owned = own.size
         st.n_ghost = 0
         self.neigh = self.dec.neighbours(self.rank, halo)
@@ -113,8 +104,7 @@ class ParallelDomain:
         err = None
         cost = 0.0
         try:
-            reg = sim.per_particle_arrays()
-            self._take(reg, np.arange(st.n_owned))
+            self._take(st, np.arange(st.n_owned))
             st.n_ghost = 0
             if weights is None:
                 weights = np.ones(st.n_owned)
@@ -124,8 +114,8 @@ class ParallelDomain:
         costs = self.comm.allgather((cost, err))
         _raise_shared([e for _, e in costs])
         self._rebalance(sim, np.array([c for c, _ in costs]), weights, halo)
-        rec = self._migrate(sim, reg, rec)
-        self._send_ghosts(sim, reg, halo)
+        rec = self._migrate(sim, rec)
+        self._send_ghosts(sim, halo)
         self.exchanges += 1
         self._bufs = {}
         return rec
@@ -144,7 +134,7 @@ class ParallelDomain:
             self.rebalances += 1
         self.neigh = self.dec.neighbours(self.rank, halo)
 
-    def _migrate(self, sim, reg, rec):
+    def _migrate(self, sim, rec):
         """Send the particles that left this rank's box to their owners, with their contact
         records; take in the particles that arrive."""
         st = sim.state
@@ -155,7 +145,7 @@ class ParallelDomain:
             leave = dest != self.rank
             for q in np.unique(dest[leave]):
                 rows = np.nonzero(dest == q)[0]
-                pkg = {name: a[rows] for name, _o, _a, a in self._present(reg)}
+                pkg = {name: a[rows] for name, a in self._moving(st)}
                 pkg["__records"] = R.involving(rec, st.id[rows]) if rec is not None else None
                 out[q] = pkg
         except Exception as exc:  # noqa: BLE001
@@ -165,19 +155,19 @@ class ParallelDomain:
         inc = [p for p in inc if p is not None]
         keep = np.nonzero(~leave)[0]
         self.migrated += int(leave.sum())
-        for name, obj, attr, a in self._present(reg):
+        for name, a in list(self._moving(st)):
             parts = [a[keep]] + [p[name] for p in inc]
-            setattr(obj, attr, np.ascontiguousarray(np.concatenate(parts)))
+            setattr(st, name, np.ascontiguousarray(np.concatenate(parts)))
         if rec is not None:
             rec = R.concat([rec] + [p["__records"] for p in inc])
         st.n_owned = st.id.shape[0]
         if self.sort_pending:  # spatial sort of the owned rows (cache locality)
             from ..neighbors import sort_permutation
-            self._take(reg, sort_permutation(st.position, sim.lo, sim.hi, sim.halo()))
+            self._take(st, sort_permutation(st.position, sim.lo, sim.hi, sim.halo()))
             self.sort_pending = False
         return rec
 
-    def _send_ghosts(self, sim, reg, halo):
+    def _send_ghosts(self, sim, halo):
         """Send every neighbour rank this rank's particles within one halo of its box
         (shifted by the periodic image nearest to it); append the ghosts received."""
         st = sim.state
@@ -185,14 +175,13 @@ class ParallelDomain:
         self.sends = []
         out = [None] * self.size
         try:
-            present = {name: a for name, _o, _a, a in self._present(reg)}
+            ghost = {name: a for name, a in self._moving(st) if S.BY_NAME[name].ghost}
             for q in self.neigh:
                 d, shift = self.dec.box_distance(st.position, q)
                 rows = np.nonzero(d < halo)[0]
                 sh = np.ascontiguousarray(shift[rows])
                 self.sends.append((q, rows, sh))
-                out[q] = {name: (present[name][rows] + sh if name == "state.position" else present[name][rows])
-                          for name in GHOST_FIELDS if name in present}
+                out[q] = {name: (a[rows] + sh if name == "position" else a[rows]) for name, a in ghost.items()}
         except Exception as exc:  # noqa: BLE001
             out = [{"__error": self._error_text(sim, exc, "packing the ghosts")}] * self.size
         inc = self.comm.alltoall(out)
@@ -202,16 +191,16 @@ class ParallelDomain:
         got = []
         for q in self.neigh:
             pkg = inc[q]
-            cnt = pkg["state.id"].shape[0]
+            cnt = pkg["id"].shape[0]
             self.recvs.append((q, off, cnt))
             off += cnt
             got.append(pkg)
-        for name, obj, attr, a in self._present(reg):
-            if name in GHOST_FIELDS:
+        for name, a in list(self._moving(st)):
+            if S.BY_NAME[name].ghost:
                 parts = [a] + [p[name] for p in got]
             else:
                 parts = [a, np.zeros((off - nown,) + a.shape[1:], a.dtype)]
-            setattr(obj, attr, np.ascontiguousarray(np.concatenate(parts)))
+            setattr(st, name, np.ascontiguousarray(np.concatenate(parts)))
         st.n_ghost = off - nown
 
     def _error_text(self, sim, exc, doing):
@@ -235,15 +224,14 @@ class ParallelDomain:
         """Copy the owners' current values into the ghost rows."""
         from mpi4py import MPI
         st = sim.state
+        want = {"motion": motion, "temperature": temperature, "porosity": porosity, "rate": rate}
         cols = []
-        if motion:
-            cols += [(st.position, 3, True), (st.velocity, 3, False), (st.angular_velocity, 3, False)]
-        if temperature:
-            cols.append((st.temperature, 1, False))
-        if porosity:
-            cols.append((sim.thermal.por, 1, False))
-        if rate:  # cross-rank conductance rates of the exponential heat update
-            cols.append((sim.thermal.work[:, 1], 1, False))
+        for f in S.of("particle"):  # the arrays declared with that forward message (dem.schema)
+            if f.forward and want[f.forward]:
+                a = getattr(st, f.name)
+                if f.forward == "rate":  # cross-rank conductance rates of the exponential heat update
+                    a = a[:, 1]
+                cols.append((a, f.shape(0)[1] if len(f.tail) else 1, f.name == "position"))
         nf = sum(c[1] for c in cols)
         if nf == 0 or not self.neigh:
             return 0

@@ -8,28 +8,35 @@ pair up by key and takes the record back with the orientation of its row.
 """
 import numpy as np
 
-FIELDS = ("a", "b", "hist", "rhist", "age")
+from .. import schema as S
+
+# the history arrays declared with a record in dem.schema, and their parity
+HISTORY = tuple(f for f in S.FIELDS if f.owner == "pair" and f.record)
+FIELDS = ("a", "b") + tuple(f.name for f in HISTORY)
 
 
-def extract(ids, nb, nnb, hist, rhist, age):
-    """Records of every slot holding history (a contact, or a rolling spring/age)."""
-    S = nb.shape[1]
+def extract(st):
+    """Records of every slot holding history (a contact, or a rolling spring/age) of the
+    state ``st`` (dem.state.State)."""
+    nb, nnb = st.nb, st.nnb
+    S_ = nb.shape[1]
     rows = nnb.shape[0]
-    valid = np.arange(S)[None, :] < nnb[:, None]
-    act = np.any(hist[:rows] != 0.0, axis=2)
-    rolling = rhist.shape[0] > 0
-    has_age = age.shape[0] > 0
-    if rolling:
-        act |= np.any(rhist[:rows] != 0.0, axis=2)
-    if has_age:
-        act |= age[:rows, :, 0] != 0.0
+    valid = np.arange(S_)[None, :] < nnb[:, None]
+    act = np.zeros(valid.shape, bool)
+    present = [f for f in HISTORY if getattr(st, f.name).shape[0]]
+    for f in present:
+        a = getattr(st, f.name)[:rows]
+        act |= (a[:, :, 0] != 0.0) if f.record == "even" else np.any(a != 0.0, axis=2)
     i, s = np.nonzero(valid & act)
     j = nb[i, s]
-    gi = ids[i]
-    gj = ids[j]
+    gi = st.id[i]
+    gj = st.id[j]
     sign = np.where(gi < gj, 1.0, -1.0)[:, None]
-    return dict(a=np.minimum(gi, gj), b=np.maximum(gi, gj), hist=hist[i, s] * sign,
-                rhist=rhist[i, s] * sign if rolling else None, age=age[i, s] if has_age else None)
+    out = dict(a=np.minimum(gi, gj), b=np.maximum(gi, gj))
+    for f in HISTORY:
+        a = getattr(st, f.name)
+        out[f.name] = None if f not in present else (a[i, s] * sign if f.record == "odd" else a[i, s])
+    return out
 
 
 def concat(parts):
@@ -50,12 +57,13 @@ def involving(rec, ids):
     return subset(rec, np.isin(rec["a"], ids) | np.isin(rec["b"], ids))
 
 
-def restore(rec, ids, nb, nnb, hist, rhist, age, key_base):
-    """Fill the history slots of a freshly built list from the records."""
+def restore(rec, st, key_base):
+    """Fill the history slots of a freshly built list of the state ``st`` from the records."""
     if rec is None or rec["a"].size == 0:
         return 0
-    S = nb.shape[1]
-    valid = np.arange(S)[None, :] < nnb[:, None]
+    nb, nnb, ids = st.nb, st.nnb, st.id
+    S_ = nb.shape[1]
+    valid = np.arange(S_)[None, :] < nnb[:, None]
     i, s = np.nonzero(valid)
     j = nb[i, s]
     gi = ids[i]
@@ -70,9 +78,8 @@ def restore(rec, ids, nb, nnb, hist, rhist, age, key_base):
     src = order[posc[found]]
     i, s = i[found], s[found]
     sign = np.where(gi[found] < gj[found], 1.0, -1.0)[:, None]
-    hist[i, s] = rec["hist"][src] * sign
-    if rhist.shape[0] and rec["rhist"] is not None:
-        rhist[i, s] = rec["rhist"][src] * sign
-    if age.shape[0] and rec["age"] is not None:
-        age[i, s] = rec["age"][src]
+    for f in HISTORY:
+        a = getattr(st, f.name)
+        if a.shape[0] and rec.get(f.name) is not None:
+            a[i, s] = rec[f.name][src] * sign if f.record == "odd" else rec[f.name][src]
     return int(found.sum())

@@ -58,8 +58,7 @@ def wall_temperature(wth, wtab, w, t):
 
 
 @njit(cache=True, error_model="numpy")
-def heat_step(n, nown, dt, t, T, cinv, Q, v, r, x, mat, nb, nnb, Hd, Hi, rnear, wnb, wnn, Hw, wth, wtab,
-              tf, uf, por, qgen, qsrc, srcbox, tmat, gas, thi, tot, wtot, work):
+def heat_step(P, C, W, TB, prm, n, nown, dt, t):
     """Advance the temperatures of rows [0, nown) by dt (rows [nown, n) are ghosts: another
     rank advances them). Q receives the net heat rate of each particle (W).
 
@@ -69,7 +68,14 @@ def heat_step(n, nown, dt, t, T, cinv, Q, v, r, x, mat, nb, nnb, Hd, Hi, rnear, 
     start-of-step temperatures, phi = (1 - exp(-lam dt)) / lam with lam the larger of the
     two particles' cross-rank rates lam_i = sum_cross H / C_i (work[:, 1], filled for ghosts
     by the caller): both ranks compute the same e (conservative), phi -> dt for small steps,
-    and for any step each particle moves by a convex combination (bounded)."""
+    and for any step each particle moves by a convex combination (bounded).
+    P, C, W, TB, prm: the bundles of dem.schema (particles, pairs, walls, tables, parameters)."""
+    T, cinv, Q, v, r, x, mat = (P.temperature, P.inv_heat_capacity, P.heat_rate, P.velocity, P.radius,
+                                P.position, P.material)
+    wnb, wnn, Hw, tf, uf, por, qgen, qsrc, work = P.wnb, P.wnn, P.Hw, P.tf, P.uf, P.por, P.qgen, P.qsrc, P.work
+    nb, nnb, Hd, Hi, rnear = C.nb, C.nnb, C.Hd, C.Hi, C.rnear
+    wth, wtab, wtot, tmat, gas = W.wth, W.wtab, W.wtot, TB.tmat, TB.gas
+    thi, tot, srcbox = prm.thi, prm.tot, prm.srcbox
     integ = thi[TI_INTEG]
     has_ind = Hi.shape[0] == n
     conv = thi[TI_CONV]

@@ -18,13 +18,29 @@ INTEGRAL_INDIRECT = ("cheng_1999_voronoi_a", "gan_2016_voronoi_a", "rong_horio_1
                      "musser_2011_surrounding_layer")
 
 
+def no_heat_tables(st):
+    """The tables and parameters of a scene without heat (dem.schema rows of owner wall, table
+    and param): tiny arrays of the types a scene with heat has, so one kernel serves both."""
+    nw = st.walls
+    thi = np.full(NTI, -1, np.int64)
+    thi[TI_HEAT] = 0
+    st.thi, st.thf, st.tmat, st.gas = thi, np.zeros(NTF), np.zeros((1, R.N_TPROP)), np.zeros(R.N_GAS)
+    st.ereal, st.keff = np.zeros((1, 1)), np.zeros((1, 1))
+    st.wth, st.wtab, st.wtot = np.zeros((nw, 4)), np.zeros((nw, 1, 2)), np.zeros(nw)
+    st.srcbox, st.tot = np.zeros((0, 7)), np.zeros(NTOT)
+
+
 class ThermalModel:
-    def __init__(self, sim):
-        self.sim = sim
-        sc = sim.scene
+    """The thermal configuration of a run: switches, tables, reports and output columns. The
+    arrays themselves live in the run's state (dem.state.State, declared in dem.schema)."""
+
+    def __init__(self, scene, state):
+        self.scene = scene
+        sc = scene
         th = sc.thermal
         self.cfg = th
-        st = sim.state
+        st = state
+        self.state = state
         n = st.n
         mats = [dict((k, m[k]) for k in R.MATERIAL_KEYS if k in m) for m in sc.materials]
         self.tmat, self.gas, _ = R.build_tables(mats, th["gas"])
@@ -89,14 +105,6 @@ class ThermalModel:
             if w["table"] is not None:
                 wth[k, WT_NTAB] = len(w["table"])
                 wtab[k, :len(w["table"])] = w["table"]
-        self.wth, self.wtab = wth, wtab
-        self.Hw = np.zeros((n, nw))
-        self.por = np.full(n, self.gas[R.POROSITY_GLOBAL])
-        self.qgen = np.zeros(n) if thi[TI_FRIC] >= 0 else np.zeros(0)
-        self.wage = np.zeros((n, nw, 2)) if self.needs_age else np.zeros((0, 1, 2))
-        tf = self.gas[R.T_F] if math.isfinite(self.gas[R.T_F]) else 0.0
-        self.tf = np.full(n, tf)
-        self.uf = np.tile(th["gas_velocity"], (n, 1))
         qsrc = np.zeros(n)
         boxes = []
         for s in th["sources"]:
@@ -104,64 +112,61 @@ class ThermalModel:
                 qsrc[st.group == s["group"]] += s["power"]
             else:
                 boxes.append(list(s["min"]) + list(s["max"]) + [s["power_density"]])
-        self.qsrc = qsrc if np.any(qsrc != 0) else np.zeros(0)
-        self.srcbox = np.array(boxes, float).reshape(-1, 7)
-        self.tot = np.zeros(NTOT)
-        self.wtot = np.zeros(nw)
-        self.work = np.zeros((n, 3))
+        st.enable(heat=True, contact_age=self.needs_age, friction_heat=bool(thi[TI_FRIC] >= 0),
+                  group_sources=bool(np.any(qsrc != 0)), indirect=bool(thi[TI_INDIRECT] >= 0),
+                  radiation=bool(thi[TI_RAD] >= 0))
+        st.wth, st.wtab, st.wtot = wth, wtab, np.zeros(nw)
+        st.thi, st.thf, st.tmat, st.gas, st.ereal, st.keff = thi, thf, self.tmat, self.gas, self.ereal, self.keff
+        st.srcbox, st.tot = np.array(boxes, float).reshape(-1, 7), np.zeros(NTOT)
+        st.por[:] = self.gas[R.POROSITY_GLOBAL]
+        st.tf[:] = self.gas[R.T_F] if math.isfinite(self.gas[R.T_F]) else 0.0
+        st.uf[:] = th["gas_velocity"]
+        if st.qsrc.shape[0]:
+            st.qsrc[:] = qsrc
         self.E0 = None
 
-    # -------------------------------------------------------------- kernel data
-    def th_tuple(self):
-        st = self.sim.state
-        return (self.thi, self.thf, self.tmat, self.gas, self.ereal, self.Hw, self.wth, self.wtab,
-                self.por, self.qgen, self.wage, st.temperature, st.inv_heat_capacity, st.heat_rate,
-                self.tf, self.uf, self.qsrc, self.srcbox, self.tot, self.wtot, self.work, self.keff)
+    # -------------------------------------------------------------- run totals
+    @property
+    def tot(self):
+        """Heat per mechanism since the start (J; dem.thermal.heat E_*)."""
+        return self.state.tot
 
-    def slot_arrays(self, slots):
-        n = self.sim.state.n
-        Hd = np.zeros((n, slots))
-        Hi = np.zeros((n, slots)) if self.thi[TI_INDIRECT] >= 0 else np.zeros((0, 1))
-        rn = np.zeros((n, slots), np.uint8) if self.thi[TI_RAD] >= 0 else np.zeros((0, 1), np.uint8)
-        return Hd, Hi, rn
+    @property
+    def wtot(self):
+        """Heat through each wall since the start (J)."""
+        return self.state.wtot
 
-    def update_porosity(self):
+    @property
+    def wth(self):
+        return self.state.wth
+
+    def update_porosity(self, time):
+        """Local (or Voronoi) porosity of every particle at ``time`` (after a build or a sort)."""
         if not self.local_porosity:
             return
-        s = self.sim
-        st = s.state
-        local_porosity(st.n, st.position, st.radius, s.nb, s.nnb, s.lo, s.hi, s.periodic, self.reach,
-                       s.wf, s.wi, s.wnb, s.wnn, s.time, self.por, 0.2)
+        st = self.state
+        local_porosity(st.n, st.position, st.radius, st.nb, st.nnb, st.lo, st.hi, st.periodic, self.reach,
+                       st.wf, st.wi, st.wnb, st.wnn, time, st.por, 0.2)
         if self.voronoi:
             from .voronoi import voronoi_porosity
-            pv = voronoi_porosity(st.position, st.radius, s.lo, s.hi)
+            pv = voronoi_porosity(st.position, st.radius, st.lo, st.hi)
             ok = np.isfinite(pv)
-            self.por[ok] = np.clip(pv[ok], 0.2, 1.0)
+            st.por[ok] = np.clip(pv[ok], 0.2, 1.0)
 
     def convection_h(self):
         """Per-particle convective conductance h A (W/K) with the current fluid data."""
         from .heat import convection_conductances
-        st = self.sim.state
+        st = self.state
         out = np.zeros(st.n)
         if self.thi[TI_CONV] >= 0:
-            convection_conductances(st.n, st.velocity, st.radius, self.uf, self.por, self.gas,
+            convection_conductances(st.n, st.velocity, st.radius, st.uf, st.por, self.gas,
                                     int(self.thi[TI_CONV]), out)
         return out
-
-    def permute(self, perm):
-        for name in ("Hw", "por", "tf", "uf"):
-            setattr(self, name, np.ascontiguousarray(getattr(self, name)[perm]))
-        if self.qgen.shape[0]:
-            self.qgen = np.ascontiguousarray(self.qgen[perm])
-        if self.qsrc.shape[0]:
-            self.qsrc = np.ascontiguousarray(self.qsrc[perm])
-        if self.wage.shape[0]:
-            self.wage = np.ascontiguousarray(self.wage[perm])
 
     # -------------------------------------------------------------- reports
     def critical_step(self):
         """Thermal critical step rho c R / k of the particles (smallest), ref 002."""
-        st = self.sim.state
+        st = self.state
         k = self.tmat[st.material, R.K_COND]
         rho = self.tmat[st.material, R.DENSITY]
         c = self.tmat[st.material, R.CP]
@@ -169,41 +174,41 @@ class ThermalModel:
 
     def network_limit(self):
         """Euler stability limit of the conduction network: min_i C_i / sum_j H_ij."""
-        s = self.sim
-        st = s.state
+        st = self.state
         hsum = np.zeros(st.n)
-        H = s.Hd + (s.Hi if s.Hi.shape[0] == st.n else 0.0)
-        mask = np.arange(H.shape[1])[None, :] < s.nnb[:, None]
+        H = st.Hd + (st.Hi if st.Hi.shape[0] == st.n else 0.0)
+        mask = np.arange(H.shape[1])[None, :] < st.nnb[:, None]
         H = np.where(mask, H, 0.0)
         np.add.at(hsum, np.repeat(np.arange(st.n), H.shape[1]), H.ravel())
-        np.add.at(hsum, s.nb.ravel()[mask.ravel()], H.ravel()[mask.ravel()])
-        wmask = (np.arange(self.Hw.shape[1])[None, :] < s.wnn[:, None]) & (self.wth[s.wnb, WT_COND] == 1.0)
-        hsum += (self.Hw * wmask).sum(1)
+        np.add.at(hsum, st.nb.ravel()[mask.ravel()], H.ravel()[mask.ravel()])
+        wmask = (np.arange(st.Hw.shape[1])[None, :] < st.wnn[:, None]) & (st.wth[st.wnb, WT_COND] == 1.0)
+        hsum += (st.Hw * wmask).sum(1)
         C = 1.0 / st.inv_heat_capacity
         with np.errstate(divide="ignore"):
             lim = np.where(hsum > 0, C / hsum, np.inf)
         return float(lim.min())
 
-    def check(self):
-        s = self.sim
-        st = s.state
+    def check(self, dt, compute_forces):
+        """Thermal time-step report and warnings; ``compute_forces()`` evaluates the
+        conductances of every slot at the current state (the network limit needs them)."""
+        st = self.state
         rep = {}
         tcrit = self.critical_step()
         rep["thermal_critical_step"] = tcrit
-        rep["thermal_step"] = s.dt
-        rep["thermal_step_ratio"] = s.dt / tcrit
+        rep["thermal_step"] = dt
+        rep["thermal_step_ratio"] = dt / tcrit
         warnings = []
         # conductances stored per slot (the fused Euler path does not store them)
         fused = self.thi[TI_FUSED]
-        saved = (self.tot.copy(), self.wtot.copy(), st.heat_rate.copy())
+        saved = (self.tot.copy(), self.wtot.copy(), st.heat_rate.copy(), st.force.copy(), st.torque.copy())
         self.thi[TI_FUSED] = 0
-        s._compute_forces()
+        compute_forces()
         self.thi[TI_FUSED] = fused
-        self.tot[:], self.wtot[:], st.heat_rate[:] = saved
+        self.tot[:], self.wtot[:], st.heat_rate[:], st.force[:], st.torque[:] = saved
         lim = self.network_limit()
         rep["network_step_limit"] = lim
-        if self.cfg["integrator"] == "euler" and s.dt > lim:
-            warnings.append(f"euler thermal step {s.dt:.3g} s exceeds the network stability limit "
+        if self.cfg["integrator"] == "euler" and dt > lim:
+            warnings.append(f"euler thermal step {dt:.3g} s exceeds the network stability limit "
                             f"min C_i/sum H_ij = {lim:.3g} s: use thermal.integrator = \"exponential\" "
                             f"or a smaller step")
         if self.thi[TI_RAD] >= 0:
@@ -217,15 +222,15 @@ class ThermalModel:
             C = 1.0 / st.inv_heat_capacity
             rl = float(np.min(C / (4 * eps_r * SIGMA_SB * 4 * np.pi * st.radius ** 2 * tmax ** 3)))
             rep["radiation_step_limit"] = rl
-            if self.cfg["integrator"] == "euler" and s.dt > rl:
-                warnings.append(f"euler thermal step {s.dt:.3g} s exceeds the radiation limit "
+            if self.cfg["integrator"] == "euler" and dt > rl:
+                warnings.append(f"euler thermal step {dt:.3g} s exceeds the radiation limit "
                                 f"C / (4 eps sigma A T^3) = {rl:.3g} s at {tmax:.0f} K: use "
                                 f"thermal.integrator = \"exponential\" or a smaller step")
-            if self.cfg["integrator"] == "exponential" and s.dt > rl:
+            if self.cfg["integrator"] == "exponential" and dt > rl:
                 from .step_error import expected_radiation_error
-                err = expected_radiation_error(s.dt / rl)
+                err = expected_radiation_error(dt / rl)
                 rep["radiation_expected_error"] = err
-                warnings.append(f"exponential thermal step {s.dt:.3g} s is {s.dt / rl:.3g} times the radiation "
+                warnings.append(f"exponential thermal step {dt:.3g} s is {dt / rl:.3g} times the radiation "
                                 f"accuracy limit {rl:.3g} s at {tmax:.0f} K: expected error up to {err:.2g} % of "
                                 f"the temperature change (measured for radiation alone, "
                                 f"benchmarks/radiation_step_error.py); lower thermal.time_step for accuracy")
@@ -233,11 +238,11 @@ class ThermalModel:
             from .convection import nusselt_gas
             g = self.gas
             kp = self.tmat[st.material, R.K_COND]
-            ur = np.linalg.norm(self.uf - st.velocity, axis=1)
+            ur = np.linalg.norm(st.uf - st.velocity, axis=1)
             bi = 0.0
             for i in range(st.n):
-                re = self.por[i] * g[R.RHO_F] * ur[i] * 2 * st.radius[i] / g[R.MU_F]
-                nu = nusselt_gas(int(self.thi[TI_CONV]), re, g[R.PR], self.por[i], g)
+                re = st.por[i] * g[R.RHO_F] * ur[i] * 2 * st.radius[i] / g[R.MU_F]
+                nu = nusselt_gas(int(self.thi[TI_CONV]), re, g[R.PR], st.por[i], g)
                 h = nu * g[R.KF] / (2 * st.radius[i])
                 bi = max(bi, h * st.radius[i] / kp[i])
             rep["biot_max"] = bi
@@ -275,24 +280,24 @@ class ThermalModel:
                 why = f"thermal.{key} = 'none'"
                 if key == "friction_heat" and name != "none":
                     why = "mechanics frozen: no sliding"
-                if key in ("indirect", "convection") and "gas" not in self.sim.scene.raw:
+                if key in ("indirect", "convection") and "gas" not in self.scene.raw:
                     why += " (no [gas] section)"
                 skipped.append(f"{label}: {why}")
         if len(self.cfg["sources"]):
             runs.append(f"heat sources: {len(self.cfg['sources'])}")
         for k, w in enumerate(self.cfg["walls"]):
-            runs.append(f"wall {self.sim.scene.walls[k]['name']}: {w['condition']}")
+            runs.append(f"wall {self.scene.walls[k]['name']}: {w['condition']}")
         return runs, skipped
 
     # -------------------------------------------------------------- output
     def history_columns(self):
         cols = ["thermal_energy", "T_mean", "T_min", "T_max"]
         cols += [f"E_{m}" for m in MECHANISMS]
-        cols += [f"E_wall_{w['name']}" for w in self.sim.scene.walls]
+        cols += [f"E_wall_{w['name']}" for w in self.scene.walls]
         return cols
 
     def history_row(self):
-        st = self.sim.state
+        st = self.state
         n = st.n_owned
         C = 1.0 / st.inv_heat_capacity[:n]
         T = st.temperature[:n]
@@ -300,14 +305,6 @@ class ThermalModel:
                    T_max=float(T.max()))
         for k, m in enumerate(MECHANISMS):
             row[f"E_{m}"] = float(self.tot[k])
-        for k, w in enumerate(self.sim.scene.walls):
+        for k, w in enumerate(self.scene.walls):
             row[f"E_wall_{w['name']}"] = float(self.wtot[k])
         return row
-
-    def checkpoint_arrays(self):
-        return dict(th_Hw=self.Hw, th_por=self.por, th_qgen=self.qgen, th_wage=self.wage, th_tot=self.tot,
-                    th_wtot=self.wtot, th_tf=self.tf, th_uf=self.uf, th_qsrc=self.qsrc)
-
-    def load_checkpoint(self, z):
-        for k in ("Hw", "por", "qgen", "wage", "tot", "wtot", "tf", "uf", "qsrc"):
-            setattr(self, k, np.ascontiguousarray(z["th_" + k]))

@@ -1,0 +1,182 @@
+"""The declared state: one row per array of a run, and the bundles the kernels take.
+
+Every array a run holds is declared here once, with what it needs:
+
+* ``owner``: ``particle`` (one row per particle, owned rows then ghosts; trailing axes may be
+  per wall: ``W``), ``pair`` (one row per particle, one column per neighbour slot ``S``,
+  aligned with the half neighbour list ``nb``), ``wall`` (one row per wall), ``table``
+  (material and gas tables), ``param`` (switches, scalars, run totals);
+* ``dtype`` and ``tail`` (the shape after the first axis: numbers, ``"W"`` = max(walls, 1),
+  ``"S"`` = neighbour slots, None = set by the scene);
+* ``when``: the feature that enables it (see :func:`features`); a disabled array is an empty
+  array of the same dtype and number of axes (zero rows), so every scene gives the kernels
+  the same types and one cached kernel serves them all;
+* ``ghost`` (copied to the neighbouring ranks' ghost rows at each exchange), ``forward``
+  (refreshed in the ghosts every step: which message), ``sort`` (permuted by the spatial
+  sort), ``migrate`` (travels with a particle to another rank), ``checkpoint`` (the key it is
+  saved under; the keys of checkpoint format 1), ``scratch`` (contents need not survive a
+  reordering: left as it is), ``output`` (its name in VTK output and ``final.npz``),
+  ``record`` (contact history that survives a rebuild on another rank or a restart on any
+  number of ranks as an id-keyed record, dem.parallel.records: ``odd`` = a vector that
+  changes sign with the pair's orientation, ``even`` = does not).
+
+Sorting, migration, ghost messages, checkpoints, restarts and output iterate over
+:data:`FIELDS`; the kernels take the named bundles :class:`Particles`, :class:`Pairs`,
+:class:`Walls`, :class:`Tables` and :class:`Params`, whose members are the rows of each owner
+in the order declared here.
+"""
+from collections import namedtuple
+
+import numpy as np
+
+F8 = np.dtype(np.float64)
+I8 = np.dtype(np.int64)
+I4 = np.dtype(np.int32)
+U1 = np.dtype(np.uint8)
+B1 = np.dtype(np.bool_)
+
+
+class Field(namedtuple("Field", "name owner dtype tail when ghost forward sort migrate checkpoint "
+                                "scratch output kernel record doc")):
+    """One declared array (see the module docstring)."""
+
+    def shape(self, rows, walls=1, slots=1):
+        """Full shape for ``rows`` rows (per-wall / per-slot axes filled in)."""
+        sub = {"W": max(int(walls), 1), "S": max(int(slots), 1), None: 1}
+        return (int(rows),) + tuple(sub.get(t, t) for t in self.tail)
+
+    def empty(self):
+        """The disabled form: zero rows, same dtype and number of axes."""
+        return np.zeros(self.shape(0), self.dtype)
+
+
+def _f(name, owner, dtype, tail=(), when=None, ghost=False, forward=None, sort=None, migrate=None,
+       checkpoint=None, scratch=False, output=None, kernel=True, record=None, doc=""):
+    rows = owner in ("particle", "pair")
+    if sort is None:
+        sort = rows
+    if migrate is None:
+        migrate = owner == "particle"
+    return Field(name, owner, np.dtype(dtype), tuple(tail), when, ghost, forward, sort, migrate,
+                 checkpoint, scratch, output, kernel, record, doc)
+
+
+FIELDS = (
+    # ---------------------------------------------------------------- particles (mechanics)
+    _f("id", "particle", I8, ghost=True, checkpoint="state_id", kernel=False, output="id",
+       doc="global particle id"),
+    _f("position", "particle", F8, (3,), ghost=True, forward="motion", checkpoint="state_position",
+       output="position", doc="centre (m)"),
+    _f("velocity", "particle", F8, (3,), ghost=True, forward="motion", checkpoint="state_velocity",
+       output="velocity", doc="m/s"),
+    _f("angular_velocity", "particle", F8, (3,), ghost=True, forward="motion",
+       checkpoint="state_angular_velocity", output="angular_velocity", doc="rad/s"),
+    _f("radius", "particle", F8, ghost=True, checkpoint="state_radius", output="radius", doc="m"),
+    _f("mass", "particle", F8, ghost=True, checkpoint="state_mass", doc="kg"),
+    _f("inv_mass", "particle", F8, ghost=True, checkpoint="state_inv_mass", doc="1/kg"),
+    _f("inv_inertia", "particle", F8, ghost=True, checkpoint="state_inv_inertia",
+       doc="1 / (2/5 m R^2), 1/(kg m^2)"),
+    _f("material", "particle", I4, ghost=True, checkpoint="state_material", output="material",
+       doc="material index"),
+    _f("group", "particle", I4, ghost=True, checkpoint="state_group", kernel=False,
+       doc="insertion group (heat sources by group)"),
+    _f("force", "particle", F8, (3,), checkpoint="state_force", doc="total force of the last evaluation (N)"),
+    _f("torque", "particle", F8, (3,), checkpoint="state_torque", doc="N m"),
+    _f("x_build", "particle", F8, (3,), checkpoint="state_x_build",
+       doc="position at the last neighbour build (rebuild test)"),
+    _f("external_force", "particle", F8, (3,), when="fluid", doc="fluid force of a coupled run (N), "
+       "set by the coupling before each interval (not checkpointed: the coupling state is)"),
+    # ---------------------------------------------------------------- particles (heat)
+    _f("temperature", "particle", F8, when="heat", ghost=True, forward="temperature",
+       checkpoint="state_temperature", output="temperature", doc="K"),
+    _f("heat_rate", "particle", F8, when="heat", checkpoint="state_heat_rate", output="heat_rate",
+       doc="net heat rate of the last step (W)"),
+    _f("inv_heat_capacity", "particle", F8, when="heat", ghost=True, checkpoint="state_inv_heat_capacity",
+       doc="1 / (m c), 1/(J/K)"),
+    _f("por", "particle", F8, when="heat", ghost=True, forward="porosity", checkpoint="th_por",
+       doc="porosity around the particle (global, local, Voronoi or the CFD void fraction)"),
+    _f("qgen", "particle", F8, when="friction_heat", checkpoint="th_qgen", doc="friction heat of the step (W)"),
+    _f("tf", "particle", F8, when="heat", checkpoint="th_tf", doc="gas temperature at the particle (K)"),
+    _f("uf", "particle", F8, (3,), when="heat", checkpoint="th_uf", doc="gas velocity at the particle (m/s)"),
+    _f("qsrc", "particle", F8, when="group_sources", checkpoint="th_qsrc", doc="heat source by group (W)"),
+    _f("work", "particle", F8, (3,), when="heat", scratch=True, forward="rate",
+       doc="heat-step scratch: start temperature, cross-rank rate, explicit flux"),
+    # ---------------------------------------------------------------- particle x wall
+    _f("wnb", "particle", I4, ("W",), checkpoint="wnb", doc="walls within reach (candidate list)"),
+    _f("wnn", "particle", I4, checkpoint="wnn", doc="number of wall candidates"),
+    _f("whist", "particle", F8, ("W", 3), checkpoint="whist", doc="tangential spring per wall (m)"),
+    _f("wrhist", "particle", F8, ("W", 3), when="epsd", checkpoint="wrhist", doc="rolling spring per wall"),
+    _f("wage", "particle", F8, ("W", 2), when="contact_age", checkpoint="th_wage",
+       doc="contact age and impact speed per wall"),
+    _f("Hw", "particle", F8, ("W",), when="heat", checkpoint="th_Hw",
+       doc="wall conductance per candidate (W/K; contact area for a fixed-flux wall)"),
+    # ---------------------------------------------------------------- pairs (neighbour slots)
+    _f("nb", "pair", I4, ("S",), checkpoint="nb", doc="half neighbour list (row of the other particle)"),
+    _f("nnb", "pair", I4, checkpoint="nnb", doc="used slots of each row"),
+    _f("hist", "pair", F8, ("S", 3), checkpoint="hist", record="odd", doc="tangential spring (m)"),
+    _f("rhist", "pair", F8, ("S", 3), when="epsd", checkpoint="rhist", record="odd", doc="rolling spring"),
+    _f("age", "pair", F8, ("S", 2), when="contact_age", checkpoint="age", record="even", doc="contact age (s), impact speed"),
+    _f("Hd", "pair", F8, ("S",), when="heat", checkpoint="Hd", doc="direct conductance (W/K)"),
+    _f("Hi", "pair", F8, ("S",), when="indirect", checkpoint="Hi", doc="indirect conductance (W/K)"),
+    _f("rnear", "pair", U1, ("S",), when="radiation", checkpoint="rnear", doc="within the radiation range"),
+    # ---------------------------------------------------------------- walls
+    _f("wf", "wall", F8, (None,), doc="geometry and motion (dem.contact.walls columns)"),
+    _f("wi", "wall", I8, (None,), doc="type and material"),
+    _f("wth", "wall", F8, (4,), doc="thermal condition, temperature, flux, table length"),
+    _f("wtab", "wall", F8, (None, 2), doc="temperature table [time, T]"),
+    _f("wtot", "wall", F8, (), checkpoint="th_wtot", doc="heat through each wall since the start (J)"),
+    # ---------------------------------------------------------------- tables
+    _f("tab", "table", F8, (None, None), doc="pair tables E*, G*, damping, mu, mu_r [5, mat, mat]"),
+    _f("tmat", "table", F8, (None,), doc="thermal material table (dem.thermal.registry)"),
+    _f("gas", "table", F8, doc="gas and model parameters (dem.thermal.registry)"),
+    _f("ereal", "table", F8, (None,), doc="real effective modulus per material pair (Pa)"),
+    _f("keff", "table", F8, (None,), doc="series conductivity per material pair (W/(m K))"),
+    # ---------------------------------------------------------------- parameters
+    _f("ip", "param", I8, doc="integer switches (dem.step I_*)"),
+    _f("fp", "param", F8, doc="float parameters (dem.step F_*)"),
+    _f("thi", "param", I8, doc="thermal switches (dem.thermal.heat TI_*)"),
+    _f("thf", "param", F8, doc="thermal floats (dem.thermal.heat TF_*)"),
+    _f("lo", "param", F8, doc="domain lower corner (m)"),
+    _f("hi", "param", F8, doc="domain upper corner (m)"),
+    _f("periodic", "param", B1, doc="periodic axes"),
+    _f("srcbox", "param", F8, (7,), doc="volumetric heat-source boxes: min, max, W/m^3"),
+    _f("tot", "param", F8, checkpoint="th_tot", doc="heat per mechanism since the start (J)"),
+)
+
+BY_NAME = {f.name: f for f in FIELDS}
+
+
+def of(owner, kernel_only=False):
+    return tuple(f for f in FIELDS if f.owner == owner and (f.kernel or not kernel_only))
+
+
+def _bundle(owner, doc):
+    t = namedtuple(owner.capitalize() + "s", [f.name for f in of(owner, kernel_only=True)])
+    t.__doc__ = doc
+    return t
+
+
+Particles = _bundle("particle", "Per-particle arrays (owned rows, then ghosts) the kernels read and write.")
+Pairs = _bundle("pair", "Neighbour slots: the half list and every array aligned with it.")
+Walls = _bundle("wall", "Per-wall geometry, motion, thermal condition and totals.")
+Tables = _bundle("table", "Material-pair and gas tables.")
+Params = _bundle("param", "Switches, scalars, domain and run totals.")
+
+# what enables an array; a feature a scene does not name is off
+FEATURES = ("heat", "fluid", "epsd", "contact_age", "friction_heat", "group_sources", "indirect",
+            "radiation")
+
+
+def enabled(field, feats):
+    return field.when is None or bool(feats.get(field.when, False))
+
+
+def rows_arrays(store, feats, **flags):
+    """(field, array) of the enabled particle and pair arrays whose flags match, e.g.
+    ``sort=True``."""
+    for f in FIELDS:
+        if f.owner not in ("particle", "pair") or not enabled(f, feats):
+            continue
+        if all(getattr(f, k) == v if not isinstance(v, bool) else bool(getattr(f, k)) == v
+               for k, v in flags.items()):
+            yield f, getattr(store, f.name)
