@@ -166,17 +166,26 @@ class ArrayView:
 F8, I8, I4, U1 = np.dtype(np.float64), np.dtype(np.int64), np.dtype(np.int32), np.dtype(np.uint8)
 
 
+def _features(record):
+    """The features (dem.schema) of the run that wrote the checkpoint: recorded since the
+    declared state; derived for older checkpoints (None: either form is accepted)."""
+    if isinstance(record.get("features"), dict):
+        return {k: bool(v) for k, v in record["features"].items()}
+    thermal = record["thermal"] is not None
+    return {"heat": thermal, "epsd": record["contact"]["rolling"] == "epsd", "fluid": False}
+
+
 def validate(path, arrays, record):
-    """Every array's dtype and shape against the record (particles, walls, slots), and the
-    indices the kernels follow (neighbours, walls, materials, contact records) in range."""
-    from .state import VEC_FIELDS, SCALAR_FIELDS, THERMAL_FIELDS
+    """Every array declared in dem.schema with a checkpoint key: dtype and shape against the
+    record (particles, walls, slots, the features the run enabled), and the indices the
+    kernels follow (neighbours, walls, materials, contact records) in range."""
+    from . import schema as S
     try:
         N = int(record["particles"]["n"])
         nw = len(record["walls"])
         nmat = len(record["materials"])
-        thermal = record["thermal"] is not None
-        rolling = record["contact"]["rolling"] == "epsd"
-    except (KeyError, TypeError, ValueError):
+        feats = _features(record)
+    except (KeyError, TypeError, ValueError, AttributeError):
         raise CheckpointError(path, "checkpoint is damaged: its record lacks particles, walls or materials") \
             from None
     W1 = max(nw, 1)
@@ -201,13 +210,29 @@ def validate(path, arrays, record):
     need("forces_ready", np.dtype(np.bool_), ())
     if int(arrays["step_count"]) < 0:
         raise CheckpointError(path, "checkpoint is damaged: negative step_count")
-    for f in VEC_FIELDS:
-        need(f"state_{f}", F8, (N, 3))
-    for f in SCALAR_FIELDS:
-        need(f"state_{f}", F8, (N,))
-    ids = need("state_id", I8, (N,))
-    mat = need("state_material", I4, (N,))
-    need("state_group", I4, (N,))
+
+    def declared(owner, rows, slots=1):
+        for f in S.of(owner):
+            if not f.checkpoint:
+                continue
+            on = feats.get(f.when, None) if f.when is not None else True
+            full = f.shape(rows, W1, slots) if owner != "wall" else (W1,)
+            if owner == "param":
+                from .thermal.heat import NTOT
+                full = (NTOT,)
+            if on is None:  # an older checkpoint: either form
+                need(f.checkpoint, f.dtype, full, f.shape(0), required=False)
+            elif on:
+                need(f.checkpoint, f.dtype, full)
+            else:
+                need(f.checkpoint, f.dtype, f.shape(0), required=False)
+
+    declared("particle", N)
+    if feats.get("heat"):
+        declared("wall", N)
+        declared("param", N)
+    ids = arrays["state_id"]
+    mat = arrays["state_material"]
     if np.unique(ids).size != N:
         raise CheckpointError(path, "checkpoint is damaged: particle ids are not unique")
     if N and (mat.min() < 0 or mat.max() >= nmat):
@@ -217,42 +242,14 @@ def validate(path, arrays, record):
             raise CheckpointError(path, f"checkpoint holds non-finite particle {f.replace('_', ' ')}s")
     if N and not (np.all(arrays["state_radius"] > 0) and np.all(arrays["state_mass"] > 0)):
         raise CheckpointError(path, "checkpoint is damaged: a particle radius or mass is not positive")
-    if thermal:
-        for f in THERMAL_FIELDS:
-            need(f"state_{f}", F8, (N,))
-    need("whist", F8, (N, W1, 3))
-    need("wrhist", F8, (N, W1, 3), (0, 1, 3))
-    wnb = need("wnb", I4, (N, W1))
-    wnn = need("wnn", I4, (N,))
-    _check_slots(path, "wnb", wnb, wnn, nw, W1)
-    if thermal:
-        from .thermal.heat import NTOT
-        need("th_Hw", F8, (N, W1))
-        need("th_por", F8, (N,))
-        need("th_qgen", F8, (N,), (0,))
-        need("th_wage", F8, (N, W1, 2), (0, 1, 2))
-        need("th_tf", F8, (N,))
-        need("th_uf", F8, (N, 3))
-        need("th_qsrc", F8, (N,), (0,))
-        need("th_tot", F8, (NTOT,))
-        need("th_wtot", F8, (W1,))
-        need("th_work", F8, (N, 3), (0, 3), required=False)
+    _check_slots(path, "wnb", arrays["wnb"], arrays["wnn"], nw, W1)
     if "nb" in arrays:  # the serial, bit-exact layout: the neighbour list and its slots
         nb = arrays["nb"]
         if nb.dtype != I4 or nb.ndim != 2 or nb.shape[0] != N or nb.shape[1] < 1:
             raise CheckpointError(path, f"checkpoint is damaged: array 'nb' has shape {nb.shape} dtype "
                                         f"{nb.dtype}, expected ({N}, slots) int32")
-        S = nb.shape[1]
-        nnb = need("nnb", I4, (N,))
-        _check_slots(path, "nb", nb, nnb, N, S)
-        need("hist", F8, (N, S, 3))
-        need("rhist", F8, (N, S, 3), (0, 1, 3))
-        need("age", F8, (N, S, 2), (0, 1, 2))
-        need("Hd", F8, (N, S), (0, 1))
-        need("Hi", F8, (N, S), (0, 1))
-        need("rnear", U1, (N, S), (0, 1))
-        if rolling and arrays["rhist"].shape[0] != N:
-            raise CheckpointError(path, "checkpoint is damaged: rolling history missing")
+        declared("pair", N, nb.shape[1])
+        _check_slots(path, "nb", nb, arrays["nnb"], N, nb.shape[1])
     elif int(arrays["ranks"]) == 1:
         raise CheckpointError(path, "checkpoint is damaged: array 'nb' (neighbour list) is missing")
     if "rec_a" in arrays:
@@ -354,6 +351,7 @@ def scene_record(sim):
                 step_count=int(sim.step_count), time=float(sim.time), dt=float(sim.dt),
                 reach=float(sim.reach), simulation=simulation, domain=_plain(sc.domain),
                 contact=_plain(sc.contact), materials=mats, walls=walls, thermal=thermal,
+                features={k: bool(v) for k, v in sim.state.features.items() if k != "fluid"},
                 output=_plain(sc.output), parallel=_plain(sc.parallel))
 
 

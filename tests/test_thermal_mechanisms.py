@@ -181,7 +181,7 @@ def test_exponential_update_with_radiation_is_bounded_and_steady():
     assert 300.0 < T < 1500.0
     assert T == pytest.approx(fine.state.temperature[0], rel=1e-3)
     # steady flux balance
-    Hw = fine.thermal.Hw[fine.thermal.Hw > 0][0]
+    Hw = fine.state.Hw[fine.state.Hw > 0][0]
     Tf = fine.state.temperature[0]
     A = 4 * math.pi * R ** 2
     assert Hw * (1500.0 - Tf) == pytest.approx(0.8 * SIGMA * A * (Tf ** 4 - 300.0 ** 4), rel=1e-3)

@@ -178,7 +178,7 @@ def test_line_linear_steady_profile(integrator, tol):
     # series network: H_w (Tw_h - T1) = H (T_k - T_k+1) = H_w (T10 - Tw_c); here H_w = 2 H (k_wall
     # in series with k_p halves the pair conductivity), so each wall gap takes half a pair step
     H = sim.Hd[sim.Hd > 0][0]
-    Hw = sim.thermal.Hw[sim.thermal.Hw > 0]
+    Hw = sim.state.Hw[sim.state.Hw > 0]
     q = H * (-steps.mean())
     assert Hw[0] * (400.0 - T[0]) == pytest.approx(q, rel=tol)
     assert Hw[-1] * (T[-1] - 300.0) == pytest.approx(q, rel=tol)

@@ -148,7 +148,7 @@ def line_of_ten(quick):
     sim = make(1.0, "euler")
     C = 1.0 / sim.state.inv_heat_capacity[0]
     H = float(sim.Hd[sim.Hd > 0][0])
-    Hw = float(sim.thermal.Hw[sim.thermal.Hw > 0][0])
+    Hw = float(sim.state.Hw[sim.state.Hw > 0][0])
     K = np.zeros((n, n))
     b = np.zeros(n)
     for k in range(n - 1):
@@ -395,7 +395,7 @@ def porosity(quick):
                 if sim.Hi[i, s_] > 0:
                     pairs[tuple(sorted((int(ids[i]), int(ids[j]))))] = sim.Hi[i, s_]
         porv = np.empty(st.n)
-        porv[ids] = sim.thermal.por
+        porv[ids] = sim.state.por
         pos = np.empty((st.n, 3))
         pos[ids] = st.position
         sim.warmup()
