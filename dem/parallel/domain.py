@@ -231,7 +231,7 @@ class ParallelDomain:
                 a = getattr(st, f.name)
                 if f.forward == "rate":  # cross-rank conductance rates of the exponential heat update
                     a = a[:, 1]
-                cols.append((a, f.shape(0)[1] if len(f.tail) else 1, f.name == "position"))
+                cols.append((a, a.shape[1] if a.ndim == 2 else 1, f.name == "position"))
         nf = sum(c[1] for c in cols)
         if nf == 0 or not self.neigh:
             return 0
