@@ -111,7 +111,7 @@ def convection_conductance(R, k_f, Nu):
 
 # ----------------------------------------------------------------- records
 # (the switch nusselt_id_opt is written by hand: records give names, ids and inputs)
-_CONV = ("conductivity", "prandtl", "density", "viscosity", "temperature", "velocity")
+_CONV = ("conductivity", "prandtl", "density", "viscosity", "temperature", "velocity", "porosity")
 RECORDS = (
     ModelRecord("ranz_marshall", "convection", NU_RANZ_MARSHALL, aliases=("ranz_marshall_1952",),
                 gas=_CONV, law=ranz_marshall_1952, reference="Ranz & Marshall (1952); ref 002",
@@ -119,10 +119,10 @@ RECORDS = (
     ModelRecord("whitaker", "convection", NU_WHITAKER, aliases=("whitaker_1972",),
                 gas=_CONV + ("viscosity_ratio",), law=whitaker_1972, reference="Whitaker (1972); ref 002",
                 summary="Nu = 2 + (0.4 Re^(1/2) + 0.06 Re^(2/3)) Pr^0.4 (mu/mu_s)^(1/4)"),
-    ModelRecord("gunn", "convection", NU_GUNN, aliases=("gunn_1978",), gas=_CONV + ("porosity",),
+    ModelRecord("gunn", "convection", NU_GUNN, aliases=("gunn_1978",), gas=_CONV,
                 law=gunn_1978, reference="Gunn (1978); ref 002 (exponents +1/5, +7/10)",
                 summary="porosity-dependent packed/fluidised bed correlation"),
     ModelRecord("li_mason", "convection", NU_LI_MASON, aliases=("li_mason_2000",),
-                gas=_CONV + ("porosity", "li_mason_exponent"), law=li_mason_2000,
+                gas=_CONV + ("li_mason_exponent",), law=li_mason_2000,
                 reference="Li & Mason (2000); ref 002", summary="three Re ranges, porosity exponent m"),
 )

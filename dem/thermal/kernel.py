@@ -248,34 +248,38 @@ class ThermalModel:
         return rep
 
     def models_report(self):
+        """`dem check`'s runs/skipped lines: one per mechanism of registry.MECHANISMS that the step
+        runs (labels, porosity and quadrature notes from the selected model's record)."""
         c = self.cfg
         runs, skipped = [], []
         integ = f"{c['integrator']} thermal integration"
         runs.append(integ)
-        for key, label in (("direct", "direct conduction"), ("indirect", "indirect conduction"),
-                           ("convection", "convection"), ("radiation", "radiation"),
-                           ("friction_heat", "friction heat")):
+        for mech in ("direct", "indirect", "convection", "radiation", "friction"):
+            key, label = R.MECHANISMS[mech]
             name = c[key]
-            if name != "none" and not (key == "friction_heat" and self.thi[TI_FRIC] < 0):
+            if name != "none" and not (mech == "friction" and self.thi[TI_FRIC] < 0):
+                rec = R.record(mech, name)
+                gas_keys = rec.inputs()[1]
                 extra = ""
-                if key == "direct":
+                if mech == "direct":
                     how = ""
                     if c.get("correction_auto"):
                         how = (" chosen because youngs_modulus is softened below real_youngs_modulus"
                                if c["correction"] != "none" else " (auto: youngs_modulus not softened)")
                     extra = f" (contact radius {c['contact_radius']}, correction {c['correction']}{how})"
-                if key in ("indirect", "convection") or (key == "radiation" and name == "zhou_2009"):
+                # the kernel measures the porosity for every indirect model
+                if "porosity" in gas_keys or mech == "indirect":
                     kind = ("Voronoi cells (scipy)" if self.voronoi else "local, measured around each particle"
                             if self.local_porosity else "global")
                     extra = f" (porosity {kind})"
-                    if key == "indirect" and name in INTEGRAL_INDIRECT:
-                        extra += f", quadrature tolerance {self.gas[R.QUAD_TOL]:g}"
-                runs.append(f"{label}: {name}{extra}")
+                if "quadrature_tolerance" in gas_keys:
+                    extra += f", quadrature tolerance {self.gas[R.QUAD_TOL]:g}"
+                runs.append(f"{label}: {rec.name}{extra}")
             else:
                 why = f"thermal.{key} = 'none'"
-                if key == "friction_heat" and name != "none":
+                if mech == "friction" and name != "none":
                     why = "mechanics frozen: no sliding"
-                if key in ("indirect", "convection") and "gas" not in self.sim.scene.raw:
+                if mech in ("indirect", "convection") and "gas" not in self.sim.scene.raw:
                     why += " (no [gas] section)"
                 skipped.append(f"{label}: {why}")
         if len(self.cfg["sources"]):
