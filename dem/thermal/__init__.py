@@ -3,8 +3,13 @@ walls and the fluid). See docs/models.md, "Heat transfer models".
 
 Layout
 ------
-registry.py        names -> integer ids, needed material keys, parameters,
-                   material table ``tmat[n_mat, N_TPROP]`` and gas table ``gas[N_GAS]``
+records.py         ModelRecord / Input: what a model declares next to its law
+registry.py        the record modules (MODEL_MODULES); names -> ids, inputs, defaults, table
+                   layouts ``tmat[n_mat, N_TPROP]`` and ``gas[N_GAS]``, history width, reach,
+                   all derived from the records
+dispatch.py        generates direct_pp/direct_pw/indirect_pp/indirect_pw from the records
+docs.py            writes the model/input tables of docs/models.md from the records
+bahrami_2006.py    Bahrami-Yovanovich-Culham rough-sphere conduction (one file per new model)
 contact_radius.py  contact radius (Hertz force / overlap / geometric) and the
                    low-stiffness corrections (Zhou 2010, Lu 2017, Morris 2016)
 direct.py          direct (contact) conduction
@@ -95,21 +100,36 @@ def _mechanism_of(model):
     raise ValueError(f"unknown conduction model '{model}', valid: {', '.join(names)}")
 
 
+def _keywords():
+    """(material keyword -> key, gas keyword -> key): the short names above plus the full key of
+    every input declared by the model records (so a model's new input needs no entry here)."""
+    d = registry.derived()
+    mat = dict(_MAT_SHORT)
+    for inp in d["material_inputs"]:
+        mat.setdefault(inp.key, inp.key)
+    gas = dict(_GAS_SHORT)
+    for inp in d["gas_inputs"]:
+        if inp.key not in mat:  # density, heat_capacity, ...: the material meaning wins with a suffix
+            gas.setdefault(inp.key, inp.key)
+    return mat, gas
+
+
 def _split_inputs(inputs, geom_keys, suffixes, extra):
     geom, mats, gas = {}, [dict(), dict()], {}
-    valid = list(geom_keys) + list(extra) + list(_GAS_SHORT) + \
-        [f"{s}{suf}" for s in _MAT_SHORT for suf in suffixes] + ["k" + suffixes[0][1:], "k" + suffixes[1][1:]]
+    mat_short, gas_short = _keywords()
+    valid = list(geom_keys) + list(extra) + list(gas_short) + \
+        [f"{s}{suf}" for s in mat_short for suf in suffixes] + ["k" + suffixes[0][1:], "k" + suffixes[1][1:]]
     for key, val in inputs.items():
         if key in geom_keys or key in extra:
             geom[key] = val
             continue
-        if key in _GAS_SHORT:
-            gas[_GAS_SHORT[key]] = val
+        if key in gas_short:
+            gas[gas_short[key]] = val
             continue
         done = False
         for n, suf in enumerate(suffixes):
-            if key.endswith(suf) and key[: -len(suf)] in _MAT_SHORT:
-                mats[n][_MAT_SHORT[key[: -len(suf)]]] = val
+            if key.endswith(suf) and key[: -len(suf)] in mat_short:
+                mats[n][mat_short[key[: -len(suf)]]] = val
                 done = True
                 break
             # ki/kj, kp/kw shorthand
@@ -133,7 +153,8 @@ def _check_model_inputs(mech, name, mats, labels, gas):
         req = registry.required_material_keys(mech, name)
         missing = [k for k in req if k not in m]
         if missing:
-            shorts = {v: k for k, v in _MAT_SHORT.items()}
+            shorts = {v: k for k, v in _keywords()[0].items() if k == v or v not in _MAT_SHORT.values()}
+            shorts.update({v: k for k, v in _MAT_SHORT.items()})
             raise ValueError(f"missing material key(s) {', '.join(missing)} "
                              f"(inputs {', '.join(shorts[k] + label for k in missing)}) "
                              f"required by {mech} model '{name}'")
@@ -150,7 +171,9 @@ def pair_conductance(model, **inputs):
     hardness, roughness, slope, E, nu, E_real, alpha, emissivity; gas and
     model parameters: kf, porosity, layer, min_separation, core_ratio, cutoff,
     mean_free_path, gamma, Pr, alpha_gas, rho_f, mu_f, cp_f, k_liquid,
-    filling_angle. Calls the njit dispatchers direct_pp / indirect_pp.
+    filling_angle; the full scene key of any input a model record declares (material keys
+    with the suffix). The model and the inputs it needs come from its record
+    (dem.thermal.registry). Calls the njit dispatchers direct_pp / indirect_pp.
     """
     mech, name = _mechanism_of(model)
     geom, mats, gas = _split_inputs(inputs, ("Ri", "Rj", "d", "rc"), ("_i", "_j"),

@@ -40,6 +40,8 @@ import math
 
 import numba
 
+from .records import ModelRecord
+
 HERTZ_FORCE = 0
 HERTZ_OVERLAP = 1
 GEOMETRIC = 2
@@ -222,3 +224,27 @@ def contact_radius_pw(method, correction, R, d, Fn, Estar, Estar_real):
     else:
         return -1.0
     return _apply(method, correction, rc, R, Fn, Estar, Estar_real)
+
+
+# ----------------------------------------------------------------- records
+# (contact_radius_pp/pw and _apply are written by hand; records give names, ids and inputs)
+_EN = ("youngs_modulus", "poisson_ratio")
+_ENR = ("youngs_modulus", "poisson_ratio", "real_youngs_modulus")
+RECORDS = (
+    ModelRecord("hertz_force", "contact_radius", HERTZ_FORCE, material=_EN, law=hertz_force,
+                reference="ref 002 App. A", summary="r_c = (3 F_n R*/(4 E*))^(1/3)"),
+    ModelRecord("hertz_overlap", "contact_radius", HERTZ_OVERLAP, law=hertz_overlap,
+                reference="ref 002 App. A", summary="r_c = sqrt(R* delta_n)"),
+    ModelRecord("geometric", "contact_radius", GEOMETRIC, law=geometric_pp,
+                reference="ref 002 App. A (Musser 2011)", summary="intersection circle of the spheres"),
+    ModelRecord("none", "correction", NONE, summary="identity"),
+    ModelRecord("zhou_2010", "correction", ZHOU_2010, material=_ENR, law=zhou_2010,
+                reference="Zhou, Yu & Zulli (2010); refs 002, 000", summary="r_c (E*/E*_real)^(1/5)"),
+    ModelRecord("lu_2017", "correction", LU_2017, material=_ENR, law=lu_2017,
+                reference="Lu et al. (2017); ref 002", summary="(3 F_n R*/(4 E*_real))^(1/3)"),
+    ModelRecord("morris_2016_area", "correction", MORRIS_2016_AREA, material=_ENR, law=morris_2016_area,
+                reference="Morris et al. (2016a); ref 002", summary="(F_n R*/E*_real)^(1/3)"),
+    ModelRecord("morris_2016_area_time", "correction", MORRIS_2016_AREA_TIME, material=_ENR,
+                law=morris_2016_time_factor, reference="Morris et al. (2016a); ref 002",
+                summary="area correction x (E*/E*_real)^(4/15)"),
+)

@@ -23,6 +23,7 @@ import math
 
 import numba
 
+from .records import ModelRecord
 from .registry import (LM_EXPONENT, NU_GUNN, NU_LI_MASON, NU_RANZ_MARSHALL, NU_WHITAKER, VISC_RATIO)
 
 LI_MASON_DENSE = 4.75
@@ -106,3 +107,22 @@ def nusselt_gas(corr, Re, Pr, por, gas):
 def convection_conductance(R, k_f, Nu):
     """H = h A_s = (Nu k_f/(2R)) 4 pi R^2 = 2 pi R k_f Nu [W/K]; Q = H (T_f - T_p)."""
     return 2.0 * math.pi * R * k_f * Nu
+
+
+# ----------------------------------------------------------------- records
+# (the switch nusselt_id_opt is written by hand: records give names, ids and inputs)
+_CONV = ("conductivity", "prandtl", "density", "viscosity", "temperature", "velocity", "porosity")
+RECORDS = (
+    ModelRecord("ranz_marshall", "convection", NU_RANZ_MARSHALL, aliases=("ranz_marshall_1952",),
+                gas=_CONV, law=ranz_marshall_1952, reference="Ranz & Marshall (1952); ref 002",
+                summary="Nu = 2 + 0.6 Re^(1/2) Pr^(1/3)"),
+    ModelRecord("whitaker", "convection", NU_WHITAKER, aliases=("whitaker_1972",),
+                gas=_CONV + ("viscosity_ratio",), law=whitaker_1972, reference="Whitaker (1972); ref 002",
+                summary="Nu = 2 + (0.4 Re^(1/2) + 0.06 Re^(2/3)) Pr^0.4 (mu/mu_s)^(1/4)"),
+    ModelRecord("gunn", "convection", NU_GUNN, aliases=("gunn_1978",), gas=_CONV,
+                law=gunn_1978, reference="Gunn (1978); ref 002 (exponents +1/5, +7/10)",
+                summary="porosity-dependent packed/fluidised bed correlation"),
+    ModelRecord("li_mason", "convection", NU_LI_MASON, aliases=("li_mason_2000",),
+                gas=_CONV + ("li_mason_exponent",), law=li_mason_2000,
+                reference="Li & Mason (2000); ref 002", summary="three Re ranges, porosity exponent m"),
+)

@@ -10,6 +10,11 @@ Conventions: a wall is a body with infinite radius and mass; its material
 row in ``tmat`` gives its conductivity (``inf`` = perfect conductor, which is
 the fixed-temperature wall of reference 001), Young's modulus, etc.
 Harmonic-type means treat an infinite conductivity as a perfect conductor.
+
+Each model has a record (``RECORDS`` at the end) with its two dispatcher laws: ``pp`` with the
+signature of ``direct_pp`` after the model id, ``pw`` with that of ``direct_pw``. The
+dispatchers ``direct_pp`` / ``direct_pw`` themselves are generated from all direct-conduction
+records by dem.thermal.dispatch (``rc <= 0`` gives 0 before any law is called; unknown id -1).
 """
 import math
 
@@ -17,6 +22,7 @@ import numba
 
 from ._quad import erfcinv
 from .contact_radius import effective_modulus
+from .records import ModelRecord
 from .registry import (ACCOM, ASPERITY_SLOPE, CP, DENSITY, DIRECT_BATCHELOR_OBRIEN, DIRECT_BEAULIEU,
                        DIRECT_QUINTANA_RUIZ_CAMPELLO, DIRECT_ROJEK, DIRECT_THERMAL_PIPE,
                        DIRECT_ZHOU_COLLISIONAL, GAMMA_RATIO, K_COND, KF, MEAN_FREE_PATH,
@@ -284,7 +290,9 @@ def beaulieu_2020_network(Ri, Rj, rc, ki, kj, kg, Hi, Hj, sig_i, sig_j, tau_i, t
     return H
 
 
-# ----------------------------------------------------------------- dispatchers
+# ----------------------------------------------------------------- dispatcher laws
+# pp: (Ri, Rj, d, rc, mi, mj, tmat, gas, t_contact, vn_impact); pw: (R, d, rc, mp, mw, tmat, gas,
+# t_contact, vn_impact); called by the generated direct_pp / direct_pw only when rc > 0.
 @numba.njit(cache=True, error_model="numpy")
 def _zhou_or_static(rc, Rstar, mstar, Estar_real, vn_impact, t_contact,
                     rho_i, cp_i, k_i, rho_j, cp_j, k_j):
@@ -295,83 +303,137 @@ def _zhou_or_static(rc, Rstar, mstar, Estar_real, vn_impact, t_contact,
 
 
 @numba.njit(cache=True, error_model="numpy")
-def direct_pp(model, Ri, Rj, d, rc, mi, mj, tmat, gas, t_contact, vn_impact):
-    """Particle-particle direct conduction conductance [W/K].
-
-    model: registry DIRECT_* id; Ri, Rj [m]; d centre distance [m]; rc contact
-    radius [m] (0 if not touching -> H = 0); mi, mj material rows of tmat;
-    t_contact: time since the contact started [s]; vn_impact: normal relative
-    velocity at impact [m/s] (zhou_2008_collisional only: collisional formula
-    while t_contact < t_c (Hertz collision time with the real modulus), then
-    static Batchelor & O'Brien as Zhou et al. 2009). Unknown model -> -1.
-    """
-    if rc <= 0.0:
-        return 0.0
-    ki = tmat[mi, K_COND]
-    kj = tmat[mj, K_COND]
-    if model == DIRECT_BATCHELOR_OBRIEN:
-        return batchelor_obrien_1977(rc, ki, kj)
-    elif model == DIRECT_THERMAL_PIPE:
-        return thermal_pipe(rc, d, ki, kj)
-    elif model == DIRECT_QUINTANA_RUIZ_CAMPELLO:
-        return quintana_ruiz_campello_2020(rc, d, Ri, Rj, ki, kj)
-    elif model == DIRECT_ROJEK:
-        return rojek_2014(Ri, Rj, ki, kj)
-    elif model == DIRECT_ZHOU_COLLISIONAL:
-        Es = effective_modulus(real_modulus(tmat, mi), tmat[mi, POISSON],
-                               real_modulus(tmat, mj), tmat[mj, POISSON])
-        m1 = tmat[mi, DENSITY] * 4.0 / 3.0 * math.pi * Ri ** 3
-        m2 = tmat[mj, DENSITY] * 4.0 / 3.0 * math.pi * Rj ** 3
-        return _zhou_or_static(rc, Ri * Rj / (Ri + Rj), m1 * m2 / (m1 + m2), Es, vn_impact,
-                               t_contact, tmat[mi, DENSITY], tmat[mi, CP], ki,
-                               tmat[mj, DENSITY], tmat[mj, CP], kj)
-    elif model == DIRECT_BEAULIEU:
-        Es = effective_modulus(real_modulus(tmat, mi), tmat[mi, POISSON],
-                               real_modulus(tmat, mj), tmat[mj, POISSON])
-        M = gas_parameter_m(tmat[mi, ACCOM], tmat[mj, ACCOM], gas[GAMMA_RATIO],
-                            gas[MEAN_FREE_PATH], gas[PR])
-        return beaulieu_2020_network(Ri, Rj, rc, ki, kj, gas[KF], tmat[mi, MICROHARDNESS],
-                                     tmat[mj, MICROHARDNESS], tmat[mi, ROUGHNESS], tmat[mj, ROUGHNESS],
-                                     tmat[mi, ASPERITY_SLOPE], tmat[mj, ASPERITY_SLOPE], Es, M, False)
-    return -1.0
+def _bo_pp(Ri, Rj, d, rc, mi, mj, tmat, gas, t_contact, vn_impact):
+    return batchelor_obrien_1977(rc, tmat[mi, K_COND], tmat[mj, K_COND])
 
 
 @numba.njit(cache=True, error_model="numpy")
-def direct_pw(model, R, d, rc, mp, mw, tmat, gas, t_contact, vn_impact):
-    """Particle-wall direct conduction conductance [W/K].
+def _bo_pw(R, d, rc, mp, mw, tmat, gas, t_contact, vn_impact):
+    return batchelor_obrien_1977(rc, tmat[mp, K_COND], tmat[mw, K_COND])
 
-    R particle radius, d centre-to-wall distance [m], rc contact radius [m],
-    mp/mw particle and wall material rows. The wall has infinite radius and
-    mass; its conductivity K_COND may be inf (perfect conductor, ref 001).
-    Thermal pipes put the whole pipe (length d) in the particle.
-    """
-    if rc <= 0.0:
+
+@numba.njit(cache=True, error_model="numpy")
+def _pipe_pp(Ri, Rj, d, rc, mi, mj, tmat, gas, t_contact, vn_impact):
+    return thermal_pipe(rc, d, tmat[mi, K_COND], tmat[mj, K_COND])
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _pipe_pw(R, d, rc, mp, mw, tmat, gas, t_contact, vn_impact):
+    kp = tmat[mp, K_COND]
+    if d <= 0.0:
         return 0.0
+    return kp * math.pi * rc * rc / d
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _qrc_pp(Ri, Rj, d, rc, mi, mj, tmat, gas, t_contact, vn_impact):
+    return quintana_ruiz_campello_2020(rc, d, Ri, Rj, tmat[mi, K_COND], tmat[mj, K_COND])
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _qrc_pw(R, d, rc, mp, mw, tmat, gas, t_contact, vn_impact):
+    return quintana_ruiz_campello_2020(rc, d, R, 0.0, tmat[mp, K_COND], tmat[mw, K_COND])
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _rojek_pp(Ri, Rj, d, rc, mi, mj, tmat, gas, t_contact, vn_impact):
+    return rojek_2014(Ri, Rj, tmat[mi, K_COND], tmat[mj, K_COND])
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _rojek_pw(R, d, rc, mp, mw, tmat, gas, t_contact, vn_impact):
+    return rojek_2014_wall(R, tmat[mp, K_COND])
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _zhou_pp(Ri, Rj, d, rc, mi, mj, tmat, gas, t_contact, vn_impact):
+    """Collisional formula while t_contact < t_c (Hertz collision time with the real modulus),
+    then static Batchelor & O'Brien as Zhou et al. 2009."""
+    ki = tmat[mi, K_COND]
+    kj = tmat[mj, K_COND]
+    Es = effective_modulus(real_modulus(tmat, mi), tmat[mi, POISSON],
+                           real_modulus(tmat, mj), tmat[mj, POISSON])
+    m1 = tmat[mi, DENSITY] * 4.0 / 3.0 * math.pi * Ri ** 3
+    m2 = tmat[mj, DENSITY] * 4.0 / 3.0 * math.pi * Rj ** 3
+    return _zhou_or_static(rc, Ri * Rj / (Ri + Rj), m1 * m2 / (m1 + m2), Es, vn_impact,
+                           t_contact, tmat[mi, DENSITY], tmat[mi, CP], ki,
+                           tmat[mj, DENSITY], tmat[mj, CP], kj)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _zhou_pw(R, d, rc, mp, mw, tmat, gas, t_contact, vn_impact):
     kp = tmat[mp, K_COND]
     kw = tmat[mw, K_COND]
-    if model == DIRECT_BATCHELOR_OBRIEN:
-        return batchelor_obrien_1977(rc, kp, kw)
-    elif model == DIRECT_THERMAL_PIPE:
-        if d <= 0.0:
-            return 0.0
-        return kp * math.pi * rc * rc / d
-    elif model == DIRECT_QUINTANA_RUIZ_CAMPELLO:
-        return quintana_ruiz_campello_2020(rc, d, R, 0.0, kp, kw)
-    elif model == DIRECT_ROJEK:
-        return rojek_2014_wall(R, kp)
-    elif model == DIRECT_ZHOU_COLLISIONAL:
-        Es = effective_modulus(real_modulus(tmat, mp), tmat[mp, POISSON],
-                               real_modulus(tmat, mw), tmat[mw, POISSON])
-        m1 = tmat[mp, DENSITY] * 4.0 / 3.0 * math.pi * R ** 3
-        return _zhou_or_static(rc, R, m1, Es, vn_impact, t_contact,
-                               tmat[mp, DENSITY], tmat[mp, CP], kp,
-                               tmat[mw, DENSITY], tmat[mw, CP], kw)
-    elif model == DIRECT_BEAULIEU:
-        Es = effective_modulus(real_modulus(tmat, mp), tmat[mp, POISSON],
-                               real_modulus(tmat, mw), tmat[mw, POISSON])
-        M = gas_parameter_m(tmat[mp, ACCOM], tmat[mw, ACCOM], gas[GAMMA_RATIO],
-                            gas[MEAN_FREE_PATH], gas[PR])
-        return beaulieu_2020_network(R, math.inf, rc, kp, kw, gas[KF], tmat[mp, MICROHARDNESS],
-                                     tmat[mw, MICROHARDNESS], tmat[mp, ROUGHNESS], tmat[mw, ROUGHNESS],
-                                     tmat[mp, ASPERITY_SLOPE], tmat[mw, ASPERITY_SLOPE], Es, M, True)
-    return -1.0
+    Es = effective_modulus(real_modulus(tmat, mp), tmat[mp, POISSON],
+                           real_modulus(tmat, mw), tmat[mw, POISSON])
+    m1 = tmat[mp, DENSITY] * 4.0 / 3.0 * math.pi * R ** 3
+    return _zhou_or_static(rc, R, m1, Es, vn_impact, t_contact,
+                           tmat[mp, DENSITY], tmat[mp, CP], kp,
+                           tmat[mw, DENSITY], tmat[mw, CP], kw)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _beaulieu_pp(Ri, Rj, d, rc, mi, mj, tmat, gas, t_contact, vn_impact):
+    Es = effective_modulus(real_modulus(tmat, mi), tmat[mi, POISSON],
+                           real_modulus(tmat, mj), tmat[mj, POISSON])
+    M = gas_parameter_m(tmat[mi, ACCOM], tmat[mj, ACCOM], gas[GAMMA_RATIO],
+                        gas[MEAN_FREE_PATH], gas[PR])
+    return beaulieu_2020_network(Ri, Rj, rc, tmat[mi, K_COND], tmat[mj, K_COND], gas[KF], tmat[mi, MICROHARDNESS],
+                                 tmat[mj, MICROHARDNESS], tmat[mi, ROUGHNESS], tmat[mj, ROUGHNESS],
+                                 tmat[mi, ASPERITY_SLOPE], tmat[mj, ASPERITY_SLOPE], Es, M, False)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _beaulieu_pw(R, d, rc, mp, mw, tmat, gas, t_contact, vn_impact):
+    Es = effective_modulus(real_modulus(tmat, mp), tmat[mp, POISSON],
+                           real_modulus(tmat, mw), tmat[mw, POISSON])
+    M = gas_parameter_m(tmat[mp, ACCOM], tmat[mw, ACCOM], gas[GAMMA_RATIO],
+                        gas[MEAN_FREE_PATH], gas[PR])
+    return beaulieu_2020_network(R, math.inf, rc, tmat[mp, K_COND], tmat[mw, K_COND], gas[KF], tmat[mp, MICROHARDNESS],
+                                 tmat[mw, MICROHARDNESS], tmat[mp, ROUGHNESS], tmat[mw, ROUGHNESS],
+                                 tmat[mp, ASPERITY_SLOPE], tmat[mw, ASPERITY_SLOPE], Es, M, True)
+
+
+# ----------------------------------------------------------------- records
+_K = ("thermal_conductivity",)
+RECORDS = (
+    ModelRecord("batchelor_obrien", "direct", DIRECT_BATCHELOR_OBRIEN,
+                aliases=("batchelor_obrien_1977", "bob"), material=_K,
+                laws=dict(pp=_bo_pp, pw=_bo_pw), law=batchelor_obrien_1977,
+                reference="Batchelor & O'Brien (1977); ref 002, ref 001 eqs. 3299-3300",
+                summary="H = 4 k_bar r_c"),
+    ModelRecord("thermal_pipe", "direct", DIRECT_THERMAL_PIPE, material=_K,
+                laws=dict(pp=_pipe_pp, pw=_pipe_pw), law=thermal_pipe,
+                reference="ref 002, thermal pipe models", summary="H = k_h pi r_c^2 / d"),
+    ModelRecord("quintana_ruiz_campello_2020", "direct", DIRECT_QUINTANA_RUIZ_CAMPELLO,
+                aliases=("quintana_ruiz_campello",), material=_K,
+                laws=dict(pp=_qrc_pp, pw=_qrc_pw), law=quintana_ruiz_campello_2020,
+                reference="Quintana-Ruiz & Campello (2020); ref 002", summary="H = k~ pi r_c^2 / d"),
+    ModelRecord("rojek_2014", "direct", DIRECT_ROJEK, material=_K,
+                laws=dict(pp=_rojek_pp, pw=_rojek_pw), law=rojek_2014,
+                reference="Rojek (2014); ref 002", summary="H = k_h (Ri + Rj)/2"),
+    ModelRecord("zhou_2008_collisional", "direct", DIRECT_ZHOU_COLLISIONAL,
+                aliases=("zhou_2008", "collisional"),
+                material=("thermal_conductivity", "heat_capacity", "density", "youngs_modulus",
+                          "poisson_ratio"),
+                history=2, laws=dict(pp=_zhou_pp, pw=_zhou_pw), law=zhou_2008_collisional,
+                reference="Zhou, Yu & Horio (2008); ref 002",
+                summary="collisional conductance while the contact is younger than t_c, then B&O"),
+    ModelRecord("beaulieu_2020", "direct", DIRECT_BEAULIEU,
+                aliases=("beaulieu_2020_network", "beaulieu"),
+                material=("thermal_conductivity", "microhardness", "roughness", "asperity_slope",
+                          "youngs_modulus", "poisson_ratio"),
+                gas=("conductivity", "mean_free_path", "heat_capacity_ratio", "prandtl",
+                     "accommodation_coefficient"),
+                laws=dict(pp=_beaulieu_pp, pw=_beaulieu_pw), law=beaulieu_2020_network,
+                reference="Beaulieu (2020) resistance network; ref 000",
+                summary="macro/microcontact, gas microgap, solid layers and gas macrogap resistances"),
+)
+
+
+def __getattr__(name):
+    # direct_pp / direct_pw are generated from the records of all direct models
+    if name in ("direct_pp", "direct_pw"):
+        from . import dispatch
+        return getattr(dispatch.module(), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

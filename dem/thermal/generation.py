@@ -17,6 +17,7 @@ import math
 
 import numba
 
+from .records import ModelRecord
 from .registry import (CP, DENSITY, FRIC_IMPACT_001, FRIC_NGUYEN_2009, FRIC_ROJEK_2014, K_COND,
                        PART_EQUAL, PART_ROJEK_2014, PART_VARADI_1996)
 
@@ -85,3 +86,23 @@ def partition(model, mi, mj, tmat):
     elif model == PART_EQUAL:
         return 0.5
     return -1.0
+
+
+# ----------------------------------------------------------------- records
+# (the friction_heat / partition switches are written by hand)
+RECORDS = (
+    ModelRecord("nguyen_2009", "friction", FRIC_NGUYEN_2009, aliases=("nguyen_2009_friction_heat",),
+                law=nguyen_2009_friction_heat, reference="Nguyen et al. (2009); ref 002",
+                summary="Q = mu_d |v_t F_n|"),
+    ModelRecord("rojek_2014", "friction", FRIC_ROJEK_2014, law=rojek_2014_friction_heat,
+                reference="Rojek (2014); ref 002", summary="Q = chi |v_t . F_t|"),
+    ModelRecord("impact_heat", "friction", FRIC_IMPACT_001, law=impact_heat_001,
+                reference="ref 001 eq. 3305", summary="Q = c_t |F_t v_t| + c_n |F_n v_n|"),
+    ModelRecord("varadi_1996", "partition", PART_VARADI_1996, aliases=("varadi_1996_partition",),
+                material=("thermal_conductivity",), law=varadi_1996_partition,
+                reference="Varadi et al. (1996); ref 002", summary="psi_i = k_i/(k_i + k_j)"),
+    ModelRecord("rojek_2014", "partition", PART_ROJEK_2014,
+                material=("thermal_conductivity", "density", "heat_capacity"), law=rojek_2014_partition,
+                reference="Rojek (2014); ref 002", summary="psi_i = e_i/(e_i + e_j), e = sqrt(rho c k)"),
+    ModelRecord("equal", "partition", PART_EQUAL, reference="", summary="psi_i = 1/2"),
+)

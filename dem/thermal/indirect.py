@@ -21,6 +21,12 @@ Common conventions of the dispatchers (indirect_pp / indirect_pw):
   (mono-size formulas applied with the average radius, Norouzi et al. 2016),
   R = min(Ri, Rj) for the Gan/Chen multi-size models (ref 002 uses R_i; the
   symmetric choice keeps H_ij = H_ji so that energy is conserved).
+
+The dispatchers indirect_pp / indirect_pw are generated from the records (``RECORDS`` at the
+end) by dem.thermal.dispatch: they apply the cut-off, compute r_low, the clamped porosity and
+the conductivities, then call the record's ``pp`` law
+(Ri, Rj, d, rc, r_low, por, Rmin, kf, ki, kj, mi, mj, tmat, gas) or ``pw`` law
+(R, d, rc, r_low, por, kf, kp, mp, mw, tmat, gas); -1 for unknown ids.
 """
 import math
 
@@ -30,6 +36,7 @@ from ._quad import KIND_VORONOI_A_PP, KIND_VORONOI_A_PW, gk_adaptive
 from ._surrounding_layer import surrounding_layer_log
 from .contact_radius import geometric_pp, geometric_pw
 from .direct import gas_parameter_m, series_conductivity
+from .records import ModelRecord
 from .registry import (ACCOM, CORE_RATIO, CUTOFF, FILL_ANGLE, GAMMA_RATIO, INDIRECT_CHEN_VORONOI_B,
                        INDIRECT_CHENG_VORONOI_A, INDIRECT_CHENG_VORONOI_B, INDIRECT_GAN_VORONOI_A,
                        INDIRECT_MUSSER, INDIRECT_RONG_HORIO, INDIRECT_VARGAS_MCCARTHY, K_COND, K_LIQ, KF,
@@ -378,73 +385,121 @@ def vargas_mccarthy_2002(Rp, rc, kg, M, k_liq, phi):
     return H
 
 
-# ----------------------------------------------------------------- dispatchers
+# ----------------------------------------------------------------- dispatcher laws
 @numba.njit(cache=True, error_model="numpy")
-def indirect_pp(model, Ri, Rj, d, rc, mi, mj, por_i, por_j, tmat, gas):
-    """Particle-particle indirect conduction conductance [W/K].
-
-    model: registry INDIRECT_* id; Ri, Rj [m]; d centre distance [m]; rc contact
-    radius [m] (0 if apart); mi, mj: material rows of tmat; por_i, por_j: local
-    porosities (Voronoi models). Parameters from gas: KF, CUTOFF, LAYER, MIN_SEP,
-    CORE_RATIO, MEAN_FREE_PATH, GAMMA_RATIO, PR, K_LIQ, FILL_ANGLE. -1 for unknown ids.
-    """
-    Rmin = min(Ri, Rj)
-    if d - Ri - Rj >= gas[CUTOFF] * Rmin:
-        return 0.0
-    kf = gas[KF]
-    ki = tmat[mi, K_COND]
-    kj = tmat[mj, K_COND]
-    r_low = max(rc, geometric_pp(Ri, Rj, d))
-    por = 0.5 * (por_i + por_j)
-    por = min(max(por, 0.0), 0.999)
-    if model == INDIRECT_CHENG_VORONOI_A:
-        Rp = 0.5 * (Ri + Rj)
-        return cheng_1999_voronoi_a(Rp, d, r_low, ki, kj, kf, zhou_2009_face_radius(Rp, por), gas[QUAD_TOL])
-    elif model == INDIRECT_GAN_VORONOI_A:
-        return gan_2016_voronoi_a(Ri, Rj, d, r_low, ki, kj, kf, zhou_2009_face_radius(Rmin, por), gas[QUAD_TOL])
-    elif model == INDIRECT_CHENG_VORONOI_B:
-        Rp = 0.5 * (Ri + Rj)
-        return cheng_1999_voronoi_b(Rp, d, r_low, ki, kj, kf, zhou_2009_face_radius(Rp, por),
-                                    gas[CORE_RATIO])
-    elif model == INDIRECT_CHEN_VORONOI_B:
-        return chen_2019_voronoi_b(Ri, Rj, d, r_low, ki, kj, kf, zhou_2009_face_area(Rmin, por),
-                                   gas[CORE_RATIO])
-    elif model == INDIRECT_RONG_HORIO:
-        return rong_horio_1999_surrounding_layer(Ri, Rj, d, kf, gas[LAYER], gas[MIN_SEP], gas[QUAD_TOL])
-    elif model == INDIRECT_MUSSER:
-        return musser_2011_surrounding_layer(Ri, Rj, d, r_low, kf, gas[LAYER], gas[MIN_SEP], gas[QUAD_TOL])
-    elif model == INDIRECT_VARGAS_MCCARTHY:
-        M = gas_parameter_m(tmat[mi, ACCOM], tmat[mj, ACCOM], gas[GAMMA_RATIO],
-                            gas[MEAN_FREE_PATH], gas[PR])
-        return vargas_mccarthy_2002(0.5 * (Ri + Rj), rc, kf, M, gas[K_LIQ], gas[FILL_ANGLE])
-    return -1.0
+def _cheng_a_pp(Ri, Rj, d, rc, r_low, por, Rmin, kf, ki, kj, mi, mj, tmat, gas):
+    Rp = 0.5 * (Ri + Rj)
+    return cheng_1999_voronoi_a(Rp, d, r_low, ki, kj, kf, zhou_2009_face_radius(Rp, por), gas[QUAD_TOL])
 
 
 @numba.njit(cache=True, error_model="numpy")
-def indirect_pw(model, R, d, rc, mp, mw, por, tmat, gas):
-    """Particle-wall indirect conduction conductance [W/K].
+def _gan_a_pp(Ri, Rj, d, rc, r_low, por, Rmin, kf, ki, kj, mi, mj, tmat, gas):
+    return gan_2016_voronoi_a(Ri, Rj, d, r_low, ki, kj, kf, zhou_2009_face_radius(Rmin, por), gas[QUAD_TOL])
 
-    R particle radius, d centre-to-wall distance [m], rc contact radius [m],
-    mp/mw particle/wall material rows, por local porosity. Voronoi models use
-    their wall forms (Gan/Chen reduce to the wall forms of model A/B), the
-    surrounding layer models the closed wall form (Rong & Horio: Rc = 0).
-    """
-    if d - R >= gas[CUTOFF] * R:
-        return 0.0
-    kf = gas[KF]
-    kp = tmat[mp, K_COND]
-    r_low = max(rc, geometric_pw(R, d))
-    por = min(max(por, 0.0), 0.999)
-    if model == INDIRECT_CHENG_VORONOI_A or model == INDIRECT_GAN_VORONOI_A:
-        return voronoi_a_wall(R, d, r_low, kp, kf, zhou_2009_face_radius(R, por), gas[QUAD_TOL])
-    elif model == INDIRECT_CHENG_VORONOI_B or model == INDIRECT_CHEN_VORONOI_B:
-        return voronoi_b_wall(R, d, r_low, kp, kf, zhou_2009_face_radius(R, por), gas[CORE_RATIO])
-    elif model == INDIRECT_RONG_HORIO:
-        return surrounding_layer_wall(R, d, 0.0, kf, gas[LAYER], gas[MIN_SEP])
-    elif model == INDIRECT_MUSSER:
-        return surrounding_layer_wall(R, d, r_low, kf, gas[LAYER], gas[MIN_SEP])
-    elif model == INDIRECT_VARGAS_MCCARTHY:
-        M = gas_parameter_m(tmat[mp, ACCOM], tmat[mw, ACCOM], gas[GAMMA_RATIO],
-                            gas[MEAN_FREE_PATH], gas[PR])
-        return vargas_mccarthy_2002(R, rc, kf, M, gas[K_LIQ], gas[FILL_ANGLE])
-    return -1.0
+
+@numba.njit(cache=True, error_model="numpy")
+def _voronoi_a_pw(R, d, rc, r_low, por, kf, kp, mp, mw, tmat, gas):
+    return voronoi_a_wall(R, d, r_low, kp, kf, zhou_2009_face_radius(R, por), gas[QUAD_TOL])
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _cheng_b_pp(Ri, Rj, d, rc, r_low, por, Rmin, kf, ki, kj, mi, mj, tmat, gas):
+    Rp = 0.5 * (Ri + Rj)
+    return cheng_1999_voronoi_b(Rp, d, r_low, ki, kj, kf, zhou_2009_face_radius(Rp, por),
+                                gas[CORE_RATIO])
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _chen_b_pp(Ri, Rj, d, rc, r_low, por, Rmin, kf, ki, kj, mi, mj, tmat, gas):
+    return chen_2019_voronoi_b(Ri, Rj, d, r_low, ki, kj, kf, zhou_2009_face_area(Rmin, por),
+                               gas[CORE_RATIO])
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _voronoi_b_pw(R, d, rc, r_low, por, kf, kp, mp, mw, tmat, gas):
+    return voronoi_b_wall(R, d, r_low, kp, kf, zhou_2009_face_radius(R, por), gas[CORE_RATIO])
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _rong_horio_pp(Ri, Rj, d, rc, r_low, por, Rmin, kf, ki, kj, mi, mj, tmat, gas):
+    return rong_horio_1999_surrounding_layer(Ri, Rj, d, kf, gas[LAYER], gas[MIN_SEP], gas[QUAD_TOL])
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _rong_horio_pw(R, d, rc, r_low, por, kf, kp, mp, mw, tmat, gas):
+    return surrounding_layer_wall(R, d, 0.0, kf, gas[LAYER], gas[MIN_SEP])
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _musser_pp(Ri, Rj, d, rc, r_low, por, Rmin, kf, ki, kj, mi, mj, tmat, gas):
+    return musser_2011_surrounding_layer(Ri, Rj, d, r_low, kf, gas[LAYER], gas[MIN_SEP], gas[QUAD_TOL])
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _musser_pw(R, d, rc, r_low, por, kf, kp, mp, mw, tmat, gas):
+    return surrounding_layer_wall(R, d, r_low, kf, gas[LAYER], gas[MIN_SEP])
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _vargas_pp(Ri, Rj, d, rc, r_low, por, Rmin, kf, ki, kj, mi, mj, tmat, gas):
+    M = gas_parameter_m(tmat[mi, ACCOM], tmat[mj, ACCOM], gas[GAMMA_RATIO],
+                        gas[MEAN_FREE_PATH], gas[PR])
+    return vargas_mccarthy_2002(0.5 * (Ri + Rj), rc, kf, M, gas[K_LIQ], gas[FILL_ANGLE])
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _vargas_pw(R, d, rc, r_low, por, kf, kp, mp, mw, tmat, gas):
+    M = gas_parameter_m(tmat[mp, ACCOM], tmat[mw, ACCOM], gas[GAMMA_RATIO],
+                        gas[MEAN_FREE_PATH], gas[PR])
+    return vargas_mccarthy_2002(R, rc, kf, M, gas[K_LIQ], gas[FILL_ANGLE])
+
+
+# ----------------------------------------------------------------- records
+_K = ("thermal_conductivity",)
+_VOR_A = ("conductivity", "porosity", "cutoff", "quadrature_tolerance")
+_VOR_B = ("conductivity", "porosity", "cutoff", "core_ratio")
+_LAYER = ("conductivity", "layer", "min_separation", "cutoff", "quadrature_tolerance")
+RECORDS = (
+    ModelRecord("cheng_1999_voronoi_a", "indirect", INDIRECT_CHENG_VORONOI_A, aliases=("voronoi_a",),
+                material=_K, gas=_VOR_A, reach="cutoff",
+                laws=dict(pp=_cheng_a_pp, pw=_voronoi_a_pw), law=cheng_1999_voronoi_a,
+                reference="Cheng, Yu & Zulli (1999) Voronoi model A; ref 002",
+                summary="integral over the double cone of the Voronoi face (mono-size, mean radius)"),
+    ModelRecord("gan_2016_voronoi_a", "indirect", INDIRECT_GAN_VORONOI_A,
+                material=_K, gas=_VOR_A, reach="cutoff",
+                laws=dict(pp=_gan_a_pp, pw=_voronoi_a_pw), law=gan_2016_voronoi_a,
+                reference="Gan, Zhou & Yu (2016); ref 002", summary="Voronoi model A for multi-size spheres"),
+    ModelRecord("cheng_1999_voronoi_b", "indirect", INDIRECT_CHENG_VORONOI_B, aliases=("voronoi_b",),
+                material=_K, gas=_VOR_B, reach="cutoff",
+                laws=dict(pp=_cheng_b_pp, pw=_voronoi_b_pw), law=cheng_1999_voronoi_b,
+                reference="Cheng, Yu & Zulli (1999) Voronoi model B; ref 002",
+                summary="closed form with an isothermal core"),
+    ModelRecord("chen_2019_voronoi_b", "indirect", INDIRECT_CHEN_VORONOI_B,
+                material=_K, gas=_VOR_B, reach="cutoff",
+                laws=dict(pp=_chen_b_pp, pw=_voronoi_b_pw), law=chen_2019_voronoi_b,
+                reference="Chen et al. (2019); ref 002", summary="Voronoi model B for multi-size spheres"),
+    ModelRecord("rong_horio_1999_surrounding_layer", "indirect", INDIRECT_RONG_HORIO,
+                aliases=("rong_horio_1999",), gas=_LAYER, reach="cutoff",
+                laws=dict(pp=_rong_horio_pp, pw=_rong_horio_pw), law=rong_horio_1999_surrounding_layer,
+                reference="Rong & Horio (1999); ref 002",
+                summary="fluid layer integral including the contact area (use without direct conduction)"),
+    ModelRecord("musser_2011_surrounding_layer", "indirect", INDIRECT_MUSSER,
+                aliases=("surrounding_layer", "musser_2011"), gas=_LAYER, reach="cutoff",
+                laws=dict(pp=_musser_pp, pw=_musser_pw), law=musser_2011_surrounding_layer,
+                reference="Musser (2011); refs 002, 003", summary="fluid layer integral outside the contact"),
+    ModelRecord("vargas_mccarthy_2002", "indirect", INDIRECT_VARGAS_MCCARTHY,
+                aliases=("vargas_mccarthy",),
+                gas=("conductivity", "mean_free_path", "heat_capacity_ratio", "prandtl",
+                     "accommodation_coefficient", "liquid_conductivity", "filling_angle", "cutoff"),
+                reach="cutoff", laws=dict(pp=_vargas_pp, pw=_vargas_pw), law=vargas_mccarthy_2002,
+                reference="Vargas & McCarthy (2002); ref 002",
+                summary="gas gap (and liquid bridge) conductance of touching particles"),
+)
+
+
+def __getattr__(name):
+    # indirect_pp / indirect_pw are generated from the records of all indirect models
+    if name in ("indirect_pp", "indirect_pw"):
+        from . import dispatch
+        return getattr(dispatch.module(), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -56,7 +56,9 @@ class ThermalModel:
         thi[TI_FRIC] = th["friction_id"] if sc.simulation["mechanics"] else -1
         thi[TI_PART] = th["partition_id"]
         thi[TI_INTEG] = th["integrator_id"]
-        self.needs_age = th["direct"] == "zhou_2008_collisional"
+        # per-contact history (contact age and impact speed) when a selected model's record asks
+        self.needs_age = R.history_width({m: th[m] for m in ("direct", "indirect", "convection",
+                                                             "radiation")}) > 0
         thi[TI_AGE] = 1 if self.needs_age else 0
         uses_por = th["indirect_id"] >= 0 or th["convection_id"] >= 0 or th["radiation"] == "zhou_2009"
         self.local_porosity = uses_por and th["porosity"] in ("local", "voronoi")
@@ -83,13 +85,11 @@ class ThermalModel:
         k = self.tmat[:, R.K_COND]
         nm = len(k)
         self.keff = np.array([[series_conductivity(k[a], k[b]) for b in range(nm)] for a in range(nm)]).reshape(nm, nm)
-        # reach of the neighbour list: indirect cut-off and radiation range (in radii)
+        # reach of the neighbour list: the largest of the selected models' records (indirect
+        # cut-off, radiation range, in radii), and one radius for the local porosity
+        selected = {m: th[m] for m in ("direct", "indirect", "convection", "radiation")}
         rmax = float(st.radius.max())
-        reach = 0.0
-        if th["indirect_id"] >= 0:
-            reach = max(reach, self.gas[R.CUTOFF] * rmax)
-        if th["radiation_id"] >= 0:
-            reach = max(reach, (self.gas[R.RAD_RANGE] - 2.0) * rmax)
+        reach = R.neighbour_reach(selected, self.gas, rmax)
         if self.local_porosity:
             reach = max(reach, rmax)
         self.reach = reach
@@ -253,34 +253,38 @@ class ThermalModel:
         return rep
 
     def models_report(self):
+        """`dem check`'s runs/skipped lines: one per mechanism of registry.MECHANISMS that the step
+        runs (labels, porosity and quadrature notes from the selected model's record)."""
         c = self.cfg
         runs, skipped = [], []
         integ = f"{c['integrator']} thermal integration"
         runs.append(integ)
-        for key, label in (("direct", "direct conduction"), ("indirect", "indirect conduction"),
-                           ("convection", "convection"), ("radiation", "radiation"),
-                           ("friction_heat", "friction heat")):
+        for mech in ("direct", "indirect", "convection", "radiation", "friction"):
+            key, label = R.MECHANISMS[mech]
             name = c[key]
-            if name != "none" and not (key == "friction_heat" and self.thi[TI_FRIC] < 0):
+            if name != "none" and not (mech == "friction" and self.thi[TI_FRIC] < 0):
+                rec = R.record(mech, name)
+                gas_keys = rec.inputs()[1]
                 extra = ""
-                if key == "direct":
+                if mech == "direct":
                     how = ""
                     if c.get("correction_auto"):
                         how = (" chosen because youngs_modulus is softened below real_youngs_modulus"
                                if c["correction"] != "none" else " (auto: youngs_modulus not softened)")
                     extra = f" (contact radius {c['contact_radius']}, correction {c['correction']}{how})"
-                if key in ("indirect", "convection") or (key == "radiation" and name == "zhou_2009"):
+                # the kernel measures the porosity for every indirect model
+                if "porosity" in gas_keys or mech == "indirect":
                     kind = ("Voronoi cells (scipy)" if self.voronoi else "local, measured around each particle"
                             if self.local_porosity else "global")
                     extra = f" (porosity {kind})"
-                    if key == "indirect" and name in INTEGRAL_INDIRECT:
-                        extra += f", quadrature tolerance {self.gas[R.QUAD_TOL]:g}"
-                runs.append(f"{label}: {name}{extra}")
+                if "quadrature_tolerance" in gas_keys:
+                    extra += f", quadrature tolerance {self.gas[R.QUAD_TOL]:g}"
+                runs.append(f"{label}: {rec.name}{extra}")
             else:
                 why = f"thermal.{key} = 'none'"
-                if key == "friction_heat" and name != "none":
+                if mech == "friction" and name != "none":
                     why = "mechanics frozen: no sliding"
-                if key in ("indirect", "convection") and "gas" not in self.scene.raw:
+                if mech in ("indirect", "convection") and "gas" not in self.scene.raw:
                     why += " (no [gas] section)"
                 skipped.append(f"{label}: {why}")
         if len(self.cfg["sources"]):

@@ -17,6 +17,7 @@ import math
 
 import numba
 
+from .records import ModelRecord
 from .registry import RAD_KRAUSE_2017, RAD_ZHOU_2009
 
 SIGMA_SB = 5.670374419e-8  # W/(m^2 K^4)
@@ -88,3 +89,20 @@ def radiation_env_temperature(model, acc0, acc1, por, T_f, T_i):
 def radiation_pp_heat(model, eps_i, R_i, T_i, acc0, acc1, por, T_f):
     """Dispatcher: radiative heat rate into particle i [W]."""
     return radiation_heat(eps_i, R_i, radiation_env_temperature(model, acc0, acc1, por, T_f, T_i), T_i)
+
+
+# ----------------------------------------------------------------- records
+# (the accumulate / environment-temperature switches are written by hand). The neighbour reach
+# is radiation_range - 2 radii beyond contact (centres within radiation_range R).
+RECORDS = (
+    ModelRecord("zhou_2009", "radiation", RAD_ZHOU_2009, aliases=("zhou_2009_radiation",),
+                material=("emissivity",), gas=("temperature", "porosity", "radiation_range"),
+                reach="radiation_range", reach_offset=-2.0, law=zhou_2009_radiation,
+                reference="Zhou et al. (2009) continuum radiation; ref 002",
+                summary="T_e = eps T_f + (1 - eps) mean T_j"),
+    ModelRecord("krause_2017", "radiation", RAD_KRAUSE_2017, aliases=("krause_2017_radiation",),
+                material=("emissivity",), gas=("radiation_range",),
+                reach="radiation_range", reach_offset=-2.0, law=krause_2017_radiation,
+                reference="Krause et al. (2017) continuum radiation; ref 002",
+                summary="T_e^4 = emissivity-area weighted mean of T_j^4"),
+)

@@ -1,6 +1,12 @@
-"""Registry of the thermal models: names, integer ids, needed material keys,
-parameters (defaults and allowed ranges), and the table layouts passed to
-the njit kernels.
+"""Registry of the thermal models, derived from their records (dem.thermal.records).
+
+Adding a model: write its law and its ``ModelRecord`` in its own module, and add the module to
+``MODEL_MODULES`` below (docs/architecture.md, "Adding a model"). Everything else - names, ids,
+aliases, required inputs, defaults and ranges, the table layouts, the per-contact history width,
+the neighbour reach and the njit dispatchers - is derived from the records.
+
+The columns below are the fixed part of the table layouts (the kernels index them by these
+constants); a model's ``new_inputs`` are appended after them, in ``MODEL_MODULES`` order.
 
 Material table ``tmat[n_materials, N_TPROP]`` (float64, SI units). Column
 indices (module constants) and the material-dictionary key of each column:
@@ -43,11 +49,35 @@ Gas / global parameter array ``gas[N_GAS]`` (float64), index and key:
     FILL_ANGLE     18 "filling_angle"            rad (liquid bridge filling angle, 0: dry)
     RAD_RANGE      19 "radiation_range"          -  radius of radiative influence / R
 """
+import importlib
 import math
 
 import numpy as np
 
-from . import contact_radius as _cr
+from .records import GAS, MATERIAL, Input
+
+# the modules holding the model records (one line per model file)
+MODEL_MODULES = (
+    "dem.thermal.direct",
+    "dem.thermal.indirect",
+    "dem.thermal.convection",
+    "dem.thermal.radiation",
+    "dem.thermal.generation",
+    "dem.thermal.contact_radius",
+    "dem.thermal.bahrami_2006",
+)
+
+# mechanism -> (thermal scene key, label in `dem check`)
+MECHANISMS = {
+    "direct": ("direct", "direct conduction"),
+    "indirect": ("indirect", "indirect conduction"),
+    "convection": ("convection", "convection"),
+    "radiation": ("radiation", "radiation"),
+    "friction": ("friction_heat", "friction heat"),
+    "partition": ("partition", "heat partition"),
+    "contact_radius": ("contact_radius", "contact radius"),
+    "correction": ("correction", "contact radius correction"),
+}
 
 # ---------------------------------------------------------------- material table
 K_COND = 0
@@ -61,21 +91,23 @@ YOUNG = 7
 POISSON = 8
 REAL_YOUNG = 9
 ACCOM = 10
-N_TPROP = 11
 
-MATERIAL_KEYS = {
-    "thermal_conductivity": K_COND,
-    "heat_capacity": CP,
-    "density": DENSITY,
-    "emissivity": EMISSIVITY,
-    "microhardness": MICROHARDNESS,
-    "roughness": ROUGHNESS,
-    "asperity_slope": ASPERITY_SLOPE,
-    "youngs_modulus": YOUNG,
-    "poisson_ratio": POISSON,
-    "real_youngs_modulus": REAL_YOUNG,
-    "accommodation_coefficient": ACCOM,
-}
+_INF = math.inf
+# fixed material columns, in column order (a table column per input)
+BASE_MATERIAL_INPUTS = (
+    Input("thermal_conductivity", MATERIAL, "W/(m K)", None, (0.0, _INF), "thermal conductivity (inf: perfect conductor)"),
+    Input("heat_capacity", MATERIAL, "J/(kg K)", None, (0.0, _INF), "specific heat capacity"),
+    Input("density", MATERIAL, "kg/m^3", None, (0.0, _INF), "density"),
+    Input("emissivity", MATERIAL, "-", None, (0.0, _INF), "grey-body emissivity"),
+    Input("microhardness", MATERIAL, "Pa", None, (0.0, _INF), "surface microhardness"),
+    Input("roughness", MATERIAL, "m", None, (0.0, _INF), "RMS surface roughness"),
+    Input("asperity_slope", MATERIAL, "-", None, (0.0, _INF), "RMS asperity slope"),
+    Input("youngs_modulus", MATERIAL, "Pa", None, (0.0, _INF), "Young's modulus used in the simulation"),
+    Input("poisson_ratio", MATERIAL, "-", None, (0.0, _INF), "Poisson's ratio"),
+    Input("real_youngs_modulus", MATERIAL, "Pa", 0.0, (0.0, _INF), "physical Young's modulus (0: same as youngs_modulus)"),
+    Input("accommodation_coefficient", MATERIAL, "-", None, (0.0, _INF),
+          "thermal accommodation coefficient surface-gas (default: the gas one)"),
+)
 
 # ---------------------------------------------------------------- gas / global table
 KF = 0
@@ -99,37 +131,35 @@ K_LIQ = 17
 FILL_ANGLE = 18
 RAD_RANGE = 19
 QUAD_TOL = 20
-N_GAS = 21
 
-# key -> (index, default, (min, max), unit, description); default None = required
-# by the models that use it (NaN when absent).
-GAS_KEYS = {
-    "conductivity": (KF, None, (0.0, math.inf), "W/(m K)", "fluid thermal conductivity k_f"),
-    "density": (RHO_F, None, (0.0, math.inf), "kg/m^3", "fluid density"),
-    "viscosity": (MU_F, None, (0.0, math.inf), "Pa s", "fluid dynamic viscosity"),
-    "heat_capacity": (CP_F, None, (0.0, math.inf), "J/(kg K)", "fluid specific heat"),
-    "prandtl": (PR, None, (0.0, math.inf), "-", "Prandtl number (default mu cp / k)"),
-    "mean_free_path": (MEAN_FREE_PATH, 6.8e-8, (0.0, math.inf), "m", "gas molecular mean free path"),
-    "heat_capacity_ratio": (GAMMA_RATIO, 1.4, (1.0, 5.0 / 3.0 + 1e-12), "-", "gas cp/cv"),
-    "accommodation_coefficient": (ACCOMMODATION, 0.9, (1e-6, 1.0), "-", "default thermal accommodation coefficient"),
-    "temperature": (T_F, None, (0.0, math.inf), "K", "fluid temperature"),
-    "velocity": (U_F, 0.0, (0.0, math.inf), "m/s", "fluid-particle slip velocity magnitude"),
-    "porosity": (POROSITY_GLOBAL, 0.4, (0.0, 1.0), "-", "porosity used when no local value"),
-    "cutoff": (CUTOFF, 1.0, (0.0, math.inf), "-", "indirect conduction cut-off gap / min(Ri,Rj) (Zhou 2009: 1)"),
-    "layer": (LAYER, 0.4, (0.0, math.inf), "-", "surrounding fluid layer thickness / R (ref 003)"),
-    "min_separation": (MIN_SEP, 2.75e-8, (0.0, math.inf), "m", "minimum conduction distance S (ref 003)"),
-    "core_ratio": (CORE_RATIO, 0.5, (1e-6, 1.0), "-", "isothermal core radius / R (Cheng 1999: 0.5)"),
-    "viscosity_ratio": (VISC_RATIO, 1.0, (0.0, math.inf), "-", "mu_f / mu_f(surface) in Whitaker"),
-    "li_mason_exponent": (LM_EXPONENT, 4.75, (3.5, 4.75), "-", "Li & Mason porosity exponent m (3.5 dilute, 4.75 dense)"),
-    "liquid_conductivity": (K_LIQ, 0.0, (0.0, math.inf), "W/(m K)", "liquid bridge conductivity"),
-    "filling_angle": (FILL_ANGLE, 0.0, (0.0, math.pi / 2), "rad", "liquid bridge filling angle (0 = dry)"),
-    "radiation_range": (RAD_RANGE, 3.0, (1.0, math.inf), "-", "radius of radiative influence / R"),
+# fixed gas/global columns, in column order; default None = required by the models that use it
+BASE_GAS_INPUTS = (
+    Input("conductivity", GAS, "W/(m K)", None, (0.0, _INF), "fluid thermal conductivity k_f"),
+    Input("density", GAS, "kg/m^3", None, (0.0, _INF), "fluid density"),
+    Input("viscosity", GAS, "Pa s", None, (0.0, _INF), "fluid dynamic viscosity"),
+    Input("heat_capacity", GAS, "J/(kg K)", None, (0.0, _INF), "fluid specific heat"),
+    Input("prandtl", GAS, "-", None, (0.0, _INF), "Prandtl number (default mu cp / k)"),
+    Input("mean_free_path", GAS, "m", 6.8e-8, (0.0, _INF), "gas molecular mean free path"),
+    Input("heat_capacity_ratio", GAS, "-", 1.4, (1.0, 5.0 / 3.0 + 1e-12), "gas cp/cv"),
+    Input("accommodation_coefficient", GAS, "-", 0.9, (1e-6, 1.0), "default thermal accommodation coefficient"),
+    Input("temperature", GAS, "K", None, (0.0, _INF), "fluid temperature"),
+    Input("velocity", GAS, "m/s", 0.0, (0.0, _INF), "fluid-particle slip velocity magnitude"),
+    Input("porosity", GAS, "-", 0.4, (0.0, 1.0), "porosity used when no local value"),
+    Input("cutoff", GAS, "-", 1.0, (0.0, _INF), "indirect conduction cut-off gap / min(Ri,Rj) (Zhou 2009: 1)"),
+    Input("layer", GAS, "-", 0.4, (0.0, _INF), "surrounding fluid layer thickness / R (ref 003)"),
+    Input("min_separation", GAS, "m", 2.75e-8, (0.0, _INF), "minimum conduction distance S (ref 003)"),
+    Input("core_ratio", GAS, "-", 0.5, (1e-6, 1.0), "isothermal core radius / R (Cheng 1999: 0.5)"),
+    Input("viscosity_ratio", GAS, "-", 1.0, (0.0, _INF), "mu_f / mu_f(surface) in Whitaker"),
+    Input("li_mason_exponent", GAS, "-", 4.75, (3.5, 4.75), "Li & Mason porosity exponent m (3.5 dilute, 4.75 dense)"),
+    Input("liquid_conductivity", GAS, "W/(m K)", 0.0, (0.0, _INF), "liquid bridge conductivity"),
+    Input("filling_angle", GAS, "rad", 0.0, (0.0, math.pi / 2), "liquid bridge filling angle (0 = dry)"),
+    Input("radiation_range", GAS, "-", 3.0, (1.0, _INF), "radius of radiative influence / R"),
     # numerical: relative tolerance of the adaptive Gauss-Kronrod quadrature of the integral
     # indirect models (Voronoi A, surrounding layer); default chosen from the work-precision
     # sweep of benchmarks/accuracy (docs/benchmarks.md, "Quadrature tolerance")
-    "quadrature_tolerance": (QUAD_TOL, 1e-4, (1e-14, 0.1), "-",
-                             "relative tolerance of the integral indirect models' quadrature"),
-}
+    Input("quadrature_tolerance", GAS, "-", 1e-4, (1e-14, 0.1),
+          "relative tolerance of the integral indirect models' quadrature"),
+)
 
 # ---------------------------------------------------------------- model ids
 # direct conduction
@@ -164,128 +194,136 @@ PART_VARADI_1996 = 0
 PART_ROJEK_2014 = 1
 PART_EQUAL = 2
 
-_K = "thermal_conductivity"
-_COLL = ("thermal_conductivity", "heat_capacity", "density", "youngs_modulus", "poisson_ratio")
-_BEAU = ("thermal_conductivity", "microhardness", "roughness", "asperity_slope",
-         "youngs_modulus", "poisson_ratio")
+
+# ---------------------------------------------------------------- derived from the records
+_DERIVED = None
 
 
-def _p(*names):
-    return tuple(names)
+def _collect(modules=MODEL_MODULES, base_material=BASE_MATERIAL_INPUTS, base_gas=BASE_GAS_INPUTS):
+    """Derive every table from the records of ``modules`` (pure: used by the tests with a
+    synthetic module list). Raises ValueError on a duplicate name, alias or id, an unknown
+    input key, or a new input that redefines an existing column."""
+    records = []
+    for modname in modules:
+        records.extend(importlib.import_module(modname).RECORDS)
+    mat_inputs = list(base_material)
+    gas_inputs = list(base_gas)
+    for rec in records:
+        for inp in rec.new_inputs:
+            cols = mat_inputs if inp.table == MATERIAL else gas_inputs
+            if any(c.key == inp.key for c in cols):
+                raise ValueError(f"model '{rec.name}' declares input '{inp.key}' that already exists")
+            cols.append(inp)
+    mat_keys = {i.key: n for n, i in enumerate(mat_inputs)}
+    gas_keys = {i.key: n for n, i in enumerate(gas_inputs)}
+    by_mech = {m: {} for m in MECHANISMS}
+    aliases = {m: {} for m in MECHANISMS}
+    for rec in records:
+        if rec.mechanism not in by_mech:
+            raise ValueError(f"model '{rec.name}': unknown mechanism '{rec.mechanism}'")
+        names = by_mech[rec.mechanism]
+        if rec.name in names or rec.name in aliases[rec.mechanism]:
+            raise ValueError(f"duplicate {rec.mechanism} model name '{rec.name}'")
+        if any(r.id == rec.id for r in names.values()):
+            raise ValueError(f"duplicate {rec.mechanism} model id {rec.id} ('{rec.name}')")
+        mat, gas = rec.inputs()
+        for k in mat:
+            if k not in mat_keys:
+                raise ValueError(f"model '{rec.name}' needs unknown material key '{k}'")
+        for k in gas:
+            if k not in gas_keys:
+                raise ValueError(f"model '{rec.name}' reads unknown gas key '{k}'")
+        if rec.reach is not None and rec.reach not in gas_keys:
+            raise ValueError(f"model '{rec.name}': reach key '{rec.reach}' is not a gas key")
+        names[rec.name] = rec
+        for a in rec.aliases:
+            if a in names or a in aliases[rec.mechanism]:
+                raise ValueError(f"duplicate {rec.mechanism} alias '{a}'")
+            aliases[rec.mechanism][a] = rec.name
+    return dict(records=tuple(records), material_inputs=tuple(mat_inputs), gas_inputs=tuple(gas_inputs),
+                material_keys=mat_keys, gas_keys=gas_keys, by_mech=by_mech, aliases=aliases)
 
 
-# mechanism -> name -> dict(id, material keys, gas/global parameter keys)
-MODELS = {
-    "direct": {
-        "batchelor_obrien": dict(id=DIRECT_BATCHELOR_OBRIEN, material=(_K,), params=()),
-        "thermal_pipe": dict(id=DIRECT_THERMAL_PIPE, material=(_K,), params=()),
-        "quintana_ruiz_campello_2020": dict(id=DIRECT_QUINTANA_RUIZ_CAMPELLO, material=(_K,), params=()),
-        "rojek_2014": dict(id=DIRECT_ROJEK, material=(_K,), params=()),
-        "zhou_2008_collisional": dict(id=DIRECT_ZHOU_COLLISIONAL, material=_COLL, params=()),
-        "beaulieu_2020": dict(id=DIRECT_BEAULIEU, material=_BEAU,
-                              params=_p("conductivity", "mean_free_path", "heat_capacity_ratio",
-                                        "prandtl", "accommodation_coefficient")),
-    },
-    "indirect": {
-        "cheng_1999_voronoi_a": dict(id=INDIRECT_CHENG_VORONOI_A, material=(_K,),
-                                     params=_p("conductivity", "porosity", "cutoff")),
-        "gan_2016_voronoi_a": dict(id=INDIRECT_GAN_VORONOI_A, material=(_K,),
-                                   params=_p("conductivity", "porosity", "cutoff")),
-        "cheng_1999_voronoi_b": dict(id=INDIRECT_CHENG_VORONOI_B, material=(_K,),
-                                     params=_p("conductivity", "porosity", "cutoff", "core_ratio")),
-        "chen_2019_voronoi_b": dict(id=INDIRECT_CHEN_VORONOI_B, material=(_K,),
-                                    params=_p("conductivity", "porosity", "cutoff", "core_ratio")),
-        "rong_horio_1999_surrounding_layer": dict(id=INDIRECT_RONG_HORIO, material=(),
-                                                  params=_p("conductivity", "layer", "min_separation", "cutoff")),
-        "musser_2011_surrounding_layer": dict(id=INDIRECT_MUSSER, material=(),
-                                              params=_p("conductivity", "layer", "min_separation", "cutoff")),
-        "vargas_mccarthy_2002": dict(id=INDIRECT_VARGAS_MCCARTHY, material=(),
-                                     params=_p("conductivity", "mean_free_path", "heat_capacity_ratio",
-                                               "prandtl", "accommodation_coefficient",
-                                               "liquid_conductivity", "filling_angle")),
-    },
-    "convection": {
-        "ranz_marshall": dict(id=NU_RANZ_MARSHALL, material=(), params=_p("conductivity", "prandtl")),
-        "whitaker": dict(id=NU_WHITAKER, material=(), params=_p("conductivity", "prandtl", "viscosity_ratio")),
-        "gunn": dict(id=NU_GUNN, material=(), params=_p("conductivity", "prandtl", "porosity")),
-        "li_mason": dict(id=NU_LI_MASON, material=(),
-                         params=_p("conductivity", "prandtl", "porosity", "li_mason_exponent")),
-    },
-    "radiation": {
-        "zhou_2009": dict(id=RAD_ZHOU_2009, material=("emissivity",),
-                          params=_p("temperature", "porosity", "radiation_range")),
-        "krause_2017": dict(id=RAD_KRAUSE_2017, material=("emissivity",), params=_p("radiation_range")),
-    },
-    "friction": {
-        "nguyen_2009": dict(id=FRIC_NGUYEN_2009, material=(), params=()),
-        "rojek_2014": dict(id=FRIC_ROJEK_2014, material=(), params=()),
-        "impact_heat": dict(id=FRIC_IMPACT_001, material=(), params=()),
-    },
-    "partition": {
-        "varadi_1996": dict(id=PART_VARADI_1996, material=(_K,), params=()),
-        "rojek_2014": dict(id=PART_ROJEK_2014, material=(_K, "density", "heat_capacity"), params=()),
-        "equal": dict(id=PART_EQUAL, material=(), params=()),
-    },
-    "contact_radius": {
-        name: dict(id=i, material=(("youngs_modulus", "poisson_ratio") if name == "hertz_force" else ()),
-                   params=())
-        for name, i in _cr.METHODS.items()
-    },
-    "correction": {
-        name: dict(id=i, material=(() if name == "none" else ("youngs_modulus", "poisson_ratio",
-                                                               "real_youngs_modulus")),
-                   params=())
-        for name, i in _cr.CORRECTIONS.items()
-    },
-}
+def derived():
+    """The tables derived from the records of MODEL_MODULES (built once)."""
+    global _DERIVED
+    if _DERIVED is None:
+        d = _collect()
+        fixed_m = {i.key: n for n, i in enumerate(BASE_MATERIAL_INPUTS)}
+        fixed_g = {i.key: n for n, i in enumerate(BASE_GAS_INPUTS)}
+        assert all(d["material_keys"][k] == n for k, n in fixed_m.items())
+        assert all(d["gas_keys"][k] == n for k, n in fixed_g.items())
+        _DERIVED = d
+    return _DERIVED
 
-# convenient aliases accepted by model_id()
-ALIASES = {
-    "direct": {"batchelor_obrien_1977": "batchelor_obrien", "bob": "batchelor_obrien",
-               "quintana_ruiz_campello": "quintana_ruiz_campello_2020", "zhou_2008": "zhou_2008_collisional",
-               "collisional": "zhou_2008_collisional", "beaulieu_2020_network": "beaulieu_2020",
-               "beaulieu": "beaulieu_2020"},
-    "indirect": {"voronoi_a": "cheng_1999_voronoi_a", "voronoi_b": "cheng_1999_voronoi_b",
-                 "surrounding_layer": "musser_2011_surrounding_layer",
-                 "rong_horio_1999": "rong_horio_1999_surrounding_layer",
-                 "musser_2011": "musser_2011_surrounding_layer", "vargas_mccarthy": "vargas_mccarthy_2002"},
-    "convection": {"ranz_marshall_1952": "ranz_marshall", "whitaker_1972": "whitaker", "gunn_1978": "gunn",
-                   "li_mason_2000": "li_mason"},
-    "radiation": {"zhou_2009_radiation": "zhou_2009", "krause_2017_radiation": "krause_2017"},
-    "friction": {"nguyen_2009_friction_heat": "nguyen_2009"},
-    "partition": {"varadi_1996_partition": "varadi_1996"},
-    "contact_radius": {},
-    "correction": {},
-}
+
+def __getattr__(name):
+    # tables derived lazily from the records (the model modules import this module's constants)
+    if name == "MATERIAL_KEYS":
+        return dict(derived()["material_keys"])
+    if name == "GAS_KEYS":
+        # key -> (index, default, (min, max), unit, description)
+        d = derived()
+        return {i.key: (d["gas_keys"][i.key], i.default, i.bounds, i.unit, i.description)
+                for i in d["gas_inputs"]}
+    if name == "N_TPROP":
+        return len(derived()["material_inputs"])
+    if name == "N_GAS":
+        return len(derived()["gas_inputs"])
+    if name == "MODELS":
+        # mechanism -> name -> dict(id, material keys, gas/global parameter keys)
+        return {m: {n: dict(id=r.id, material=r.inputs()[0], params=r.inputs()[1]) for n, r in recs.items()}
+                for m, recs in derived()["by_mech"].items()}
+    if name == "ALIASES":
+        return {m: dict(a) for m, a in derived()["aliases"].items()}
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def records(mechanism=None):
+    """All model records, or those of one mechanism (name -> record)."""
+    if mechanism is None:
+        return derived()["records"]
+    if mechanism not in MECHANISMS:
+        raise ValueError(f"unknown mechanism '{mechanism}', valid: {', '.join(sorted(MECHANISMS))}")
+    return dict(derived()["by_mech"][mechanism])
 
 
 def valid_names(mechanism):
     """Sorted list of the canonical model names of a mechanism."""
-    if mechanism not in MODELS:
-        raise ValueError(f"unknown mechanism '{mechanism}', valid: {', '.join(sorted(MODELS))}")
-    return sorted(MODELS[mechanism])
+    return sorted(records(mechanism))
 
 
 def canonical_name(mechanism, name):
     names = valid_names(mechanism)
     key = str(name).strip().lower()
-    key = ALIASES[mechanism].get(key, key)
-    if key not in MODELS[mechanism]:
+    key = derived()["aliases"][mechanism].get(key, key)
+    if key not in names:
         raise ValueError(f"unknown {mechanism} model '{name}', valid: {', '.join(names)}")
     return key
 
 
+def record(mechanism, name):
+    """The record of model ``name`` (canonical name or alias) of ``mechanism``."""
+    return derived()["by_mech"][mechanism][canonical_name(mechanism, name)]
+
+
 def model_id(mechanism, name):
     """Integer id of ``name`` for ``mechanism``; ValueError listing valid names."""
-    return MODELS[mechanism][canonical_name(mechanism, name)]["id"]
+    return record(mechanism, name).id
 
 
 def required_material_keys(mechanism, name):
-    return MODELS[mechanism][canonical_name(mechanism, name)]["material"]
+    return record(mechanism, name).inputs()[0]
 
 
 def required_params(mechanism, name):
-    return MODELS[mechanism][canonical_name(mechanism, name)]["params"]
+    return record(mechanism, name).inputs()[1]
+
+
+def gas_input(key):
+    """The ``Input`` declaration of gas/global key ``key``."""
+    d = derived()
+    return d["gas_inputs"][d["gas_keys"][key]]
 
 
 def check_material(mechanism, name, material, material_name="material"):
@@ -296,18 +334,45 @@ def check_material(mechanism, name, material, material_name="material"):
                          f"required by {mechanism} model '{canonical_name(mechanism, name)}'")
 
 
-def check_params(mechanism, name, gas):
-    """Raise ValueError if a needed gas/global parameter without default is missing."""
+def missing_params(mechanism, name, gas):
+    """Gas/global keys the model needs that have no default and are absent from ``gas``."""
     missing = []
     for k in required_params(mechanism, name):
-        default = GAS_KEYS[k][1]
-        if k not in gas and default is None:
+        if k not in gas and gas_input(k).default is None:
             if k == "prandtl" and all(x in gas for x in ("viscosity", "heat_capacity", "conductivity")):
                 continue
             missing.append(k)
+    return missing
+
+
+def check_params(mechanism, name, gas):
+    """Raise ValueError if a needed gas/global parameter without default is missing."""
+    missing = missing_params(mechanism, name, gas)
     if missing:
         raise ValueError(f"missing parameter(s) {', '.join(missing)} required by {mechanism} model "
                          f"'{canonical_name(mechanism, name)}'")
+
+
+def history_width(selected):
+    """Floats stored per contact by the selected models: ``selected`` maps mechanism -> name
+    (or "none"); the largest ``history`` of their records (0: no per-contact state)."""
+    width = 0
+    for mech, name in selected.items():
+        if name and name != "none":
+            width = max(width, record(mech, name).history)
+    return width
+
+
+def neighbour_reach(selected, gas, rmax):
+    """How far beyond contact [m] the selected models need neighbours: the largest
+    (gas[reach key] + reach_offset) * rmax over their records (0: contacts only)."""
+    reach = 0.0
+    for mech, name in selected.items():
+        if name and name != "none":
+            rec = record(mech, name)
+            if rec.reach is not None:
+                reach = max(reach, (gas[derived()["gas_keys"][rec.reach]] + rec.reach_offset) * rmax)
+    return reach
 
 
 def _check_range(key, value, lo, hi):
@@ -326,17 +391,20 @@ def build_material_table(materials):
     else:
         mats = list(materials)
         names = [str(i) for i in range(len(mats))]
-    tmat = np.full((len(mats), N_TPROP), np.nan)
+    d = derived()
+    keys = d["material_keys"]
+    tmat = np.full((len(mats), len(keys)), np.nan)
     for i, m in enumerate(mats):
         for k, v in m.items():
-            if k not in MATERIAL_KEYS:
-                raise ValueError(f"unknown material key '{k}', valid: {', '.join(sorted(MATERIAL_KEYS))}")
+            if k not in keys:
+                raise ValueError(f"unknown material key '{k}', valid: {', '.join(sorted(keys))}")
             v = float(v)
             if v < 0.0:
                 raise ValueError(f"material key '{k}' must be >= 0, got {v}")
-            tmat[i, MATERIAL_KEYS[k]] = v
-        if np.isnan(tmat[i, REAL_YOUNG]):
-            tmat[i, REAL_YOUNG] = 0.0
+            tmat[i, keys[k]] = v
+        for inp in d["material_inputs"]:  # declared defaults (real_youngs_modulus: 0 = not given)
+            if inp.default is not None and np.isnan(tmat[i, keys[inp.key]]):
+                tmat[i, keys[inp.key]] = inp.default
     return tmat, names
 
 
@@ -347,17 +415,19 @@ def build_gas_table(gas=None):
     mu_f cp_f / k_f when those are given.
     """
     gas = dict(gas or {})
-    arr = np.full(N_GAS, np.nan)
+    d = derived()
+    keys = d["gas_keys"]
+    arr = np.full(len(keys), np.nan)
     for k, v in gas.items():
-        if k not in GAS_KEYS:
-            raise ValueError(f"unknown gas/global parameter '{k}', valid: {', '.join(sorted(GAS_KEYS))}")
-        idx, _, (lo, hi), _, _ = GAS_KEYS[k]
+        if k not in keys:
+            raise ValueError(f"unknown gas/global parameter '{k}', valid: {', '.join(sorted(keys))}")
+        lo, hi = d["gas_inputs"][keys[k]].bounds
         v = float(v)
         _check_range(k, v, lo, hi)
-        arr[idx] = v
-    for k, (idx, default, _, _, _) in GAS_KEYS.items():
-        if k not in gas and default is not None:
-            arr[idx] = default
+        arr[keys[k]] = v
+    for inp in d["gas_inputs"]:
+        if inp.key not in gas and inp.default is not None:
+            arr[keys[inp.key]] = inp.default
     if "prandtl" not in gas and all(x in gas for x in ("viscosity", "heat_capacity", "conductivity")):
         arr[PR] = gas["viscosity"] * gas["heat_capacity"] / gas["conductivity"]
     return arr

@@ -46,10 +46,10 @@ def _model(v, t, key, mech, default):
     if name == "none":
         return "none", -1
     try:
-        canon = R.canonical_name(mech, name)
+        rec = R.record(mech, name)
     except ValueError:
         v.err(f"thermal.{key}", f"unknown {mech} model {name!r}; valid: none, {', '.join(R.valid_names(mech))}")
-    return canon, R.MODELS[mech][canon]["id"]
+    return rec.name, rec.id
 
 
 def parse_thermal(v, sc, data):
@@ -109,28 +109,21 @@ def parse_thermal(v, sc, data):
     uvec = v.vec(g, "velocity", "gas", default=np.zeros(3))
     gas["velocity"] = float(np.linalg.norm(uvec))
     th["gas_velocity"] = uvec
-    needs_gas = [("indirect", th["indirect"]), ("convection", th["convection"])]
-    if th["direct"] == "beaulieu_2020":
-        needs_gas.append(("direct", th["direct"]))
-    for mechn, name in needs_gas:
-        if name == "none":
+    # gas inputs without a default that the selected models read (from their records)
+    for mechn, (key, _label) in R.MECHANISMS.items():
+        name = th[key]
+        if name == "none" or (mechn == "friction" and not mech) or (mechn == "partition" and th["friction_id"] < 0):
             continue
-        if "gas" not in data:
-            v.err("gas", f"missing [gas] section, needed by {mechn} model {name!r} (conductivity, ...)")
-        try:
-            R.check_params(mechn, name, gas)
-        except ValueError as exc:
-            v.err("gas", str(exc))
-    if th["convection"] != "none" or th["radiation"] == "zhou_2009":
-        if "temperature" not in gas:
-            v.err("gas.temperature", "missing required key (the gas temperature, K), needed by "
-                                     + ("convection" if th["convection"] != "none" else "radiation zhou_2009"))
-    if th["convection"] != "none":
-        for k in ("density", "viscosity", "conductivity"):
-            if k not in gas:
-                v.err(f"gas.{k}", f"missing required key, needed by convection model {th['convection']!r}")
-        if "prandtl" not in gas and "heat_capacity" not in gas:
-            v.err("gas.prandtl", "missing: give prandtl, or heat_capacity (Pr = mu cp / k)")
+        missing = R.missing_params(mechn, name, gas)
+        if missing and "gas" not in data:
+            v.err("gas", f"missing [gas] section, needed by {mechn} model {name!r} ({', '.join(missing)}, ...)")
+        for k in missing:
+            inp = R.gas_input(k)
+            if k == "prandtl":
+                v.err("gas.prandtl", f"missing: give prandtl, or heat_capacity (Pr = mu cp / k), needed by "
+                                     f"{mechn} model {name!r}")
+            v.err(f"gas.{k}", f"missing required key ({inp.description}, {inp.unit}), needed by {mechn} "
+                              f"model {name!r}")
     if "quadrature_tolerance" in t:
         if "quadrature_tolerance" in g:
             v.err("thermal.quadrature_tolerance", "given twice (also in [gas]); keep the one in [thermal]")
@@ -140,15 +133,16 @@ def parse_thermal(v, sc, data):
     # materials: thermal keys needed by the chosen models
     for k, m in enumerate(sc.materials):
         p = f"materials[{k}]"
-        for key in R.MATERIAL_KEYS:
+        for inp in R.derived()["material_inputs"]:
+            key = inp.key
             if key in m and key not in ("density", "youngs_modulus", "poisson_ratio"):
-                v.num(m, key, p, lo=0, lo_open=key in ("thermal_conductivity", "heat_capacity"))
+                v.num(m, key, p, lo=inp.bounds[0], hi=None if math.isinf(inp.bounds[1]) else inp.bounds[1],
+                      lo_open=key in ("thermal_conductivity", "heat_capacity"))
         if "heat_capacity" not in m:
             v.err(p + ".heat_capacity", "missing required key for heat transfer (J/(kg K), > 0)")
     used = set(np.unique(sc.material).tolist()) | {w["material"] for w in sc.walls}
-    for mech_, name in (("direct", th["direct"]), ("indirect", th["indirect"]),
-                        ("radiation", th["radiation"]), ("partition", th["partition"]),
-                        ("contact_radius", th["contact_radius"]), ("correction", th["correction"])):
+    for mech_, (key_, _label) in R.MECHANISMS.items():
+        name = th[key_]
         if name == "none" or (mech_ == "partition" and th["friction_id"] < 0):
             continue
         for k in sorted(used):
