@@ -407,9 +407,130 @@ def run_case(case_dir, out=None, *, transport=None, end_time=None, restart=False
         outdir.claim(out / "checkpoints")
         (out / "checkpoints").mkdir(exist_ok=True)
     cont = _continue_command(case_dir, out, end_time, transport, R.size)
+    timer = iface.timer
+    if R.root:
+        proc = _start_solver(out, cfg, exe, external_solver, log)
+        ex.peer_process = proc if not external_solver else None
+        link = _SolverLink(R, ex, proc, mesh, cfg, out, timer)
+    else:
+        link = _FollowerLink(R)
+
+    def output(fluid, frame, t, step):
+        _output(hist, vtk, diag, sim, iface, fluid, frame, t, step, t_wall0, timer)
+
+    def restart_point(step, t, fluid):
+        with timer("output"):
+            _write_restart_point(R, sim, iface, out, step, t, fluid)
+
+    loop = CoupledLoop(link, iface, RunWatch(mesh, cfg, log if R.root else _silent), output, restart_point,
+                       n_steps=n_steps, i0=i0, t_start=t_start, dt=dt, k=k, out_every=out_every,
+                       write_every=write_every, restart=restart, cstate=cstate,
+                       log=log if R.root else _silent)
+    status = "running"
+    try:
+        loop.run()
+        status = "finished"
+        link.finish(loop.step)
+    except (CouplingError, SimulationError, KeyboardInterrupt) as e:
+        status = "failed"
+        link.fail(e)
+        with timer("output"):
+            sim.write_checkpoint(str(out / "checkpoint.npz"))
+        link.explain(e, sim)
+        raise
+    finally:
+        link.close(status, lambda failing: _write_timings(
+            out / "timings.json", _timings(timer, t_wall0, sim, n_steps=loop.step - i0, k=k), failing=failing))
+    # ---- final output
+    fa = sim.final_arrays()
+    if fa is not None:
+        save_npz(str(out / "final.npz"), **fa)
+    sim.write_checkpoint(str(out / "checkpoint.npz"))
+    step, t = loop.step, loop.t
+    png = plot(out, f"{case.dir.name}: {cfg.transport} transport") if R.root else None
+    stop_sig, peer_sig = loop.stop_sig, loop.peer_sig
+    if peer_sig:  # the solver stopped on a signal: did this process get one too (a scheduler's TERM)?
+        stop_sig = stop_sig or link.own_stop()
+    signum = stop_sig or peer_sig
+    if signum:
+        raise RunInterrupted(signum, _stopped_line(signum, bool(stop_sig), t, step, out, cont))
     if not R.root:
-        return _follow(R, sim, iface, n_steps, i0, t_start, dt, k, out, write_every, out_every,
-                       t_wall0, restart, cstate, cont)
+        return {}
+    summ = _timings(timer, t_wall0, sim, n_steps=step - i0, k=k)
+    summ.update(out=str(out), steps=step - i0, time=t, png=str(png) if png else None, **loop.watch.summary())
+    if cstate is not None:
+        summ["restart_frame_difference"] = cstate.get("frame_difference")
+    if not quiet:
+        log(_format_timings(summ))
+    return summ
+
+
+class CoupledLoop:
+    """The coupled loop, the same on every DEM rank (rank 0 talks to the gas solver through
+    its link, the other ranks receive what rank 0 got: :class:`_SolverLink`,
+    :class:`_FollowerLink`), for a fresh start and a restart alike. Coupling step s
+    (global index ``step = i0 + s``, time t -> t + dt):
+
+    1. a stop request of this process (rank 0; every rank learns it with the next frame)
+       makes this the last step;
+    2. ``iface.prepare``: the exchange fields of the particles at t, the fluid force and heat
+       set as the DEM's input for the interval (Simulation.set_fluid);
+    3. (first step of a fresh run) the output of t = t_start;
+    4. the frame is sent (FINAL flag on the last step), the DEM advances ``k`` steps while
+       the gas solves the same interval, the particles are mapped for the next step;
+    5. the gas frame of t + dt is received and checked (check_gas_fields);
+    6. output every ``out_every`` coupling steps, a restart point every ``write_every``
+       steps (the solver's writeInterval), both at the last step (end, stop or the solver's
+       FINAL frame)."""
+
+    def __init__(self, link, iface, watch, output, restart_point, *, n_steps, i0, t_start, dt, k,
+                 out_every, write_every, restart, cstate, log):
+        from dem.operations import Every
+        self.link, self.iface, self.watch = link, iface, watch
+        self.output, self.restart_point = output, restart_point
+        self.n_steps, self.i0, self.t_start, self.dt, self.k = n_steps, i0, t_start, dt, k
+        self.outputs = Every(out_every)            # in coupling steps of this run
+        self.restart_points = Every(write_every)   # in coupling steps since t = 0 (OpenFOAM's writes)
+        self.restart, self.cstate, self.log = restart, cstate, log
+        self.step, self.t = i0, t_start
+        self.stop_sig = 0   # SIGINT/SIGTERM of this process (rank 0 decides for every DEM rank)
+        self.peer_sig = 0   # the signal that stopped the gas solver (other ranks: either signal)
+
+    def run(self):
+        from dem.operations import PAUSE
+        link, iface, dt = self.link, self.iface, self.dt
+        fluid = link.first(self.i0, self.t_start, self.cstate)
+        for s in range(1, self.n_steps + 1):
+            self.step = step = self.i0 + s
+            self.stop_sig = self.stop_sig or link.own_stop()
+            last = s == self.n_steps or bool(self.stop_sig)   # a stop request ends this coupling step
+            frame = iface.prepare(fluid, dt)
+            self.watch.after_prepare(iface, self.t)
+            if s == 1 and not self.restart:
+                self.output(fluid, frame, self.t, step - 1)
+            link.send(step, frame, self.t + dt, last)
+            iface.advance_dem(self.k)
+            self.t = t = self.t_start + s * dt
+            if s < self.n_steps:   # (also on a stop step: every DEM rank does it, collectively)
+                iface.map_particles()   # overlaps with the gas solve
+            fluid, final, self.peer_sig = link.receive(step, t, iface.eps_change, self.stop_sig)
+            self.watch.after_receive(fluid, t)
+            # peer_sig implies a FINAL frame; on the other ranks it also carries rank 0's stop
+            done = last or final or bool(self.peer_sig)
+            if self.outputs.fires(s, PAUSE) or done:
+                self.output(fluid, frame, t, step)
+            if done or self.restart_points.fires(step, PAUSE):
+                self.restart_point(step, t, fluid)
+            if done:
+                if final and not last and not self.peer_sig:
+                    self.log(f"coupling: the solver reached its endTime at step {step} (t = {t:g} s)")
+                break
+
+
+def _start_solver(out, cfg, exe, external_solver, log):
+    """The gas solver process (rank 0): started here, or by the user (external_solver)."""
+    from . import foam_case as fc
+    from dem import outdir
     if external_solver:
         par = (f"mpirun --allow-run-as-root -np {cfg.gas_processes} " if cfg.gas_processes > 1 else "")
         log("coupling: start the gas solver yourself, in a second terminal:\n"
@@ -426,96 +547,116 @@ def run_case(case_dir, out=None, *, transport=None, end_time=None, restart=False
             os.setpriority(os.PRIO_PROCESS, proc.pid, cfg.solver_nice)
         except OSError:
             pass
-    ex.peer_process = proc if not external_solver else None
-    timer = iface.timer
-    step = i0
-    t = t_start
-    status = "running"
-    frame = None
-    stop_sig = 0        # SIGINT/SIGTERM of this process (rank 0 decides for every DEM rank)
-    peer_sig = 0        # the signal that stopped the gas solver, from its FINAL frame
-    try:
-        with timer("gas_wait"):
-            fluid = _share(R, lambda: _first_frame(ex, i0, t_start, mesh, cfg, cstate), ex)
-        _grow_socket_buffers(ex, mesh.n_cells)
-        watch = RunWatch(mesh, cfg, log)
-        for s in range(1, n_steps + 1):
-            step = i0 + s
-            stop_sig = stop_sig or stop_requested()
-            last = s == n_steps or bool(stop_sig)   # a stop request ends this coupling step
-            frame = iface.prepare(fluid, dt)
-            watch.after_prepare(iface, t)
-            if s == 1 and not restart:
-                _output(hist, vtk, diag, sim, iface, fluid, frame, t, step - 1, t_wall0, timer)
-            with timer("exchange"):
-                ex.send(step, frame, time_value=t + dt, final=last)
-            iface.advance_dem(k)
-            t = t_start + s * dt
-            if s < n_steps:   # (also on a stop step: the other DEM ranks do it too, collectively)
-                iface.map_particles()   # overlaps with the gas solve
-            with timer("gas_wait"):
-                fluid = _share(R, lambda: check_gas_fields(ex.receive(step), step, time_value=t, mesh=mesh,
-                                                           cfg=cfg, eps_change=iface.eps_change), ex,
-                               stop_sig=lambda: stop_sig or _peer_signal(ex))
-            watch.after_receive(fluid, t)
-            outdir.adopt_solver_entries(out)   # the time folders the solver wrote (dem.outdir)
-            peer_sig = _peer_signal(ex)
-            done = last or ex.peer_final
-            if s % out_every == 0 or done:
-                _output(hist, vtk, diag, sim, iface, fluid, frame, t, step, t_wall0, timer)
-            if done or (write_every and step % write_every == 0):
-                with timer("output"):
-                    _write_restart_point(R, sim, iface, out, step, t, fluid)
-            if done:
-                if ex.peer_final and not last and not peer_sig:
-                    log(f"coupling: the solver reached its endTime at step {step} (t = {t:g} s)")
-                break
-        status = "finished"
+    return proc
+
+
+class _SolverLink:
+    """Rank 0's side of the gas link: frames to and from the solver process; every received
+    frame is checked (check_gas_fields) and passed on to the other DEM ranks (_share)."""
+
+    def __init__(self, R, ex, proc, mesh, cfg, out, timer):
+        self.R, self.ex, self.proc, self.mesh, self.cfg, self.out, self.timer = R, ex, proc, mesh, cfg, out, timer
+
+    @staticmethod
+    def own_stop():
+        return stop_requested()
+
+    def first(self, i0, t_start, cstate):
+        with self.timer("gas_wait"):
+            fluid = _share(self.R, lambda: _first_frame(self.ex, i0, t_start, self.mesh, self.cfg, cstate), self.ex)
+        _grow_socket_buffers(self.ex, self.mesh.n_cells)
+        return fluid
+
+    def send(self, step, frame, time_value, final):
+        with self.timer("exchange"):
+            self.ex.send(step, frame, time_value=time_value, final=final)
+
+    def receive(self, step, t, eps_change, stop_sig):
+        """(gas fields of t, the solver's FINAL flag, the signal that stopped it or 0)."""
+        ex = self.ex
+        with self.timer("gas_wait"):
+            fluid = _share(self.R, lambda: check_gas_fields(ex.receive(step), step, time_value=t, mesh=self.mesh,
+                                                            cfg=self.cfg, eps_change=eps_change), ex,
+                           stop_sig=lambda: stop_sig or _peer_signal(ex))
+        from dem import outdir
+        outdir.adopt_solver_entries(self.out)   # the time folders the solver wrote (dem.outdir)
+        return fluid, bool(ex.peer_final), _peer_signal(ex)
+
+    def finish(self, step):
+        """The solver must exit cleanly after the last step."""
         try:
-            rc = proc.wait(timeout=max(cfg.timeout, 30))
+            rc = self.proc.wait(timeout=max(self.cfg.timeout, 30))
         except Exception:  # noqa: BLE001
-            proc.kill()
-            rc = proc.wait()
+            self.proc.kill()
+            rc = self.proc.wait()
         if rc != 0:
             raise CouplingError(f"CFD solver exited with code {rc} after the last step "
-                                f"(log: {out / 'log.thermoDemFoam'})", peer="CFD solver", step=step)
-    except (CouplingError, SimulationError, KeyboardInterrupt) as e:
-        status = "failed"
+                                f"(log: {self.out / 'log.thermoDemFoam'})", peer="CFD solver", step=step)
+
+    def fail(self, e):
+        """Rank 0 failed outside a receive: the other ranks wait in one; tell them."""
+        from dem.simulation import SimulationError
+        R = self.R
         if R.comm is not None and not isinstance(e, SimulationError) and not R.failure_shared:
             _share_failure(R, e)
-        with timer("output"):
-            sim.write_checkpoint(str(out / "checkpoint.npz"))
+
+    def explain(self, e, sim):
         if isinstance(e, CouplingError):
+            out = self.out
             tail = _log_tail(out / "log.thermoDemFoam")
             e.args = (e.args[0] + f"\n  DEM checkpoint at t = {sim.time:.9g} s written to "
                       f"{out / 'checkpoint.npz'}" + (f"\n  solver log tail:\n{tail}" if tail else ""),)
-        raise
-    finally:
-        if proc.poll() is None and status != "finished":
-            proc.kill()
-            proc.wait()
-        ex.close()
-        outdir.adopt_solver_entries(out)
-        _write_timings(out / "timings.json", _timings(timer, t_wall0, sim, n_steps=step - i0, k=k),
-                       failing=status != "finished")
-    # ---- final output
-    fa = sim.final_arrays()
-    if fa is not None:
-        save_npz(str(out / "final.npz"), **fa)
-    sim.write_checkpoint(str(out / "checkpoint.npz"))
-    png = plot(out, f"{case.dir.name}: {cfg.transport} transport")
-    if peer_sig:  # the solver stopped on a signal: did this process get one too (a scheduler's TERM)?
-        stop_sig = stop_sig or stop_requested()
-    signum = stop_sig or peer_sig
-    if signum:
-        raise RunInterrupted(signum, _stopped_line(signum, bool(stop_sig), t, step, out, cont))
-    summ = _timings(timer, t_wall0, sim, n_steps=step - i0, k=k)
-    summ.update(out=str(out), steps=step - i0, time=t, png=str(png) if png else None, **watch.summary())
-    if cstate is not None:
-        summ["restart_frame_difference"] = cstate.get("frame_difference")
-    if not quiet:
-        log(_format_timings(summ))
-    return summ
+
+    def close(self, status, write_timings):
+        from dem import outdir
+        if self.proc.poll() is None and status != "finished":
+            self.proc.kill()
+            self.proc.wait()
+        self.ex.close()
+        outdir.adopt_solver_entries(self.out)
+        write_timings(status != "finished")
+
+
+class _FollowerLink:
+    """A DEM rank other than 0: what rank 0 received from the solver (or its failure), the
+    FINAL flag and the signal that ends the run, by broadcast; nothing to send or close."""
+
+    def __init__(self, R):
+        self.R = R
+
+    @staticmethod
+    def own_stop():
+        return 0
+
+    def _receive(self, step):
+        fluid, final, err, signum = self.R.comm.bcast(None, root=0)
+        if err is not None:
+            raise CouplingError(f"rank 0: {err}", peer="CFD solver", step=step)
+        return fluid, final, signum
+
+    def first(self, i0, t_start, cstate):
+        fluid, _, _ = self._receive(i0)
+        if cstate is not None:
+            fluid = dict(fluid, **cstate["fluid"])
+        return fluid
+
+    def send(self, step, frame, time_value, final):
+        pass
+
+    def receive(self, step, t, eps_change, stop_sig):
+        return self._receive(step)
+
+    def finish(self, step):
+        pass
+
+    def fail(self, e):
+        pass
+
+    def explain(self, e, sim):
+        pass
+
+    def close(self, status, write_timings):
+        pass
 
 
 def _write_timings(path, timings, failing):
@@ -721,56 +862,9 @@ def check_gas_fields(fluid, step, *, time_value=None, mesh=None, cfg=None, eps_c
 def _share_failure(R, e):
     """Rank 0 failed outside a receive: the other ranks wait in one; tell them."""
     try:
-        R.comm.bcast((None, True, repr(e)), root=0)
+        R.comm.bcast((None, True, repr(e), 0), root=0)
     except Exception:  # noqa: BLE001
         pass
-
-
-def _follow(R, sim, iface, n_steps, i0, t_start, dt, k, out, write_every, out_every, t_wall0, restart,
-            cstate=None, cont=""):
-    """The loop of a DEM rank other than 0: the same steps as rank 0 without the solver."""
-    from .exchange import CouplingError
-    from dem.simulation import SimulationError
-    timer = iface.timer
-    step = i0
-    t = t_start
-    sig = 0
-
-    def receive():
-        fluid, final, err, signum = R.comm.bcast(None, root=0)
-        if err is not None:
-            raise CouplingError(f"rank 0: {err}", peer="CFD solver", step=step)
-        return fluid, final, signum
-
-    try:
-        fluid, final, sig = receive()
-        if cstate is not None:
-            fluid = dict(fluid, **cstate["fluid"])
-        for s in range(1, n_steps + 1):
-            step = i0 + s
-            frame = iface.prepare(fluid, dt)
-            if s == 1 and not restart:
-                _output(None, None, None, sim, iface, fluid, frame, t, step - 1, t_wall0, timer)
-            iface.advance_dem(k)
-            t = t_start + s * dt
-            if s < n_steps:
-                iface.map_particles()
-            fluid, final, sig = receive()
-            done = final or s == n_steps
-            if s % out_every == 0 or done:
-                _output(None, None, None, sim, iface, fluid, frame, t, step, t_wall0, timer)
-            if done or (write_every and step % write_every == 0):
-                _write_restart_point(R, sim, iface, out, step, t, fluid)
-            if done:
-                break
-    except (CouplingError, SimulationError):
-        sim.write_checkpoint(str(out / "checkpoint.npz"))
-        raise
-    sim.final_arrays()
-    sim.write_checkpoint(str(out / "checkpoint.npz"))
-    if sig:
-        raise RunInterrupted(sig, _stopped_line(sig, True, t, step, out, cont))
-    return {}
 
 
 def _grow_socket_buffers(ex, n_cells):

@@ -816,117 +816,40 @@ class Simulation:
                 self._compute_forces()  # the frozen packing's conductances
 
     # ------------------------------------------------------------------ run
-    def run(self, end_time=None, out_dir=None, progress=None, restart=None, log=None):
+    def run(self, end_time=None, out_dir=None, progress=None, restart=None, log=None, operations=()):
         """Run to ``end_time`` (default: the scene's). Writes output when out_dir is given.
 
-        The steps go in compiled chunks of about a second (dem.chunks); between chunks a
-        SIGINT / SIGTERM (dem.interrupt) stops the run: the current output and a checkpoint
-        are written, then StopRequested is raised (its ``time`` and ``checkpoint`` say where).
-        A checkpoint is written at the end of every run with out_dir, whatever
-        checkpoint_interval. A file that cannot be written raises OutputError (every rank)."""
+        The run is a list of operations with triggers (dem.operations.standard: energy guard,
+        sorter, ``operations`` (extra dem.operations.Operation objects, run in their order
+        after the sorter), history and VTK writers, final state, checkpoint, progress),
+        executed by dem.operations.execute: compiled chunks of about a second never crossing
+        a due step; between chunks a SIGINT / SIGTERM (dem.interrupt) stops the run: the
+        current output and a checkpoint are written, then StopRequested is raised (its
+        ``time`` and ``checkpoint`` say where). A checkpoint is written at the end of every
+        run with out_dir, whatever checkpoint_interval. A file that cannot be written raises
+        OutputError (every rank)."""
+        from . import operations as ops
         self._write_failure = None
         self._hold_writes = True
         try:
-            return self._run(end_time, out_dir, progress, restart, log)
+            if restart is not None:
+                self.load_checkpoint(restart)
+            end_time = self.end_time if end_time is None else float(end_time)
+            end_step = int(round(end_time / self.dt))
+            if self.compile_seconds is None:
+                self.warmup()
+            if out_dir is not None:
+                ops.open_output(self, out_dir, restart is not None, restart)
+            plan = ops.standard(self, end_step, out_dir, restarted=restart is not None, progress=progress,
+                                log=log, extra=operations)
+            ops.execute(self, plan, end_step)
+            return self
         finally:
             self._hold_writes = False
 
-    def _run(self, end_time, out_dir, progress, restart, log):
-        from .chunks import ChunkClock, agree
-        from .interrupt import StopRequested, StopSignals
-        from .progress import Progress
-        if restart is not None:
-            self.load_checkpoint(restart)
-        end_time = self.end_time if end_time is None else float(end_time)
-        end_step = int(round(end_time / self.dt))
-        sim = self.scene.simulation
-        out_every = max(1, int(round(sim["output_interval"] / self.dt)))
-        ck = sim["checkpoint_interval"]
-        ck_every = int(round(ck / self.dt)) if ck > 0 else 0
-        sort_every = sim["sort_interval"]
-        if self.compile_seconds is None:
-            self.warmup()
-        writers = None
-        ck_path = os.path.join(out_dir, "checkpoint.npz") if out_dir is not None else None
-        if out_dir is not None:
-            keep = self.time if restart is not None else None
-            writers = dict(hist=None, vtk=None)  # the root writes; the others take part in the gathers
-            # new, empty or an earlier output continued (restart) or claimed already (dem run):
-            # never a user's folder (dem.outdir)
-            claim_collective(out_dir, self.par.comm if self.par is not None else None, self.is_root,
-                             restart=restart is not None, reuse=True, keep=[restart] if restart else ())
-            if self.is_root:
-                self._root_write(lambda: prepare_output_folder(out_dir))
-                self._settle_writes()
-                writers = dict(hist=History(os.path.join(out_dir, "history.csv"), self.history_columns(), keep),
-                               vtk=VTKSeries(out_dir) if self.scene.output["vtk"] else None)
-            else:
-                self._settle_writes()
-            if self.step_count == 0 or restart is None:
-                self._write_output(writers)
-                self._settle_writes()
-        prog = Progress(self.step_count, end_step, self.dt, self.n_particles, self.compile_seconds,
-                        enabled=progress and self.is_root, stream=log or sys.stderr)
-        from .energy_guard import EnergyGuard
-        self.energy_guard = guard = EnergyGuard(self)  # closed systems must not gain energy
-        clock = ChunkClock()
-        try:
-            with StopSignals():
-                while self.step_count < end_step:
-                    sig, chunk = agree(self.par, clock.steps)  # every rank stops at the same step
-                    if sig:
-                        raise StopRequested(sig)
-                    s = self.step_count
-                    nxt = end_step
-                    for every in (out_every, ck_every, sort_every):
-                        if every:
-                            nxt = min(nxt, (s // every + 1) * every)
-                    clock.start()
-                    clock.done(self._advance(min(nxt - s, chunk)))
-                    if self.step_count == nxt:  # at the same steps whatever the chunking
-                        guard.check()  # raises SimulationError on an energy gain
-                    s = self.step_count
-                    if sort_every and s % sort_every == 0:
-                        self.sort_particles()
-                    if writers is not None and s % out_every == 0:
-                        self._write_output(writers)
-                    if writers is not None and ck_every and s % ck_every == 0:
-                        self.write_checkpoint(ck_path)
-                    self._settle_writes()
-                    prog.update(self.step_count)
-        except StopRequested as stop:
-            prog.close()
-            if writers is not None:  # close the series with the current state, then the checkpoint
-                if self.step_count % out_every != 0:
-                    self._write_output(writers)
-                self.write_checkpoint(ck_path)
-                self._settle_writes()
-            stop.time, stop.step, stop.checkpoint = self.time, self.step_count, ck_path
-            self.wall_seconds = prog.elapsed
-            raise
-        except SimulationError:
-            self._hold_writes = False
-            if out_dir is not None:
-                fa = self.final_arrays()
-                if fa is not None:
-                    save_npz(os.path.join(out_dir, "failed_state.npz"), **fa)
-            prog.close()
-            raise
-        prog.close()
-        if writers is not None:
-            if self.step_count % out_every != 0:
-                self._write_output(writers)
-            fa = self.final_arrays()
-            if fa is not None:
-                self._root_write(lambda: save_npz(os.path.join(out_dir, "final.npz"), **fa))
-            self.write_checkpoint(ck_path)
-            self._settle_writes()
-        self.wall_seconds = prog.elapsed
-        return self
-
-    def _root_write(self, write):
+    def root_write(self, write):
         """A write done by the root alone. Inside run() under MPI an OutputError is held (the
-        other ranks are on their way to the next collective call) until _settle_writes
+        other ranks are on their way to the next collective call) until settle_writes
         raises it on every rank; elsewhere it is raised at once."""
         try:
             write()
@@ -936,7 +859,9 @@ class Simulation:
             if self._write_failure is None:
                 self._write_failure = exc
 
-    def _settle_writes(self):
+    _root_write = root_write  # the name write_checkpoint and write_vtk call
+
+    def settle_writes(self):
         """Raise the held OutputError of the root on every rank (collective under MPI)."""
         if self.par is None:
             return
@@ -945,13 +870,6 @@ class Simulation:
             self._write_failure = None
             self._hold_writes = False
             raise OutputError(message=msg)
-
-    def _write_output(self, writers):
-        row = self.history_row()
-        if writers["hist"] is not None:
-            self._root_write(lambda: writers["hist"].add(row))
-        if self.scene.output["vtk"]:
-            self.write_vtk(writers["vtk"])
 
     def write_vtk(self, vtk, **extra):
         """One VTK output of the owned particles of every rank (collective; ``vtk`` is the
