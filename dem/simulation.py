@@ -6,7 +6,6 @@
 """
 import math
 import os
-import sys
 import time
 
 import numpy as np
@@ -15,9 +14,8 @@ from . import scene as scene_mod
 from .contact.damping import damping_factor, mixed_tables, rayleigh_time, hertz_collision_time
 from .contact.registry import CONTACT_MODELS, ROLLING_MODELS, DAMPING_MODELS
 from .contact import walls as W
-from .neighbors import build_half_list, grid_bytes, sort_permutation
-from .output import History, OutputError, VTKSeries, prepare_output_folder, save_npz  # noqa: F401
-from .outdir import claim_collective
+from .neighbors import grid_bytes, sort_permutation
+from .output import OutputError
 from .state import State
 from . import step as K
 from .thermal.kernel import MECHANISMS as THERMAL_MECHANISMS
@@ -704,7 +702,7 @@ class Simulation:
         arr = self.checkpoint_arrays()
         if arr is not None:
             record = ckpt.scene_record(self)
-            self._root_write(lambda: ckpt.write(path, arr, record))
+            self.root_write(lambda: ckpt.write(path, arr, record))
 
     def prepare_restart(self, path):
         """Read and verify a checkpoint and plan the restart with this scene: raises
@@ -859,7 +857,6 @@ class Simulation:
             if self._write_failure is None:
                 self._write_failure = exc
 
-    _root_write = root_write  # the name write_checkpoint and write_vtk call
 
     def settle_writes(self):
         """Raise the held OutputError of the root on every rank (collective under MPI)."""
@@ -880,4 +877,4 @@ class Simulation:
         f = self._gather_by_id(f)
         if vtk is not None:
             pos = f.pop("position")
-            self._root_write(lambda: vtk.write(self.time, self.step_count, pos, f))
+            self.root_write(lambda: vtk.write(self.time, self.step_count, pos, f))

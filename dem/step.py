@@ -31,7 +31,7 @@ from .thermal.indirect import indirect_pp, indirect_pw
 from .thermal.generation import friction_heat, partition
 from .thermal.heat import (heat_step, local_porosity, TI_HEAT, TI_DIRECT, TI_CR, TI_CORR,
                            TI_INDIRECT, TI_RAD, TI_FRIC, TI_PART, TI_AGE, TF_DFACTOR,
-                           TF_RADRANGE, TF_CT, TF_CN, TF_CHI, WT_COND, TI_LOCALPOR, TI_FUSED, NTI,
+                           TF_RADRANGE, TF_CT, TF_CN, TF_CHI, WT_COND, TI_LOCALPOR, TI_FUSED,
                            E_DIRECT, E_INDIRECT, E_WALL, wall_temperature)
 
 # integer parameters
@@ -155,7 +155,6 @@ def compute_forces(P, C, W, TB, prm, n, t, hon):
     dt = fp[F_DT]
     model = ip[I_CONTACT]
     rolling = ip[I_ROLLING]
-    nwalls = ip[I_NWALLS]
     lin_kn = fp[F_LINKN]
     vchar = fp[F_VCHAR]
     ktr = fp[F_KTRATIO]

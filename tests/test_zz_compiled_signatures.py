@@ -39,7 +39,7 @@ def _variants():
     yield "heat, exponential", {"thermal": dict(heat, integrator="exponential")}
     yield "contact age", {"thermal": dict(heat, direct="zhou_2008_collisional")}
     yield "friction heat", {"thermal": dict(heat, friction_heat="nguyen_2009")}
-    yield "indirect + convection", {"thermal": dict(heat, indirect="zhou_2009", convection="ranz_marshall"),
+    yield "indirect + convection", {"thermal": dict(heat, indirect="vargas_mccarthy_2002", convection="ranz_marshall"),
                                     "gas": GAS}
     yield "radiation", {"thermal": dict(heat, radiation="zhou_2009"), "gas": GAS}
     yield "group sources", {"thermal": dict(heat, sources=[{"group": 0, "power": 1e-3}])}
@@ -73,9 +73,11 @@ def test_every_scene_shares_one_kernel_per_heat_switch():
     sim.set_fluid(force=np.full((sim.state.n_owned, 3), 1e-9), velocity=np.zeros((sim.state.n_owned, 3)),
                   temperature=np.full(sim.state.n_owned, 310.0))
     sim.step(10)
-    for k in KERNELS:
+    for k in (K.advance, K.compute_forces, K.rebuild):  # called from Python by every run
+        assert len(k.signatures) >= 1, k.py_func.__name__
+    for k in KERNELS:  # (a phase called only inside advance has no signature of its own)
         sigs = k.signatures
-        assert 1 <= len(sigs) <= 2, (k.py_func.__name__, len(sigs), sigs)
+        assert len(sigs) <= 2, (k.py_func.__name__, len(sigs), sigs)
         if len(sigs) == 2:  # the two differ in the heat switch alone
             a, b = sigs
             diff = [i for i, (x, y) in enumerate(zip(a, b)) if x != y]
