@@ -172,12 +172,12 @@ def load_config(path: Path) -> CouplingConfig:
 def gas_properties(case: Path) -> GasProperties:
     tp_path = Path(case) / "constant" / "transportProperties"
     tp = fc.parse_foam_dict(tp_path)
-    nu, rho = fc._float(tp_path, tp, "nu"), fc._float(tp_path, tp, "rho")
-    cp = fc._float(tp_path, tp, "cp") if "cp" in tp else 1005.0
+    nu, rho = fc.read_float(tp_path, tp, "nu"), fc.read_float(tp_path, tp, "rho")
+    cp = fc.read_float(tp_path, tp, "cp") if "cp" in tp else 1005.0
     if "k" in tp:
-        k = fc._float(tp_path, tp, "k")
+        k = fc.read_float(tp_path, tp, "k")
     else:
-        k = rho * nu * cp / fc._float(tp_path, tp, "Pr")
+        k = rho * nu * cp / fc.read_float(tp_path, tp, "Pr")
     return GasProperties(rho=rho, nu=nu, cp=cp, k=k)
 
 
@@ -194,7 +194,7 @@ def control(case: Path) -> dict:
     d = fc.parse_foam_dict(p)
     out = {}
     for key in ("deltaT", "endTime", "writeInterval"):
-        out[key] = fc._float(p, d, key)
+        out[key] = fc.read_float(p, d, key)
     out["startFrom"] = d.get("startFrom", "latestTime")
     out["writeControl"] = d.get("writeControl", "timeStep")
     return out
@@ -256,7 +256,7 @@ def _max_speed_of_field(path: Path, n_cells: int) -> float:
     u = fc.read_internal_field(path, n_cells)
     vmax = float(np.sqrt((u * u).sum(axis=1)).max()) if u.size else 0.0
     import re
-    for m in re.finditer(r"value\s+uniform\s+\(([^)]*)\)", fc._strip_comments(path.read_text())):
+    for m in re.finditer(r"value\s+uniform\s+\(([^)]*)\)", fc.strip_comments(path.read_text())):
         v = np.array(m.group(1).split(), float)
         vmax = max(vmax, float(np.linalg.norm(v)))
     return vmax

@@ -390,6 +390,19 @@ class SocketExchange(_Exchange):
             self._listen = s
 
     @property
+
+    def grow_buffers(self, n_cells):
+        """Let one whole frame fit the kernel's socket buffer: the send then returns at once
+        instead of waiting for the solver to drain it (it may be descheduled on busy cores)."""
+        if self._sock is None:
+            return
+        need = 2 * (64 + 8 * 8 * n_cells) + 65536
+        for opt in (socket.SO_SNDBUF, socket.SO_RCVBUF):
+            try:
+                if self._sock.getsockopt(socket.SOL_SOCKET, opt) < need:
+                    self._sock.setsockopt(socket.SOL_SOCKET, opt, need)
+            except OSError:
+                pass
     def endpoint(self) -> str:
         return f"unix:{self.path}" if self.path else f"{self.host}:{self.port}"
 

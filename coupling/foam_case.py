@@ -174,7 +174,7 @@ _COMMENT = re.compile(r"//[^\n]*|/\*.*?\*/", re.S)
 _TOKEN = re.compile(r'"(?:[^"\\]|\\.)*"|[{};]|[^\s{};"]+')
 
 
-def _strip_comments(text: str) -> str:
+def strip_comments(text: str) -> str:
     return _COMMENT.sub(" ", text)
 
 
@@ -187,7 +187,7 @@ def parse_foam_dict(text_or_path) -> dict:
         text = Path(text_or_path).read_text()
     else:
         text = text_or_path
-    toks = _TOKEN.findall(_strip_comments(text))
+    toks = _TOKEN.findall(strip_comments(text))
     pos = 0
 
     def parse_block():
@@ -228,7 +228,7 @@ def parse_foam_dict(text_or_path) -> dict:
     return parse_block()
 
 
-def _float(path, d: dict, key: str) -> float:
+def read_float(path, d: dict, key: str) -> float:
     if key not in d:
         raise CaseError(path, f"entry '{key}' missing")
     tok = d[key].split()
@@ -395,7 +395,7 @@ def cell_proc_addressing(case) -> list[np.ndarray]:
                    key=lambda p: int(p.name[9:]))
     for p in procs:
         f = p / "constant" / "polyMesh" / "cellProcAddressing"
-        text = _strip_comments(f.read_text())
+        text = strip_comments(f.read_text())
         text = text[text.index("}", text.index("FoamFile")) + 1:]
         m = re.search(r"(\d+)\s*\(", text)
         if not m:
@@ -496,12 +496,12 @@ def patch_names(case) -> list[str]:
     case = Path(case)
     b = case / "constant" / "polyMesh" / "boundary"
     if b.exists():
-        text = _strip_comments(b.read_text())
+        text = strip_comments(b.read_text())
         text = text[text.index("}", text.index("FoamFile")) + 1:]
         return re.findall(r"(\w+)\s*\{", text)
     bm = case / "system" / "blockMeshDict"
     if bm.exists():
-        text = _strip_comments(bm.read_text())
+        text = strip_comments(bm.read_text())
         i = text.find("boundary")
         if i < 0:
             raise CaseError(bm, "no boundary list")
@@ -560,21 +560,21 @@ def check_case(case, *, coupled: bool = True) -> None:
     if tm != "Newtonian":
         raise CaseError(tp_path, f"transportModel {tm!r} not supported (use Newtonian: the drag "
                         "correlations of the DEM use the constant viscosity rho*nu)")
-    nu, rho = _float(tp_path, tp, "nu"), _float(tp_path, tp, "rho")
-    cp = _float(tp_path, tp, "cp") if "cp" in tp else 1005.0
+    nu, rho = read_float(tp_path, tp, "nu"), read_float(tp_path, tp, "rho")
+    cp = read_float(tp_path, tp, "cp") if "cp" in tp else 1005.0
     for name, v in (("nu", nu), ("rho", rho), ("cp", cp)):
         if not np.isfinite(v) or v <= 0:
             raise CaseError(tp_path, f"non-physical gas property {name} = {v} (must be > 0)")
     if "k" in tp:
-        k = _float(tp_path, tp, "k")
+        k = read_float(tp_path, tp, "k")
         if not np.isfinite(k) or k < 0:
             raise CaseError(tp_path, f"non-physical gas property k = {k} (must be >= 0)")
     elif "Pr" in tp:
-        pr = _float(tp_path, tp, "Pr")
+        pr = read_float(tp_path, tp, "Pr")
         if not np.isfinite(pr) or pr <= 0:
             raise CaseError(tp_path, f"non-physical gas property Pr = {pr} (must be > 0)")
     if "Prt" in tp:
-        prt = _float(tp_path, tp, "Prt")
+        prt = read_float(tp_path, tp, "Prt")
         if not np.isfinite(prt) or prt <= 0:
             raise CaseError(tp_path, f"non-physical turbulent Prandtl number Prt = {prt} (must be > 0)")
     if nu > 1e-2:

@@ -53,11 +53,11 @@ def _lsq_matrices(cc, nb_off, nb):
 def lsq_matrices(mesh: PolyMesh) -> np.ndarray:
     """(nCells, 3, 3) pseudo-inverses of the least-squares normal matrices
     (cached on the mesh)."""
-    M = getattr(mesh, "_lsq_inv", None)
+    M = getattr(mesh, "lsq_inv", None)
     if M is None:
         off, nb = mesh.face_neighbours()
         M = _lsq_matrices(mesh.cell_centres, off, nb)
-        mesh._lsq_inv = M
+        mesh.lsq_inv = M
     return M
 
 

@@ -714,6 +714,7 @@ class PolyMesh:
         #: both cells; the first one found is returned)
         self.tol = 1e-12 * L
         self._buckets = None
+        self.lsq_inv = None  # least-squares matrices of the gradient interpolation (coupling.interpolate)
         self._uniform = "unset"
         self._point_nbrs = None
         self._face_nbrs = None
@@ -799,7 +800,8 @@ class PolyMesh:
         return UniformGrid(origin, h, dims.astype(np.int64), lattice)
 
     # ---- locate --------------------------------------------------------------
-    def _ensure_buckets(self):
+    def buckets(self):
+        """The cell buckets of the locator (built once): (origin, h, dims, offsets, cells)."""
         if self._buckets is None:
             lo, hi = self.cell_lo.min(axis=0), self.cell_hi.max(axis=0)
             ext = np.maximum(hi - lo, 1e-300)
@@ -842,7 +844,7 @@ class PolyMesh:
             if hint.shape != (n,):
                 raise ValueError("hint must have one entry per point")
             hint = np.where(hint < self.n_cells, hint, -1)
-        o, h, d, boff, bcells = self._ensure_buckets()
+        o, h, d, boff, bcells = self.buckets()
         return _locate_many(pts, hint, self.cf_off, self.cf_centre, self.cf_normal,
                             self.cf_nbr, self.cell_lo, self.cell_hi, o, h, d, boff,
                             bcells, self.tol, max_walk)

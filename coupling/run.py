@@ -42,7 +42,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import os
 import re
 import shutil
@@ -564,7 +563,9 @@ class _SolverLink:
     def first(self, i0, t_start, cstate):
         with self.timer("gas_wait"):
             fluid = _share(self.R, lambda: _first_frame(self.ex, i0, t_start, self.mesh, self.cfg, cstate), self.ex)
-        _grow_socket_buffers(self.ex, self.mesh.n_cells)
+        grow = getattr(self.ex, "grow_buffers", None)  # the socket transport only
+        if grow is not None:
+            grow(self.mesh.n_cells)
         return fluid
 
     def send(self, step, frame, time_value, final):
@@ -865,22 +866,6 @@ def _share_failure(R, e):
         R.comm.bcast((None, True, repr(e), 0), root=0)
     except Exception:  # noqa: BLE001
         pass
-
-
-def _grow_socket_buffers(ex, n_cells):
-    """Let one whole frame fit the kernel's socket buffer: the send then returns at once
-    instead of waiting for the solver to drain it (it may be descheduled on busy cores)."""
-    import socket
-    sock = getattr(ex, "_sock", None)
-    if sock is None:
-        return
-    need = 2 * (64 + 8 * 8 * n_cells) + 65536
-    for opt in (socket.SO_SNDBUF, socket.SO_RCVBUF):
-        try:
-            if sock.getsockopt(socket.SOL_SOCKET, opt) < need:
-                sock.setsockopt(socket.SOL_SOCKET, opt, need)
-        except OSError:
-            pass
 
 
 COUPLING_STATE_FORMAT = "thermodem coupling state"

@@ -352,7 +352,7 @@ def compute_weights(mesh: PolyMesh, positions, radii, model: str = "divided",
         sat = _SAT_CACHE.get(n_satellites)
         if sat is None:
             sat = _SAT_CACHE[n_satellites] = satellite_points(n_satellites)
-        o, h, d, boff, bcells = mesh._ensure_buckets()
+        o, h, d, boff, bcells = mesh.buckets()
         cells, weights = _divided_kernel(pos, rad, cc, sat, mesh.cf_off, mesh.cf_centre,
                                          mesh.cf_normal, mesh.cf_nbr, mesh.cell_lo,
                                          mesh.cell_hi, o, h, d, boff, bcells, mesh.tol, 64)

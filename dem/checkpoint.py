@@ -310,7 +310,7 @@ def _digest(*arrays):
 
 def particle_digests(scene):
     """Digests of the scene's particle definitions, ordered by id (cached on the scene)."""
-    d = getattr(scene, "_checkpoint_digests", None)
+    d = getattr(scene, "particle_digests", None)
     if d is not None:
         return d
     order = np.argsort(scene.id, kind="stable")
@@ -324,7 +324,7 @@ def particle_digests(scene):
              group=_digest(np.asarray(scene.group, np.int32)[order]))
     if scene.thermal is not None:
         d["temperature"] = _digest(np.asarray(scene.thermal["temperature"], float)[order])
-    scene._checkpoint_digests = d
+    scene.particle_digests = d  # a Scene holds plain validated data: a public, derived entry
     return d
 
 
@@ -678,27 +678,24 @@ def _remap_walls(arrays, plan, sim):
     src = np.arange(plan.nwalls_old)
     dst = plan.wall_map[:plan.nwalls_old]
 
-    def remap(key, axis_shape):
-        a = arrays.get(key)
-        if a is None or a.shape[0] == 0:
-            return
-        b = np.zeros((a.shape[0], W1) + axis_shape, a.dtype)
-        b[:, dst] = a[:, src]
-        arrays[key] = b
-
-    remap("whist", (3,))
-    remap("wrhist", (3,))
-    remap("th_Hw", ())
-    remap("th_wage", (2,))
-    if "th_wtot" in arrays:
-        w = np.zeros(W1)
-        w[dst] = arrays["th_wtot"][src]
-        arrays["th_wtot"] = w
     wnb, wnn = arrays["wnb"], arrays["wnn"]
     new = np.zeros((wnb.shape[0], W1), np.int32)
     used = np.arange(wnb.shape[1])[None, :] < wnn[:, None]
     if plan.nwalls_old:
         new[:, :wnb.shape[1]] = np.where(used, plan.wall_map[np.where(used, wnb, 0)], 0)
-    arrays["wnb"] = new
+    from . import schema as S
+    for f in S.of("particle"):
+        a = arrays.get(f.checkpoint) if f.checkpoint else None
+        if a is None or a.shape[0] == 0 or f.tail[:1] not in (("W",), ("Q",)):
+            continue
+        b = np.zeros((a.shape[0], W1) + a.shape[2:], a.dtype)
+        if f.tail[0] == "W":  # one column per wall: moved with the wall
+            b[:, dst] = a[:, src]
+        arrays[f.checkpoint] = b  # per candidate: rebuilt (wnb below) or recomputed (Hw)
+    if "th_wtot" in arrays:
+        w = np.zeros(W1)
+        w[dst] = arrays["th_wtot"][src]
+        arrays["th_wtot"] = w
+    arrays["wnb"] = new  # the candidates' wall indices, renumbered
     arrays["wnn"] = np.ascontiguousarray(wnn, np.int32)
 

@@ -33,6 +33,7 @@ from numba import njit
 
 from .contact.walls import wall_distance, OX, VX
 from .neighbors import pair_distance
+from .step import I_CONTACT, F_LINKN, F_VCHAR, F_KTRATIO, F_GX, F_GZ
 
 # relative energy gain between two checks that stops a run (see the module docstring)
 GAIN_TOLERANCE = 0.05
@@ -41,11 +42,17 @@ ROUNDOFF = 1e-11
 
 
 @njit(cache=True, error_model="numpy")
-def particle_energies(nown, x, v, w, r, m, inv_i, mat, nb, nnb, hist, wf, wi, wnb, wnn, whist, tab,
-                      model, lin_kn, vchar, ktr, g, lo, hi, periodic, t, out):
+def particle_energies(P, C, W, TB, prm, nown, t, out):
     """Mechanical energy per owned particle into out[:nown, 0..3]: kinetic (+ rotational),
     potential (-m g.x), elastic (half of each pair contact, all of each wall contact).
-    Returns the total elastic energy."""
+    Returns the total elastic energy. P, C, W, TB, prm: the bundles of dem.schema."""
+    x, v, w, r, m, inv_i, mat = P.position, P.velocity, P.angular_velocity, P.radius, P.mass, P.inv_inertia, P.material
+    nb, nnb, hist, wnb, wnn, whist = C.nb, C.nnb, C.hist, P.wnb, P.wnn, P.whist
+    wf, wi, tab, lo, hi, periodic = W.wf, W.wi, TB.tab, prm.lo, prm.hi, prm.periodic
+    fp = prm.fp
+    model = prm.ip[I_CONTACT]
+    lin_kn, vchar, ktr = fp[F_LINKN], fp[F_VCHAR], fp[F_KTRATIO]
+    g = fp[F_GX:F_GZ + 1]
     el_tot = 0.0
     for i in range(nown):
         ke = 0.5 * m[i] * (v[i, 0] * v[i, 0] + v[i, 1] * v[i, 1] + v[i, 2] * v[i, 2])
@@ -147,11 +154,8 @@ class EnergyGuard:
         st = s.state
         nown = st.n_owned
         out = np.zeros((nown, 3))
-        el = particle_energies(nown, st.position, st.velocity, st.angular_velocity, st.radius, st.mass,
-                               st.inv_inertia, st.material, s.nb, s.nnb, s.hist, s.wf, s.wi, s.wnb, s.wnn,
-                               s.whist, s.tab, int(s.ip[K.I_CONTACT]), s.fp[K.F_LINKN], s.fp[K.F_VCHAR],
-                               s.fp[K.F_KTRATIO], np.ascontiguousarray(s.fp[K.F_GX:K.F_GZ + 1]), s.lo, s.hi,
-                               s.periodic, s.time, out)
+        P, C, W, TB, prm = st.bundles()
+        el = particle_energies(P, C, W, TB, prm, nown, s.time, out)
         g = float(np.linalg.norm(s.fp[K.F_GX:K.F_GZ + 1]))
         tot = np.array([out[:, 0].sum(), out[:, 1].sum(), el, float(np.sum(st.mass[:nown])) * g])
         if s.par is not None:

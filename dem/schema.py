@@ -6,8 +6,9 @@ Every array a run holds is declared here once, with what it needs:
   per wall: ``W``), ``pair`` (one row per particle, one column per neighbour slot ``S``,
   aligned with the half neighbour list ``nb``), ``wall`` (one row per wall), ``table``
   (material and gas tables), ``param`` (switches, scalars, run totals);
-* ``dtype`` and ``tail`` (the shape after the first axis: numbers, ``"W"`` = max(walls, 1),
-  ``"S"`` = neighbour slots, None = set by the scene);
+* ``dtype`` and ``tail`` (the shape after the first axis: numbers, ``"W"`` = one per wall,
+  ``"Q"`` = one per wall candidate (as many as walls), ``"S"`` = neighbour slots, None = set by the
+  scene);
 * ``when``: the feature that enables it (see :func:`features`); a disabled array is an empty
   array of the same dtype and number of axes (zero rows), so every scene gives the kernels
   the same types and one cached kernel serves them all;
@@ -42,7 +43,7 @@ class Field(namedtuple("Field", "name owner dtype tail when ghost forward sort m
 
     def shape(self, rows, walls=1, slots=1):
         """Full shape for ``rows`` rows (per-wall / per-slot axes filled in)."""
-        sub = {"W": max(int(walls), 1), "S": max(int(slots), 1), None: 1}
+        sub = {"W": max(int(walls), 1), "Q": max(int(walls), 1), "S": max(int(slots), 1), None: 1}
         return (int(rows),) + tuple(sub.get(t, t) for t in self.tail)
 
     def empty(self):
@@ -102,13 +103,13 @@ FIELDS = (
     _f("work", "particle", F8, (3,), when="heat", scratch=True, forward="rate",
        doc="heat-step scratch: start temperature, cross-rank rate, explicit flux"),
     # ---------------------------------------------------------------- particle x wall
-    _f("wnb", "particle", I4, ("W",), checkpoint="wnb", doc="walls within reach (candidate list)"),
+    _f("wnb", "particle", I4, ("Q",), checkpoint="wnb", doc="walls within reach (candidate list)"),
     _f("wnn", "particle", I4, checkpoint="wnn", doc="number of wall candidates"),
     _f("whist", "particle", F8, ("W", 3), checkpoint="whist", doc="tangential spring per wall (m)"),
     _f("wrhist", "particle", F8, ("W", 3), when="epsd", checkpoint="wrhist", doc="rolling spring per wall"),
     _f("wage", "particle", F8, ("W", 2), when="contact_age", checkpoint="th_wage",
        doc="contact age and impact speed per wall"),
-    _f("Hw", "particle", F8, ("W",), when="heat", checkpoint="th_Hw",
+    _f("Hw", "particle", F8, ("Q",), when="heat", checkpoint="th_Hw",
        doc="wall conductance per candidate (W/K; contact area for a fixed-flux wall)"),
     # ---------------------------------------------------------------- pairs (neighbour slots)
     _f("nb", "pair", I4, ("S",), checkpoint="nb", doc="half neighbour list (row of the other particle)"),

@@ -109,67 +109,37 @@ def compute_forces(P, C, W, TB, prm, n, t, hon):
     (copies of another rank's particles, no pairs of their own); a pair with a ghost is
     computed on both ranks, so it counts 1 (of 2) and half its exchanged heat goes into the
     totals here."""
-    x, v, w, r, m, mat, f, tq = (P.position, P.velocity, P.angular_velocity, P.radius, P.mass, P.material,
-                                 P.force, P.torque)
-    fext, wnb, wnn, whist, wrhist = P.external_force, P.wnb, P.wnn, P.whist, P.wrhist
-    nb, nnb, hist, rhist, age, Hd, Hi, rnear = C.nb, C.nnb, C.hist, C.rhist, C.age, C.Hd, C.Hi, C.rnear
-    wf, wi, tab, ip, fp, lo, hi, periodic = W.wf, W.wi, TB.tab, prm.ip, prm.fp, prm.lo, prm.hi, prm.periodic
-    thi = prm.thi
-    heat = hon is not None and thi[TI_HEAT] != 0
-    dmodel = thi[TI_DIRECT]
-    crm = thi[TI_CR]
-    crc = thi[TI_CORR]
-    imodel = thi[TI_INDIRECT]
-    radon = thi[TI_RAD] >= 0
-    fric = thi[TI_FRIC]
-    pmodel = thi[TI_PART]
-    use_age = thi[TI_AGE] != 0
-    thf = prm.thf
-    tmat = TB.tmat
-    gas = TB.gas
-    ereal = TB.ereal
-    Hw = P.Hw
-    wth = W.wth
-    por = P.por
-    qgen = P.qgen
-    wage = P.wage
-    dfac = thf[TF_DFACTOR]
-    radrange = thf[TF_RADRANGE]
-    fused = heat and thi[TI_FUSED] == 1
-    T = P.temperature
-    Q = P.heat_rate
-    tot = prm.tot
-    wtot = W.wtot
-    wtab = W.wtab
-    keff = TB.keff
-    bo = dmodel == DIRECT_BATCHELOR_OBRIEN
-    e_dir = 0.0
-    e_ind = 0.0
-    e_wall = 0.0
-    if heat and fric >= 0:
-        for i in range(n):
-            qgen[i] = 0.0
+    heat = hon is not None and prm.thi[TI_HEAT] != 0
+    fused = heat and prm.thi[TI_FUSED] == 1
+    body_forces(P, prm, n, heat, fused)
+    maxov, who_i, who_j, ncont, e_dir, e_ind = pair_contacts(P, C, TB, prm, n, heat, fused)
+    maxov, who_i, who_j, ncont, e_wall = wall_contacts(P, W, TB, prm, n, t, heat, fused, maxov, who_i, who_j,
+                                                       ncont)
     if fused:
-        for i in range(n):
-            Q[i] = 0.0
-    dt = fp[F_DT]
-    model = ip[I_CONTACT]
-    rolling = ip[I_ROLLING]
-    lin_kn = fp[F_LINKN]
-    vchar = fp[F_VCHAR]
-    ktr = fp[F_KTRATIO]
-    etar = fp[F_ETAR]
+        dt = prm.fp[F_DT]
+        tot = prm.tot
+        tot[E_DIRECT] += e_dir * dt
+        tot[E_INDIRECT] += e_ind * dt
+        tot[E_WALL] += e_wall * dt
+    return maxov, who_i, who_j, ncont
+
+
+@njit(cache=True, error_model="numpy", fastmath={"nsz", "arcp", "contract", "afn", "reassoc"})
+def body_forces(P, prm, n, heat, fused):
+    """Gravity and the fluid force (a coupled run) on every row; torques, friction heat and (fused
+    heat) heat rates reset before the contacts add theirs."""
+    f, tq, m, fext = P.force, P.torque, P.mass, P.external_force
+    fp = prm.fp
     gx = fp[F_GX]
     gy = fp[F_GY]
     gz = fp[F_GZ]
-    Lx = hi[0] - lo[0]
-    Ly = hi[1] - lo[1]
-    Lz = hi[2] - lo[2]
-    px = periodic[0]
-    py = periodic[1]
-    pz = periodic[2]
+    if heat and prm.thi[TI_FRIC] >= 0:
+        for i in range(n):
+            P.qgen[i] = 0.0
+    if fused:
+        for i in range(n):
+            P.heat_rate[i] = 0.0
     has_ext = fext.shape[0] == n
-    nown = ip[I_NOWN]
     for i in range(n):
         f[i, 0] = m[i] * gx
         f[i, 1] = m[i] * gy
@@ -181,6 +151,35 @@ def compute_forces(P, C, W, TB, prm, n, t, hon):
         tq[i, 0] = 0.0
         tq[i, 1] = 0.0
         tq[i, 2] = 0.0
+
+
+@njit(cache=True, error_model="numpy", fastmath={"nsz", "arcp", "contract", "afn", "reassoc"})
+def pair_contacts(P, C, TB, prm, n, heat, fused):
+    """Every pair of the half list: contact force and torque (the contact law, tangential and
+    rolling springs), and with heat the pair conductances (contact radius, direct, indirect,
+    radiation neighbours) and the friction heat. Returns (largest overlap ratio, i, j,
+    2 x contacts, direct heat, indirect heat (W, fused Euler))."""
+    x, v, w, r, m, mat, f, tq = (P.position, P.velocity, P.angular_velocity, P.radius, P.mass, P.material,
+                                 P.force, P.torque)
+    nb, nnb, hist, rhist, age, Hd, Hi, rnear = C.nb, C.nnb, C.hist, C.rhist, C.age, C.Hd, C.Hi, C.rnear
+    T, Q, por, qgen = P.temperature, P.heat_rate, P.por, P.qgen
+    tab, tmat, gas, ereal, keff = TB.tab, TB.tmat, TB.gas, TB.ereal, TB.keff
+    ip, fp, thi, thf = prm.ip, prm.fp, prm.thi, prm.thf
+    dmodel, crm, crc, imodel = thi[TI_DIRECT], thi[TI_CR], thi[TI_CORR], thi[TI_INDIRECT]
+    radon, fric, pmodel, use_age = thi[TI_RAD] >= 0, thi[TI_FRIC], thi[TI_PART], thi[TI_AGE] != 0
+    dfac, radrange = thf[TF_DFACTOR], thf[TF_RADRANGE]
+    bo = dmodel == DIRECT_BATCHELOR_OBRIEN
+    dt, model, rolling, nown = fp[F_DT], ip[I_CONTACT], ip[I_ROLLING], ip[I_NOWN]
+    lin_kn, vchar, ktr, etar = fp[F_LINKN], fp[F_VCHAR], fp[F_KTRATIO], fp[F_ETAR]
+    lo, hi, periodic = prm.lo, prm.hi, prm.periodic
+    Lx = hi[0] - lo[0]
+    Ly = hi[1] - lo[1]
+    Lz = hi[2] - lo[2]
+    px = periodic[0]
+    py = periodic[1]
+    pz = periodic[2]
+    e_dir = 0.0
+    e_ind = 0.0
     maxov = 0.0
     who_i = -1
     who_j = -1
@@ -352,6 +351,27 @@ def compute_forces(P, C, W, TB, prm, n, t, hon):
                 tq[j, 0] -= mx
                 tq[j, 1] -= my
                 tq[j, 2] -= mz
+    return maxov, who_i, who_j, ncont, e_dir, e_ind
+
+
+@njit(cache=True, error_model="numpy", fastmath={"nsz", "arcp", "contract", "afn", "reassoc"})
+def wall_contacts(P, W, TB, prm, n, t, heat, fused, maxov, who_i, who_j, ncont):
+    """Every particle-wall candidate: contact force, torque and springs, and with heat the wall
+    conductance (stored, or exchanged at once when fused) and the friction heat. Continues the
+    overlap and contact count of the pairs; returns them with the wall heat (W, fused Euler)."""
+    x, v, w, r, m, mat, f, tq = (P.position, P.velocity, P.angular_velocity, P.radius, P.mass, P.material,
+                                 P.force, P.torque)
+    wnb, wnn, whist, wrhist, wage, Hw = P.wnb, P.wnn, P.whist, P.wrhist, P.wage, P.Hw
+    T, Q, por, qgen = P.temperature, P.heat_rate, P.por, P.qgen
+    wf, wi, wth, wtab, wtot = W.wf, W.wi, W.wth, W.wtab, W.wtot
+    tab, tmat, gas, ereal = TB.tab, TB.tmat, TB.gas, TB.ereal
+    ip, fp, thi, thf = prm.ip, prm.fp, prm.thi, prm.thf
+    dmodel, crm, crc, imodel = thi[TI_DIRECT], thi[TI_CR], thi[TI_CORR], thi[TI_INDIRECT]
+    fric, pmodel, use_age = thi[TI_FRIC], thi[TI_PART], thi[TI_AGE] != 0
+    dfac = thf[TF_DFACTOR]
+    dt, model, rolling = fp[F_DT], ip[I_CONTACT], ip[I_ROLLING]
+    lin_kn, vchar, ktr, etar = fp[F_LINKN], fp[F_VCHAR], fp[F_KTRATIO], fp[F_ETAR]
+    e_wall = 0.0
     # walls (candidates from the wall list built with the neighbour list)
     for i in range(n):
         ri = r[i]
@@ -469,11 +489,7 @@ def compute_forces(P, C, W, TB, prm, n, t, hon):
                 tq[i, 0] += mx
                 tq[i, 1] += my
                 tq[i, 2] += mz
-    if fused:
-        tot[E_DIRECT] += e_dir * dt
-        tot[E_INDIRECT] += e_ind * dt
-        tot[E_WALL] += e_wall * dt
-    return maxov, who_i, who_j, ncont
+    return maxov, who_i, who_j, ncont, e_wall
 
 
 @njit(cache=True, error_model="numpy")
