@@ -111,10 +111,9 @@ def compute_forces(P, C, W, TB, prm, n, t, hon):
     totals here."""
     heat = hon is not None and prm.thi[TI_HEAT] != 0
     fused = heat and prm.thi[TI_FUSED] == 1
-    body_forces(P, prm, n, heat, fused)
-    maxov, who_i, who_j, ncont, e_dir, e_ind = pair_contacts(P, C, TB, prm, n, heat, fused)
-    maxov, who_i, who_j, ncont, e_wall = wall_contacts(P, W, TB, prm, n, t, heat, fused, maxov, who_i, who_j,
-                                                       ncont)
+    body_forces(P, prm, n, hon)
+    maxov, who_i, who_j, ncont, e_dir, e_ind = pair_contacts(P, C, TB, prm, n, hon)
+    maxov, who_i, who_j, ncont, e_wall = wall_contacts(P, W, TB, prm, n, t, hon, maxov, who_i, who_j, ncont)
     if fused:
         dt = prm.fp[F_DT]
         tot = prm.tot
@@ -125,7 +124,7 @@ def compute_forces(P, C, W, TB, prm, n, t, hon):
 
 
 @njit(cache=True, error_model="numpy", fastmath={"nsz", "arcp", "contract", "afn", "reassoc"})
-def body_forces(P, prm, n, heat, fused):
+def body_forces(P, prm, n, hon):
     """Gravity and the fluid force (a coupled run) on every row; torques, friction heat and (fused
     heat) heat rates reset before the contacts add theirs."""
     f, tq, m, fext = P.force, P.torque, P.mass, P.external_force
@@ -133,6 +132,8 @@ def body_forces(P, prm, n, heat, fused):
     gx = fp[F_GX]
     gy = fp[F_GY]
     gz = fp[F_GZ]
+    heat = hon is not None and prm.thi[TI_HEAT] != 0  # hon None: the heat code is compiled out
+    fused = heat and prm.thi[TI_FUSED] == 1
     if heat and prm.thi[TI_FRIC] >= 0:
         for i in range(n):
             P.qgen[i] = 0.0
@@ -154,7 +155,7 @@ def body_forces(P, prm, n, heat, fused):
 
 
 @njit(cache=True, error_model="numpy", fastmath={"nsz", "arcp", "contract", "afn", "reassoc"})
-def pair_contacts(P, C, TB, prm, n, heat, fused):
+def pair_contacts(P, C, TB, prm, n, hon):
     """Every pair of the half list: contact force and torque (the contact law, tangential and
     rolling springs), and with heat the pair conductances (contact radius, direct, indirect,
     radiation neighbours) and the friction heat. Returns (largest overlap ratio, i, j,
@@ -165,6 +166,8 @@ def pair_contacts(P, C, TB, prm, n, heat, fused):
     T, Q, por, qgen = P.temperature, P.heat_rate, P.por, P.qgen
     tab, tmat, gas, ereal, keff = TB.tab, TB.tmat, TB.gas, TB.ereal, TB.keff
     ip, fp, thi, thf = prm.ip, prm.fp, prm.thi, prm.thf
+    heat = hon is not None and thi[TI_HEAT] != 0
+    fused = heat and thi[TI_FUSED] == 1
     dmodel, crm, crc, imodel = thi[TI_DIRECT], thi[TI_CR], thi[TI_CORR], thi[TI_INDIRECT]
     radon, fric, pmodel, use_age = thi[TI_RAD] >= 0, thi[TI_FRIC], thi[TI_PART], thi[TI_AGE] != 0
     dfac, radrange = thf[TF_DFACTOR], thf[TF_RADRANGE]
@@ -355,7 +358,7 @@ def pair_contacts(P, C, TB, prm, n, heat, fused):
 
 
 @njit(cache=True, error_model="numpy", fastmath={"nsz", "arcp", "contract", "afn", "reassoc"})
-def wall_contacts(P, W, TB, prm, n, t, heat, fused, maxov, who_i, who_j, ncont):
+def wall_contacts(P, W, TB, prm, n, t, hon, maxov, who_i, who_j, ncont):
     """Every particle-wall candidate: contact force, torque and springs, and with heat the wall
     conductance (stored, or exchanged at once when fused) and the friction heat. Continues the
     overlap and contact count of the pairs; returns them with the wall heat (W, fused Euler)."""
@@ -366,6 +369,8 @@ def wall_contacts(P, W, TB, prm, n, t, heat, fused, maxov, who_i, who_j, ncont):
     wf, wi, wth, wtab, wtot = W.wf, W.wi, W.wth, W.wtab, W.wtot
     tab, tmat, gas, ereal = TB.tab, TB.tmat, TB.gas, TB.ereal
     ip, fp, thi, thf = prm.ip, prm.fp, prm.thi, prm.thf
+    heat = hon is not None and thi[TI_HEAT] != 0
+    fused = heat and thi[TI_FUSED] == 1
     dmodel, crm, crc, imodel = thi[TI_DIRECT], thi[TI_CR], thi[TI_CORR], thi[TI_INDIRECT]
     fric, pmodel, use_age = thi[TI_FRIC], thi[TI_PART], thi[TI_AGE] != 0
     dfac = thf[TF_DFACTOR]
@@ -561,7 +566,7 @@ def kick(n, v, w, f, tq, inv_m, inv_i, dt):
     return bad
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def drift(P, prm, nown, t):
     """Phase "kick-drift": half kick, drift and periodic wrap of the owned rows; returns True
     when the neighbour lists must be rebuilt before the forces at time t (a particle moved
@@ -572,7 +577,7 @@ def drift(P, prm, nown, t):
     return math.sqrt(maxd2) + fp[F_VWALL] * (t - fp[F_TBUILD]) > 0.5 * fp[F_SKIN]
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def outside(P, prm, nown):
     """(row, axis) of the first owned particle outside the domain along a closed axis, or (-1, -1)."""
     x = P.position
@@ -639,7 +644,7 @@ def rebuild(P, C, W, prm, n, nown, glo, ghi, gwrap, t, slots, carry, hon):
     return C, maxc
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def kick_guard(P, prm, nown, maxov, who_i, who_j):
     """Phase "kick" and the mechanical guards: second half kick of the owned rows, then
     (status, particle, other, value): NONFINITE (a non-finite velocity), OVERLAP (the largest
@@ -653,7 +658,7 @@ def kick_guard(P, prm, nown, maxov, who_i, who_j):
     return OK, -1, -1, 0.0
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def heat_phase(P, C, W, TB, prm, n, nown, t):
     """Phase "heat": one thermal step of the owned rows on the conductances of the force
     evaluation (dem.thermal.heat.heat_step); (BAD_TEMPERATURE, particle, value) or (OK, -1, 0)."""
