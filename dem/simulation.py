@@ -210,7 +210,7 @@ class Simulation:
         slots = 12 if initial else st.nb.shape[1]
         for _ in range(2):
             P, C, W, _T, prm = st.bundles()
-            C, maxc = K.rebuild(P, C, W, prm, st.n, st.n_owned, glo, ghi, gwrap, t, slots, False, self._hon)
+            C, maxc = K.rebuild(P, C, W, prm, st.n, st.n_owned, glo, ghi, gwrap, t, slots, False)
             if not initial or maxc + 2 >= slots:
                 break
             slots = maxc + 2

@@ -109,38 +109,67 @@ def compute_forces(P, C, W, TB, prm, n, t, hon):
     (copies of another rank's particles, no pairs of their own); a pair with a ghost is
     computed on both ranks, so it counts 1 (of 2) and half its exchanged heat goes into the
     totals here."""
-    heat = hon is not None and prm.thi[TI_HEAT] != 0
-    fused = heat and prm.thi[TI_FUSED] == 1
-    body_forces(P, prm, n, hon)
-    maxov, who_i, who_j, ncont, e_dir, e_ind = pair_contacts(P, C, TB, prm, n, hon)
-    maxov, who_i, who_j, ncont, e_wall = wall_contacts(P, W, TB, prm, n, t, hon, maxov, who_i, who_j, ncont)
+    x, v, w, r, m, mat, f, tq = (P.position, P.velocity, P.angular_velocity, P.radius, P.mass, P.material,
+                                 P.force, P.torque)
+    fext, wnb, wnn, whist, wrhist = P.external_force, P.wnb, P.wnn, P.whist, P.wrhist
+    nb, nnb, hist, rhist, age, Hd, Hi, rnear = C.nb, C.nnb, C.hist, C.rhist, C.age, C.Hd, C.Hi, C.rnear
+    wf, wi, tab, ip, fp, lo, hi, periodic = W.wf, W.wi, TB.tab, prm.ip, prm.fp, prm.lo, prm.hi, prm.periodic
+    thi = prm.thi
+    heat = hon is not None and thi[TI_HEAT] != 0
+    dmodel = thi[TI_DIRECT]
+    crm = thi[TI_CR]
+    crc = thi[TI_CORR]
+    imodel = thi[TI_INDIRECT]
+    radon = thi[TI_RAD] >= 0
+    fric = thi[TI_FRIC]
+    pmodel = thi[TI_PART]
+    use_age = thi[TI_AGE] != 0
+    thf = prm.thf
+    tmat = TB.tmat
+    gas = TB.gas
+    ereal = TB.ereal
+    Hw = P.Hw
+    wth = W.wth
+    por = P.por
+    qgen = P.qgen
+    wage = P.wage
+    dfac = thf[TF_DFACTOR]
+    radrange = thf[TF_RADRANGE]
+    fused = heat and thi[TI_FUSED] == 1
+    T = P.temperature
+    Q = P.heat_rate
+    tot = prm.tot
+    wtot = W.wtot
+    wtab = W.wtab
+    keff = TB.keff
+    bo = dmodel == DIRECT_BATCHELOR_OBRIEN
+    e_dir = 0.0
+    e_ind = 0.0
+    e_wall = 0.0
+    if heat and fric >= 0:
+        for i in range(n):
+            qgen[i] = 0.0
     if fused:
-        dt = prm.fp[F_DT]
-        tot = prm.tot
-        tot[E_DIRECT] += e_dir * dt
-        tot[E_INDIRECT] += e_ind * dt
-        tot[E_WALL] += e_wall * dt
-    return maxov, who_i, who_j, ncont
-
-
-@njit(cache=True, error_model="numpy", fastmath={"nsz", "arcp", "contract", "afn", "reassoc"})
-def body_forces(P, prm, n, hon):
-    """Gravity and the fluid force (a coupled run) on every row; torques, friction heat and (fused
-    heat) heat rates reset before the contacts add theirs."""
-    f, tq, m, fext = P.force, P.torque, P.mass, P.external_force
-    fp = prm.fp
+        for i in range(n):
+            Q[i] = 0.0
+    dt = fp[F_DT]
+    model = ip[I_CONTACT]
+    rolling = ip[I_ROLLING]
+    lin_kn = fp[F_LINKN]
+    vchar = fp[F_VCHAR]
+    ktr = fp[F_KTRATIO]
+    etar = fp[F_ETAR]
     gx = fp[F_GX]
     gy = fp[F_GY]
     gz = fp[F_GZ]
-    heat = hon is not None and prm.thi[TI_HEAT] != 0  # hon None: the heat code is compiled out
-    fused = heat and prm.thi[TI_FUSED] == 1
-    if heat and prm.thi[TI_FRIC] >= 0:
-        for i in range(n):
-            P.qgen[i] = 0.0
-    if fused:
-        for i in range(n):
-            P.heat_rate[i] = 0.0
+    Lx = hi[0] - lo[0]
+    Ly = hi[1] - lo[1]
+    Lz = hi[2] - lo[2]
+    px = periodic[0]
+    py = periodic[1]
+    pz = periodic[2]
     has_ext = fext.shape[0] == n
+    nown = ip[I_NOWN]
     for i in range(n):
         f[i, 0] = m[i] * gx
         f[i, 1] = m[i] * gy
@@ -152,37 +181,6 @@ def body_forces(P, prm, n, hon):
         tq[i, 0] = 0.0
         tq[i, 1] = 0.0
         tq[i, 2] = 0.0
-
-
-@njit(cache=True, error_model="numpy", fastmath={"nsz", "arcp", "contract", "afn", "reassoc"})
-def pair_contacts(P, C, TB, prm, n, hon):
-    """Every pair of the half list: contact force and torque (the contact law, tangential and
-    rolling springs), and with heat the pair conductances (contact radius, direct, indirect,
-    radiation neighbours) and the friction heat. Returns (largest overlap ratio, i, j,
-    2 x contacts, direct heat, indirect heat (W, fused Euler))."""
-    x, v, w, r, m, mat, f, tq = (P.position, P.velocity, P.angular_velocity, P.radius, P.mass, P.material,
-                                 P.force, P.torque)
-    nb, nnb, hist, rhist, age, Hd, Hi, rnear = C.nb, C.nnb, C.hist, C.rhist, C.age, C.Hd, C.Hi, C.rnear
-    T, Q, por, qgen = P.temperature, P.heat_rate, P.por, P.qgen
-    tab, tmat, gas, ereal, keff = TB.tab, TB.tmat, TB.gas, TB.ereal, TB.keff
-    ip, fp, thi, thf = prm.ip, prm.fp, prm.thi, prm.thf
-    heat = hon is not None and thi[TI_HEAT] != 0
-    fused = heat and thi[TI_FUSED] == 1
-    dmodel, crm, crc, imodel = thi[TI_DIRECT], thi[TI_CR], thi[TI_CORR], thi[TI_INDIRECT]
-    radon, fric, pmodel, use_age = thi[TI_RAD] >= 0, thi[TI_FRIC], thi[TI_PART], thi[TI_AGE] != 0
-    dfac, radrange = thf[TF_DFACTOR], thf[TF_RADRANGE]
-    bo = dmodel == DIRECT_BATCHELOR_OBRIEN
-    dt, model, rolling, nown = fp[F_DT], ip[I_CONTACT], ip[I_ROLLING], ip[I_NOWN]
-    lin_kn, vchar, ktr, etar = fp[F_LINKN], fp[F_VCHAR], fp[F_KTRATIO], fp[F_ETAR]
-    lo, hi, periodic = prm.lo, prm.hi, prm.periodic
-    Lx = hi[0] - lo[0]
-    Ly = hi[1] - lo[1]
-    Lz = hi[2] - lo[2]
-    px = periodic[0]
-    py = periodic[1]
-    pz = periodic[2]
-    e_dir = 0.0
-    e_ind = 0.0
     maxov = 0.0
     who_i = -1
     who_j = -1
@@ -354,29 +352,6 @@ def pair_contacts(P, C, TB, prm, n, hon):
                 tq[j, 0] -= mx
                 tq[j, 1] -= my
                 tq[j, 2] -= mz
-    return maxov, who_i, who_j, ncont, e_dir, e_ind
-
-
-@njit(cache=True, error_model="numpy", fastmath={"nsz", "arcp", "contract", "afn", "reassoc"})
-def wall_contacts(P, W, TB, prm, n, t, hon, maxov, who_i, who_j, ncont):
-    """Every particle-wall candidate: contact force, torque and springs, and with heat the wall
-    conductance (stored, or exchanged at once when fused) and the friction heat. Continues the
-    overlap and contact count of the pairs; returns them with the wall heat (W, fused Euler)."""
-    x, v, w, r, m, mat, f, tq = (P.position, P.velocity, P.angular_velocity, P.radius, P.mass, P.material,
-                                 P.force, P.torque)
-    wnb, wnn, whist, wrhist, wage, Hw = P.wnb, P.wnn, P.whist, P.wrhist, P.wage, P.Hw
-    T, Q, por, qgen = P.temperature, P.heat_rate, P.por, P.qgen
-    wf, wi, wth, wtab, wtot = W.wf, W.wi, W.wth, W.wtab, W.wtot
-    tab, tmat, gas, ereal = TB.tab, TB.tmat, TB.gas, TB.ereal
-    ip, fp, thi, thf = prm.ip, prm.fp, prm.thi, prm.thf
-    heat = hon is not None and thi[TI_HEAT] != 0
-    fused = heat and thi[TI_FUSED] == 1
-    dmodel, crm, crc, imodel = thi[TI_DIRECT], thi[TI_CR], thi[TI_CORR], thi[TI_INDIRECT]
-    fric, pmodel, use_age = thi[TI_FRIC], thi[TI_PART], thi[TI_AGE] != 0
-    dfac = thf[TF_DFACTOR]
-    dt, model, rolling = fp[F_DT], ip[I_CONTACT], ip[I_ROLLING]
-    lin_kn, vchar, ktr, etar = fp[F_LINKN], fp[F_VCHAR], fp[F_KTRATIO], fp[F_ETAR]
-    e_wall = 0.0
     # walls (candidates from the wall list built with the neighbour list)
     for i in range(n):
         ri = r[i]
@@ -494,7 +469,11 @@ def wall_contacts(P, W, TB, prm, n, t, hon, maxov, who_i, who_j, ncont):
                 tq[i, 0] += mx
                 tq[i, 1] += my
                 tq[i, 2] += mz
-    return maxov, who_i, who_j, ncont, e_wall
+    if fused:
+        tot[E_DIRECT] += e_dir * dt
+        tot[E_INDIRECT] += e_ind * dt
+        tot[E_WALL] += e_wall * dt
+    return maxov, who_i, who_j, ncont
 
 
 @njit(cache=True, error_model="numpy")
@@ -602,27 +581,29 @@ def _slot_arrays(n, slots, C, heat, thi):
 
 
 @njit(cache=True, error_model="numpy")
-def rebuild(P, C, W, prm, n, nown, glo, ghi, gwrap, t, slots, carry, hon):
+def rebuild(P, C, W, prm, n, nown, glo, ghi, gwrap, t, slots, carry):
     """Phase "rebuild": the half neighbour list of rows [0, nown) over rows [0, n) (the rest
     are ghosts) with the cell grid over [glo, ghi] (wrapped on ``gwrap``), the wall candidate
     lists, the per-slot heat arrays, the local porosity (when measured) and the build
     position and time. ``carry``: the contact history is carried over from ``C`` (same rows:
     a serial rebuild); otherwise it starts empty (a first build, or after an exchange with
-    other ranks, where dem.parallel.records brings it back). Returns (new Pairs, largest count)."""
+    other ranks, where dem.parallel.records brings it back). Returns (new Pairs, largest count).
+    One compiled form serves runs with and without heat (a rebuild is rare: the run-time
+    test costs nothing, and a second specialisation would cost compile time)."""
     fp = prm.fp
     ip = prm.ip
     thi = prm.thi
-    heat = hon is not None and thi[TI_HEAT] != 0
+    heat = thi[TI_HEAT] != 0
     x = P.position
     if carry:
-        nb, nnb, hist, rhist, age, maxc = build_half_list(
-            x, P.radius, n, nown, prm.lo, prm.hi, prm.periodic, glo, ghi, gwrap, fp[F_REACH], fp[F_SKIN],
-            slots, C.nb, C.nnb, C.hist, C.rhist, C.age)
+        onb, onnb, ohist, orhist, oage = C.nb, C.nnb, C.hist, C.rhist, C.age
     else:
-        nb, nnb, hist, rhist, age, maxc = build_half_list(
-            x, P.radius, n, nown, prm.lo, prm.hi, prm.periodic, glo, ghi, gwrap, fp[F_REACH], fp[F_SKIN],
-            slots, np.zeros((0, 1), np.int32), np.zeros(0, np.int32), np.zeros((0, 1, 3)), np.zeros((0, 1, 3)),
-            np.zeros((0, 1, 2)))
+        onb, onnb = np.zeros((0, 1), np.int32), np.zeros(0, np.int32)
+        ohist, orhist, oage = np.zeros((0, 1, 3)), np.zeros((0, 1, 3)), np.zeros((0, 1, 2))
+    nb, nnb, hist, rhist, age, maxc = build_half_list(
+        x, P.radius, n, nown, prm.lo, prm.hi, prm.periodic, glo, ghi, gwrap, fp[F_REACH], fp[F_SKIN],
+        slots, onb, onnb, ohist, orhist, oage)
+    if not carry:
         if ip[I_ROLLING] == 2:
             rhist = np.zeros(hist.shape)
         if heat and thi[TI_AGE] != 0:
@@ -692,7 +673,7 @@ def advance(nsteps, s0, n, P, C, W, TB, prm, hon):
                 i, k = outside(P, prm, n)
                 if i >= 0:
                     return step + 1, LEFT_DOMAIN, i, -1, P.position[i, k], ncont, nreb, C
-                C, _ = rebuild(P, C, W, prm, n, n, prm.lo, prm.hi, prm.periodic, t, C.nb.shape[1], True, hon)
+                C, _ = rebuild(P, C, W, prm, n, n, prm.lo, prm.hi, prm.periodic, t, C.nb.shape[1], True)
                 nreb += 1
             maxov, wi_, wj_, ncont = compute_forces(P, C, W, TB, prm, n, t, hon)
             status, who, other, value = kick_guard(P, prm, n, maxov, wi_, wj_)

@@ -92,7 +92,7 @@ def _surfaces(tmat, mi, mj):
     return sig, slope, min(tmat[mi, MICROHARDNESS], tmat[mj, MICROHARDNESS])
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _pp(Ri, Rj, d, rc, mi, mj, tmat, gas, t_contact, vn_impact):
     Es = effective_modulus(real_modulus(tmat, mi), tmat[mi, POISSON], real_modulus(tmat, mj), tmat[mj, POISSON])
     sig, slope, hmic = _surfaces(tmat, mi, mj)
@@ -100,7 +100,7 @@ def _pp(Ri, Rj, d, rc, mi, mj, tmat, gas, t_contact, vn_impact):
                                      sig, slope, hmic)
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _pw(R, d, rc, mp, mw, tmat, gas, t_contact, vn_impact):
     Es = effective_modulus(real_modulus(tmat, mp), tmat[mp, POISSON], real_modulus(tmat, mw), tmat[mw, POISSON])
     sig, slope, hmic = _surfaces(tmat, mp, mw)

@@ -302,22 +302,22 @@ def _zhou_or_static(rc, Rstar, mstar, Estar_real, vn_impact, t_contact,
     return batchelor_obrien_1977(rc, k_i, k_j)
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _bo_pp(Ri, Rj, d, rc, mi, mj, tmat, gas, t_contact, vn_impact):
     return batchelor_obrien_1977(rc, tmat[mi, K_COND], tmat[mj, K_COND])
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _bo_pw(R, d, rc, mp, mw, tmat, gas, t_contact, vn_impact):
     return batchelor_obrien_1977(rc, tmat[mp, K_COND], tmat[mw, K_COND])
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _pipe_pp(Ri, Rj, d, rc, mi, mj, tmat, gas, t_contact, vn_impact):
     return thermal_pipe(rc, d, tmat[mi, K_COND], tmat[mj, K_COND])
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _pipe_pw(R, d, rc, mp, mw, tmat, gas, t_contact, vn_impact):
     kp = tmat[mp, K_COND]
     if d <= 0.0:
@@ -325,27 +325,27 @@ def _pipe_pw(R, d, rc, mp, mw, tmat, gas, t_contact, vn_impact):
     return kp * math.pi * rc * rc / d
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _qrc_pp(Ri, Rj, d, rc, mi, mj, tmat, gas, t_contact, vn_impact):
     return quintana_ruiz_campello_2020(rc, d, Ri, Rj, tmat[mi, K_COND], tmat[mj, K_COND])
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _qrc_pw(R, d, rc, mp, mw, tmat, gas, t_contact, vn_impact):
     return quintana_ruiz_campello_2020(rc, d, R, 0.0, tmat[mp, K_COND], tmat[mw, K_COND])
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _rojek_pp(Ri, Rj, d, rc, mi, mj, tmat, gas, t_contact, vn_impact):
     return rojek_2014(Ri, Rj, tmat[mi, K_COND], tmat[mj, K_COND])
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _rojek_pw(R, d, rc, mp, mw, tmat, gas, t_contact, vn_impact):
     return rojek_2014_wall(R, tmat[mp, K_COND])
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _zhou_pp(Ri, Rj, d, rc, mi, mj, tmat, gas, t_contact, vn_impact):
     """Collisional formula while t_contact < t_c (Hertz collision time with the real modulus),
     then static Batchelor & O'Brien as Zhou et al. 2009."""
@@ -360,7 +360,7 @@ def _zhou_pp(Ri, Rj, d, rc, mi, mj, tmat, gas, t_contact, vn_impact):
                            tmat[mj, DENSITY], tmat[mj, CP], kj)
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _zhou_pw(R, d, rc, mp, mw, tmat, gas, t_contact, vn_impact):
     kp = tmat[mp, K_COND]
     kw = tmat[mw, K_COND]
@@ -372,7 +372,7 @@ def _zhou_pw(R, d, rc, mp, mw, tmat, gas, t_contact, vn_impact):
                            tmat[mw, DENSITY], tmat[mw, CP], kw)
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _beaulieu_pp(Ri, Rj, d, rc, mi, mj, tmat, gas, t_contact, vn_impact):
     Es = effective_modulus(real_modulus(tmat, mi), tmat[mi, POISSON],
                            real_modulus(tmat, mj), tmat[mj, POISSON])
@@ -383,7 +383,7 @@ def _beaulieu_pp(Ri, Rj, d, rc, mi, mj, tmat, gas, t_contact, vn_impact):
                                  tmat[mi, ASPERITY_SLOPE], tmat[mj, ASPERITY_SLOPE], Es, M, False)
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _beaulieu_pw(R, d, rc, mp, mw, tmat, gas, t_contact, vn_impact):
     Es = effective_modulus(real_modulus(tmat, mp), tmat[mp, POISSON],
                            real_modulus(tmat, mw), tmat[mw, POISSON])

@@ -238,7 +238,7 @@ def _gap_floor_radius(Ri, Rj, d, S):
     return geometric_pp(Ri, Rj, D)
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _surrounding_layer_pp(Ri, Rj, d, r_low, kf, layer, S, tol):
     Rf = surrounding_layer_upper_radius(Ri, Rj, d, layer)
     if Rf <= r_low:
@@ -386,68 +386,68 @@ def vargas_mccarthy_2002(Rp, rc, kg, M, k_liq, phi):
 
 
 # ----------------------------------------------------------------- dispatcher laws
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _cheng_a_pp(Ri, Rj, d, rc, r_low, por, Rmin, kf, ki, kj, mi, mj, tmat, gas):
     Rp = 0.5 * (Ri + Rj)
     return cheng_1999_voronoi_a(Rp, d, r_low, ki, kj, kf, zhou_2009_face_radius(Rp, por), gas[QUAD_TOL])
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _gan_a_pp(Ri, Rj, d, rc, r_low, por, Rmin, kf, ki, kj, mi, mj, tmat, gas):
     return gan_2016_voronoi_a(Ri, Rj, d, r_low, ki, kj, kf, zhou_2009_face_radius(Rmin, por), gas[QUAD_TOL])
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _voronoi_a_pw(R, d, rc, r_low, por, kf, kp, mp, mw, tmat, gas):
     return voronoi_a_wall(R, d, r_low, kp, kf, zhou_2009_face_radius(R, por), gas[QUAD_TOL])
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _cheng_b_pp(Ri, Rj, d, rc, r_low, por, Rmin, kf, ki, kj, mi, mj, tmat, gas):
     Rp = 0.5 * (Ri + Rj)
     return cheng_1999_voronoi_b(Rp, d, r_low, ki, kj, kf, zhou_2009_face_radius(Rp, por),
                                 gas[CORE_RATIO])
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _chen_b_pp(Ri, Rj, d, rc, r_low, por, Rmin, kf, ki, kj, mi, mj, tmat, gas):
     return chen_2019_voronoi_b(Ri, Rj, d, r_low, ki, kj, kf, zhou_2009_face_area(Rmin, por),
                                gas[CORE_RATIO])
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _voronoi_b_pw(R, d, rc, r_low, por, kf, kp, mp, mw, tmat, gas):
     return voronoi_b_wall(R, d, r_low, kp, kf, zhou_2009_face_radius(R, por), gas[CORE_RATIO])
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _rong_horio_pp(Ri, Rj, d, rc, r_low, por, Rmin, kf, ki, kj, mi, mj, tmat, gas):
     return rong_horio_1999_surrounding_layer(Ri, Rj, d, kf, gas[LAYER], gas[MIN_SEP], gas[QUAD_TOL])
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _rong_horio_pw(R, d, rc, r_low, por, kf, kp, mp, mw, tmat, gas):
     return surrounding_layer_wall(R, d, 0.0, kf, gas[LAYER], gas[MIN_SEP])
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _musser_pp(Ri, Rj, d, rc, r_low, por, Rmin, kf, ki, kj, mi, mj, tmat, gas):
     return musser_2011_surrounding_layer(Ri, Rj, d, r_low, kf, gas[LAYER], gas[MIN_SEP], gas[QUAD_TOL])
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _musser_pw(R, d, rc, r_low, por, kf, kp, mp, mw, tmat, gas):
     return surrounding_layer_wall(R, d, r_low, kf, gas[LAYER], gas[MIN_SEP])
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _vargas_pp(Ri, Rj, d, rc, r_low, por, Rmin, kf, ki, kj, mi, mj, tmat, gas):
     M = gas_parameter_m(tmat[mi, ACCOM], tmat[mj, ACCOM], gas[GAMMA_RATIO],
                         gas[MEAN_FREE_PATH], gas[PR])
     return vargas_mccarthy_2002(0.5 * (Ri + Rj), rc, kf, M, gas[K_LIQ], gas[FILL_ANGLE])
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _vargas_pw(R, d, rc, r_low, por, kf, kp, mp, mw, tmat, gas):
     M = gas_parameter_m(tmat[mp, ACCOM], tmat[mw, ACCOM], gas[GAMMA_RATIO],
                         gas[MEAN_FREE_PATH], gas[PR])
