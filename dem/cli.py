@@ -172,7 +172,7 @@ def _compile_parallel_entry_points(sim):
     P, C, W, TB, prm = st.bundles()
     K.drift(P, prm, st.n_owned, sim.time)
     K.outside(P, prm, st.n_owned)
-    K.rebuild(P, C, W, prm, st.n, st.n_owned, sim.lo, sim.hi, sim.periodic, sim.time, C.nb.shape[1], False)
+    K.after_build(P, C, W, prm, st.n, st.n_owned, sim.time, False)
     maxov, i, j, _ = K.compute_forces(P, C, W, TB, prm, st.n, sim.time, True)
     K.kick_guard(P, prm, st.n_owned, maxov, i, j)
     cross_rates(st.n_owned, st.inv_heat_capacity, st.nb, st.nnb, st.Hd, st.Hi, st.work)

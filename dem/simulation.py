@@ -14,7 +14,7 @@ from . import scene as scene_mod
 from .contact.damping import damping_factor, mixed_tables, rayleigh_time, hertz_collision_time
 from .contact.registry import CONTACT_MODELS, ROLLING_MODELS, DAMPING_MODELS
 from .contact import walls as W
-from .neighbors import grid_bytes, sort_permutation
+from .neighbors import build_half_list, grid_bytes, sort_permutation
 from .output import OutputError
 from .state import State
 from . import step as K
@@ -204,16 +204,23 @@ class Simulation:
         self._rebuild(self.time, self.lo, self.hi, self.periodic, initial=True)
 
     def _rebuild(self, t, glo, ghi, gwrap, initial=False):
-        """The rebuild phase (dem.step.rebuild) from Python: a first build sizes the slots
-        tightly (the largest count + 2); the history starts empty (restored by the caller)."""
+        """The rebuild phase (dem.step.rebuild) from Python, with the history starting empty
+        (restored by the caller): the half list over the cell grid [glo, ghi] (wrapped on
+        ``gwrap``), then dem.step.after_build. A first build sizes the slots tightly (the
+        largest count + 2)."""
         st = self.state
         slots = 12 if initial else st.nb.shape[1]
+        empty = [f.empty() for f in S.of("pair") if f.name in ("nb", "nnb") or f.record]
         for _ in range(2):
-            P, C, W, _T, prm = st.bundles()
-            C, maxc = K.rebuild(P, C, W, prm, st.n, st.n_owned, glo, ghi, gwrap, t, slots, False)
+            nb, nnb, hist, rhist, age, maxc = build_half_list(
+                st.position, st.radius, st.n, st.n_owned, self.lo, self.hi, self.periodic, glo, ghi, gwrap,
+                self.reach, self.fp[K.F_SKIN], slots, *empty)
             if not initial or maxc + 2 >= slots:
                 break
             slots = maxc + 2
+        P, C, W, _T, prm = st.bundles()
+        C = K.after_build(P, S.Pairs(nb, nnb, hist, rhist, age, C.Hd, C.Hi, C.rnear), W, prm, st.n, st.n_owned, t,
+                          False)
         self._set_pairs(C)
 
     def _set_pairs(self, C):

@@ -581,28 +581,20 @@ def _slot_arrays(n, slots, C, heat, thi):
 
 
 @njit(cache=True, error_model="numpy")
-def rebuild(P, C, W, prm, n, nown, glo, ghi, gwrap, t, slots, carry):
-    """Phase "rebuild": the half neighbour list of rows [0, nown) over rows [0, n) (the rest
-    are ghosts) with the cell grid over [glo, ghi] (wrapped on ``gwrap``), the wall candidate
-    lists, the per-slot heat arrays, the local porosity (when measured) and the build
-    position and time. ``carry``: the contact history is carried over from ``C`` (same rows:
-    a serial rebuild); otherwise it starts empty (a first build, or after an exchange with
-    other ranks, where dem.parallel.records brings it back). Returns (new Pairs, largest count).
-    One compiled form serves runs with and without heat (a rebuild is rare: the run-time
-    test costs nothing, and a second specialisation would cost compile time)."""
+def after_build(P, C, W, prm, n, nown, t, carry):
+    """Phase "rebuild", after the half list of ``C`` (nb, nnb and the history slots, from
+    dem.neighbors.build_half_list) was built for rows [0, nown) over [0, n) (the rest are ghosts):
+    the wall candidate lists, the per-slot heat arrays (``C``'s kept when their shape fits), the
+    local porosity (when measured) and the build position and time. ``carry``: the history was
+    carried over by the build (a serial rebuild); otherwise it starts empty here (a first build,
+    or after an exchange with other ranks, where dem.parallel.records brings it back). Returns
+    the new Pairs. One compiled form serves runs with and without heat (a rebuild is rare)."""
     fp = prm.fp
     ip = prm.ip
     thi = prm.thi
     heat = thi[TI_HEAT] != 0
     x = P.position
-    if carry:
-        onb, onnb, ohist, orhist, oage = C.nb, C.nnb, C.hist, C.rhist, C.age
-    else:
-        onb, onnb = np.zeros((0, 1), np.int32), np.zeros(0, np.int32)
-        ohist, orhist, oage = np.zeros((0, 1, 3)), np.zeros((0, 1, 3)), np.zeros((0, 1, 2))
-    nb, nnb, hist, rhist, age, maxc = build_half_list(
-        x, P.radius, n, nown, prm.lo, prm.hi, prm.periodic, glo, ghi, gwrap, fp[F_REACH], fp[F_SKIN],
-        slots, onb, onnb, ohist, orhist, oage)
+    nb, nnb, hist, rhist, age = C.nb, C.nnb, C.hist, C.rhist, C.age
     if not carry:
         if ip[I_ROLLING] == 2:
             rhist = np.zeros(hist.shape)
@@ -622,7 +614,19 @@ def rebuild(P, C, W, prm, n, nown, glo, ghi, gwrap, t, slots, carry):
         for k in range(3):
             xb[i, k] = x[i, k]
     fp[F_TBUILD] = t
-    return C, maxc
+    return C
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def rebuild(P, C, W, prm, n, t):
+    """Phase "rebuild" of a serial run: the half list with the history carried over
+    (dem.neighbors.build_half_list), then :func:`after_build`. A run on several ranks, and the
+    first build, call the same two functions from dem.simulation around the exchange."""
+    fp = prm.fp
+    nb, nnb, hist, rhist, age, _ = build_half_list(
+        P.position, P.radius, n, n, prm.lo, prm.hi, prm.periodic, prm.lo, prm.hi, prm.periodic, fp[F_REACH],
+        fp[F_SKIN], C.nb.shape[1], C.nb, C.nnb, C.hist, C.rhist, C.age)
+    return after_build(P, Pairs(nb, nnb, hist, rhist, age, C.Hd, C.Hi, C.rnear), W, prm, n, n, t, True)
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -673,7 +677,7 @@ def advance(nsteps, s0, n, P, C, W, TB, prm, hon):
                 i, k = outside(P, prm, n)
                 if i >= 0:
                     return step + 1, LEFT_DOMAIN, i, -1, P.position[i, k], ncont, nreb, C
-                C, _ = rebuild(P, C, W, prm, n, n, prm.lo, prm.hi, prm.periodic, t, C.nb.shape[1], True)
+                C = rebuild(P, C, W, prm, n, t)
                 nreb += 1
             maxov, wi_, wj_, ncont = compute_forces(P, C, W, TB, prm, n, t, hon)
             status, who, other, value = kick_guard(P, prm, n, maxov, wi_, wj_)

@@ -58,7 +58,7 @@ def _run_variant(extra, steps=30):
     return sim
 
 
-KERNELS = (K.advance, K.compute_forces, K.rebuild, K.drift, K.kick_guard, K.heat_phase, K.outside,
+KERNELS = (K.advance, K.compute_forces, K.after_build, K.drift, K.kick_guard, K.heat_phase, K.outside,
            H.heat_step, NB.build_half_list)
 
 
@@ -73,7 +73,7 @@ def test_every_scene_shares_one_kernel_per_heat_switch():
     sim.set_fluid(force=np.full((sim.state.n_owned, 3), 1e-9), velocity=np.zeros((sim.state.n_owned, 3)),
                   temperature=np.full(sim.state.n_owned, 310.0))
     sim.step(10)
-    for k in (K.advance, K.compute_forces, K.rebuild):  # called from Python by every run
+    for k in (K.advance, K.compute_forces, K.after_build):  # called from Python by every run
         assert len(k.signatures) >= 1, k.py_func.__name__
     for k in KERNELS:  # (a phase called only inside advance has no signature of its own)
         sigs = k.signatures
