@@ -92,11 +92,21 @@ class State:
         mask = np.arange(nb.shape[1])[None, :] < nnb[:, None]
         self.nb = np.ascontiguousarray(np.where(mask, inv[np.where(mask, nb, 0)], 0).astype(np.int32))
 
+    def __setattr__(self, name, value):
+        if name in S.BY_NAME:  # a declared array replaced: the bundles are made again
+            self.__dict__["_bundles"] = None
+        object.__setattr__(self, name, value)
+
     def bundles(self):
-        """(Particles, Pairs, Walls, Tables, Params) over the current arrays."""
-        return tuple(B(*[getattr(self, f.name) for f in S.of(owner, kernel_only=True)])
-                     for B, owner in ((S.Particles, "particle"), (S.Pairs, "pair"), (S.Walls, "wall"),
-                                      (S.Tables, "table"), (S.Params, "param")))
+        """(Particles, Pairs, Walls, Tables, Params) over the current arrays (kept until an
+        array is replaced: an MPI step asks for them several times)."""
+        b = self.__dict__.get("_bundles")
+        if b is None:
+            b = tuple(B(*[getattr(self, f.name) for f in S.of(owner, kernel_only=True)])
+                      for B, owner in ((S.Particles, "particle"), (S.Pairs, "pair"), (S.Walls, "wall"),
+                                       (S.Tables, "table"), (S.Params, "param")))
+            self.__dict__["_bundles"] = b
+        return b
 
     def kinetic_energy(self):
         n = self.n_owned
