@@ -669,7 +669,8 @@ def advance(nsteps, s0, n, P, C, W, TB, prm, hon):
     nreb = 0
     ncont = 0
     mech = prm.ip[I_MECH] != 0
-    heat_on = hon is not None and prm.thi[TI_HEAT] != 0
+    thi = prm.thi
+    heat = hon is not None and thi[TI_HEAT] != 0
     for step in range(nsteps):
         t = (s0 + step + 1) * prm.fp[F_DT]
         if mech:
@@ -683,7 +684,7 @@ def advance(nsteps, s0, n, P, C, W, TB, prm, hon):
             status, who, other, value = kick_guard(P, prm, n, maxov, wi_, wj_)
             if status != OK:
                 return step + 1, status, who, other, value, ncont, nreb, C
-        if heat_on:
+        if heat:
             status, who, value = heat_phase(P, C, W, TB, prm, n, n, t)
             if status != OK:
                 return step + 1, status, who, -1, value, ncont, nreb, C
