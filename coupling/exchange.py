@@ -389,8 +389,6 @@ class SocketExchange(_Exchange):
             s.listen(1)
             self._listen = s
 
-    @property
-
     def grow_buffers(self, n_cells):
         """Let one whole frame fit the kernel's socket buffer: the send then returns at once
         instead of waiting for the solver to drain it (it may be descheduled on busy cores)."""
@@ -403,6 +401,8 @@ class SocketExchange(_Exchange):
                     self._sock.setsockopt(socket.SOL_SOCKET, opt, need)
             except OSError:
                 pass
+
+    @property
     def endpoint(self) -> str:
         return f"unix:{self.path}" if self.path else f"{self.host}:{self.port}"
 
