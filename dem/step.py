@@ -626,7 +626,9 @@ def rebuild(P, C, W, prm, n, t):
     nb, nnb, hist, rhist, age, _ = build_half_list(
         P.position, P.radius, n, n, prm.lo, prm.hi, prm.periodic, prm.lo, prm.hi, prm.periodic, fp[F_REACH],
         fp[F_SKIN], C.nb.shape[1], C.nb, C.nnb, C.hist, C.rhist, C.age)
-    return after_build(P, Pairs(nb, nnb, hist, rhist, age, C.Hd, C.Hi, C.rnear), W, prm, n, n, t, True)
+    carry = C.nb.shape[0] == n  # the history was carried over (same rows); a run-time value, so that
+    # after_build has one compiled form (a literal True would make a second one)
+    return after_build(P, Pairs(nb, nnb, hist, rhist, age, C.Hd, C.Hi, C.rnear), W, prm, n, n, t, carry)
 
 
 @njit(cache=True, error_model="numpy", inline="always")
