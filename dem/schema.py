@@ -170,14 +170,3 @@ FEATURES = ("heat", "fluid", "epsd", "contact_age", "friction_heat", "group_sour
 
 def enabled(field, feats):
     return field.when is None or bool(feats.get(field.when, False))
-
-
-def rows_arrays(store, feats, **flags):
-    """(field, array) of the enabled particle and pair arrays whose flags match, e.g.
-    ``sort=True``."""
-    for f in FIELDS:
-        if f.owner not in ("particle", "pair") or not enabled(f, feats):
-            continue
-        if all(getattr(f, k) == v if not isinstance(v, bool) else bool(getattr(f, k)) == v
-               for k, v in flags.items()):
-            yield f, getattr(store, f.name)
