@@ -163,20 +163,15 @@ def cmd_compile(args):
 
 
 def _compile_parallel_entry_points(sim):
-    """The phases an MPI run calls one step at a time (dem.Simulation._advance_parallel), on a
-    throwaway simulation: they must be in the cache before the ranks start."""
+    """What an MPI run calls besides dem.step.advance (whose phases it calls one group at a
+    time, the same compiled form as a serial run's), on a throwaway simulation: it must be in
+    the cache before the ranks start."""
     from . import step as K
     from .thermal.heat import cross_rates
     st = sim.state
     sim.warmup()
-    P, C, W, TB, prm = st.bundles()
-    K.drift(P, prm, st.n_owned, sim.time)
-    K.outside(P, prm, st.n_owned)
-    K.after_build(P, C, W, prm, st.n, st.n_owned, sim.time, False)
-    maxov, i, j, _ = K.compute_forces(P, C, W, TB, prm, st.n, sim.time, True)
-    K.kick_guard(P, prm, st.n_owned, maxov, i, j)
+    K.outside(st.position, sim.lo, sim.hi, sim.periodic, st.n_owned)
     cross_rates(st.n_owned, st.inv_heat_capacity, st.nb, st.nnb, st.Hd, st.Hi, st.work)
-    K.heat_phase(P, C, W, TB, prm, st.n, st.n_owned, sim.time)
 
 
 def cmd_render(args):

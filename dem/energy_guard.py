@@ -31,9 +31,9 @@ import math
 import numpy as np
 from numba import njit
 
-from .contact.walls import wall_distance, OX, VX
+from .contact.walls import wall_distance, OX, VX, WMAT
 from .neighbors import pair_distance
-from .step import I_CONTACT, F_LINKN, F_VCHAR, F_KTRATIO, F_GX, F_GZ
+from .step import I_CONTACT, F_LINKN, F_VCHAR, F_KTRATIO, F_GX, F_GZ, T_ESTAR, T_GSTAR, T_MU
 
 # relative energy gain between two checks that stops a run (see the module docstring)
 GAIN_TOLERANCE = 0.05
@@ -70,8 +70,9 @@ def particle_energies(P, C, W, TB, prm, nown, t, out):
             delta = rs - dist
             rstar = r[i] * r[j] / rs
             mstar = m[i] * m[j] / (m[i] + m[j])
-            e = _spring_energy(model, delta, rstar, mstar, tab[0, mat[i], mat[j]], tab[1, mat[i], mat[j]],
-                               tab[3, mat[i], mat[j]], lin_kn, vchar, ktr, hist[i, s, 0], hist[i, s, 1], hist[i, s, 2])
+            e = _spring_energy(model, delta, rstar, mstar, tab[T_ESTAR, mat[i], mat[j]],
+                               tab[T_GSTAR, mat[i], mat[j]], tab[T_MU, mat[i], mat[j]], lin_kn, vchar, ktr,
+                               hist[i, s, 0], hist[i, s, 1], hist[i, s, 2])
             el_tot += e if j < nown else 0.5 * e
             out[i, 2] += 0.5 * e
             if j < nown:
@@ -81,9 +82,10 @@ def particle_energies(P, C, W, TB, prm, nown, t, out):
             dist, nx, ny, nz = wall_distance(wf, wi, wl, x[i, 0], x[i, 1], x[i, 2], t)
             if dist >= r[i]:
                 continue
-            mw = wi[wl, 1]
-            e = _spring_energy(model, r[i] - dist, r[i], m[i], tab[0, mat[i], mw], tab[1, mat[i], mw],
-                               tab[3, mat[i], mw], lin_kn, vchar, ktr, whist[i, wl, 0], whist[i, wl, 1], whist[i, wl, 2])
+            mw = np.int32(wi[wl, WMAT])
+            e = _spring_energy(model, r[i] - dist, r[i], m[i], tab[T_ESTAR, mat[i], mw], tab[T_GSTAR, mat[i], mw],
+                               tab[T_MU, mat[i], mw], lin_kn, vchar, ktr, whist[i, wl, 0], whist[i, wl, 1],
+                               whist[i, wl, 2])
             el_tot += e
             out[i, 2] += e
     return el_tot

@@ -197,7 +197,7 @@ def build_half_list(x, r, n, nown, lo, hi, periodic, glo, ghi, gwrap, reach, ski
         nnb = np.zeros(n, np.int32)
         maxc = 0
         for i in range(nown):
-            cnt = 0
+            cnt = np.int64(0)  # (a literal 0 would compile _scan twice)
             for ox in range(-1, 2):
                 ax = _axis_cell(cc[i, 0], ox, ncell[0], gwrap[0], cmin[0], ext[0])
                 if ax < 0:

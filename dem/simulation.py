@@ -199,15 +199,15 @@ class Simulation:
 
     def _init_neighbors(self):
         if self.par is not None:
-            self._par_rebuild(self.time, initial=True)
+            self._par_rebuild(self.step_count, initial=True)
             return
-        self._rebuild(self.time, self.lo, self.hi, self.periodic, initial=True)
+        self._rebuild(self.step_count, self.lo, self.hi, self.periodic, initial=True)
 
-    def _rebuild(self, t, glo, ghi, gwrap, initial=False):
-        """The rebuild phase (dem.step.rebuild) from Python, with the history starting empty
-        (restored by the caller): the half list over the cell grid [glo, ghi] (wrapped on
-        ``gwrap``), then dem.step.after_build. A first build sizes the slots tightly (the
-        largest count + 2)."""
+    def _rebuild(self, step, glo, ghi, gwrap, initial=False):
+        """The rebuild phase (dem.step.rebuild) from Python at the time of step number
+        ``step``, with the history starting empty (restored by the caller): the half list over
+        the cell grid [glo, ghi] (wrapped on ``gwrap``), then dem.step.after_build (advance's
+        PH_AFTER_BUILD). A first build sizes the slots tightly (the largest count + 2)."""
         st = self.state
         slots = 12 if initial else st.nb.shape[1]
         empty = [f.empty() for f in S.of("pair") if f.name in ("nb", "nnb") or f.record]
@@ -218,10 +218,8 @@ class Simulation:
             if not initial or maxc + 2 >= slots:
                 break
             slots = maxc + 2
-        P, C, W, _T, prm = st.bundles()
-        C = K.after_build(P, S.Pairs(nb, nnb, hist, rhist, age, C.Hd, C.Hi, C.rnear), W, prm, st.n, st.n_owned, t,
-                          False)
-        self._set_pairs(C)
+        self._set_pairs(S.Pairs(nb, nnb, hist, rhist, age, st.Hd, st.Hi, st.rnear))
+        self._set_pairs(self._phases(K.PH_AFTER_BUILD, s0=step - 1)[-1])
 
     def _set_pairs(self, C):
         st = self.state
@@ -360,8 +358,7 @@ class Simulation:
         the conductances; the heat totals are left as they were."""
         st = self.state
         saved = (st.tot.copy(), st.wtot.copy())  # the initial force evaluation exchanges no heat
-        P, C, W, TB, prm = st.bundles()
-        maxov, i, j, nc = K.compute_forces(P, C, W, TB, prm, st.n, self.time, self._hon)
+        _, _, i, j, maxov, nc, _, _ = self._phases(K.PH_FORCES)
         st.tot[:], st.wtot[:] = saved
         self._nc2 = nc
         self.last_contacts = nc // 2
@@ -374,16 +371,22 @@ class Simulation:
         (docs/benchmarks.md, "Cost of each mechanism": a run-time flag alone cost ~5 %)."""
         return True if self.thermal is not None else None
 
+    def _phases(self, phases, nsteps=1, s0=None):
+        """dem.step.advance over ``nsteps`` steps from step number s0 (by default the step in
+        progress: a force evaluation alone is at the current time), the given phases only."""
+        st = self.state
+        P, C, W, TB, prm = st.bundles()
+        s0 = self.step_count - 1 if s0 is None else s0
+        return K.advance(nsteps, s0, st.n, st.n_owned, P, C, W, TB, prm, self._hon, phases)
+
     def _advance(self, nsteps):
         if self.par is not None:
             return self._advance_parallel(nsteps)
-        st = self.state
         if not self._forces_ready:
             self._compute_forces()
             self._forces_ready = True
-        P, C, W, TB, prm = st.bundles()
-        done, status, who, other, value, nc, nreb, C = K.advance(nsteps, self.step_count, st.n, P, C, W, TB, prm,
-                                                                 self._hon)
+        phases = K.PH_STEP if self.ip[K.I_MECH] else K.PH_HEAT  # frozen packing: heat on fixed conductances
+        done, status, who, other, value, nc, nreb, C = self._phases(phases, nsteps, self.step_count)
         self._set_pairs(C)
         self.step_count += done
         self.time = self.step_count * self.dt
@@ -424,7 +427,7 @@ class Simulation:
         return msg
 
     # ------------------------------------------------------------------ parallel stepping
-    def _par_rebuild(self, t, initial=False, rec=None, weights_from_list=True):
+    def _par_rebuild(self, step, initial=False, rec=None, weights_from_list=True):
         """Exchange particles and ghosts with the other ranks, then the rebuild phase
         (dem.step.rebuild, the same as a serial run's) and the contact history brought back
         from its id-keyed records (dem.parallel.records)."""
@@ -434,8 +437,7 @@ class Simulation:
         weights = None
         if not initial:
             nown = st.n_owned
-            P, _C, _W, _T, prm = st.bundles()
-            i, k = K.outside(P, prm, nown)
+            i, k = K.outside(st.position, self.lo, self.hi, self.periodic, nown)
             if i >= 0 and self._pending is None:
                 self._pending = (K.LEFT_DOMAIN, self._instability_message(K.LEFT_DOMAIN, int(i), -1,
                                                                           float(st.position[i, k])))
@@ -446,7 +448,7 @@ class Simulation:
         resort_vor = par.sort_pending and self.thermal is not None and self.thermal.voronoi
         rec = par.exchange(self, rec, weights)
         glo, ghi, gwrap = par.grid_box(self)
-        self._rebuild(t, glo, ghi, gwrap, initial=initial)
+        self._rebuild(step, glo, ghi, gwrap, initial=initial)
         records.restore(rec, st, par.key_base)
         self.ip[K.I_NOWN] = st.n_owned
         if self.thermal is not None and not initial:
@@ -476,20 +478,17 @@ class Simulation:
             t = (self.step_count + 1) * dt
             need = 0.0
             if mech:
-                P, _C, _W, _T, prm = st.bundles()
-                need = 1.0 if K.drift(P, prm, st.n_owned, t) else 0.0
+                need = 1.0 if self._phases(K.PH_DRIFT, s0=self.step_count)[1] == K.REBUILD_DUE else 0.0
             code, need = par.flags(self._pending[0] if self._pending else 0.0, need)
             if code:
                 self._raise_collective()
             if mech:
                 if need:
-                    self._par_rebuild(t)
+                    self._par_rebuild(self.step_count + 1)
                 else:
                     par.forward(self, motion=True, temperature=heat)
-                P, C, W, TB, prm = st.bundles()
-                maxov, wi_, wj_, nc = K.compute_forces(P, C, W, TB, prm, st.n, t, self._hon)
+                _, status, who, other, value, nc, _, _ = self._phases(K.PH_FORCES | K.PH_KICK, s0=self.step_count)
                 self._nc2 = nc
-                status, who, other, value = K.kick_guard(P, prm, st.n_owned, maxov, wi_, wj_)
                 if status != K.OK and self._pending is None:
                     self._pending = (status, self._instability_message(status, who, other, value))
             elif heat:
@@ -498,8 +497,7 @@ class Simulation:
                 if expo_cross:
                     cross_rates(st.n_owned, st.inv_heat_capacity, st.nb, st.nnb, st.Hd, st.Hi, st.work)
                     par.forward(self, motion=False, rate=True)
-                P, C, W, TB, prm = st.bundles()
-                status, who, value = K.heat_phase(P, C, W, TB, prm, st.n, st.n_owned, t)
+                _, status, who, _, value, _, _, _ = self._phases(K.PH_HEAT, s0=self.step_count)
                 if status != K.OK and self._pending is None:
                     self._pending = (status, self._instability_message(status, who, -1, value))
             self.step_count += 1
@@ -808,7 +806,7 @@ class Simulation:
         self._forces_ready = bool(z["forces_ready"])
         self._load_totals(z, root=self.is_root)
         if self.par is not None:
-            self._par_rebuild(self.time, rec=rec, weights_from_list=False)
+            self._par_rebuild(self.step_count, rec=rec, weights_from_list=False)
         else:
             self._init_neighbors()
             records.restore(rec, st, int(st.id.max(initial=0)) + 1)

@@ -44,7 +44,11 @@ NFP = 16
 T_ESTAR, T_GSTAR, T_DAMP, T_MU, T_MUR = range(5)
 NTAB = 5
 # status
-OK, OVERLAP, NONFINITE, LEFT_DOMAIN, BAD_TEMPERATURE = 0, 1, 2, 3, 4
+OK, OVERLAP, NONFINITE, LEFT_DOMAIN, BAD_TEMPERATURE, REBUILD_DUE = 0, 1, 2, 3, 4, 5
+# phases of one step (advance's ``phases`` bits): a serial run asks for all of them, an MPI run
+# for one group at a time with the ghost messages between the calls (dem.simulation)
+PH_DRIFT, PH_REBUILD, PH_FORCES, PH_KICK, PH_HEAT, PH_AFTER_BUILD = 1, 2, 4, 8, 16, 32
+PH_STEP = PH_DRIFT | PH_REBUILD | PH_FORCES | PH_KICK | PH_HEAT
 
 
 @njit(cache=True, error_model="numpy", fastmath={"nsz", "arcp", "contract", "afn", "reassoc"})
@@ -99,7 +103,8 @@ def _rotate_history(h, i, s, nx, ny, nz):
     return 0.0, 0.0, 0.0
 
 
-@njit(cache=True, error_model="numpy", fastmath={"nsz", "arcp", "contract", "afn", "reassoc"})
+@njit(cache=True, error_model="numpy", fastmath={"nsz", "arcp", "contract", "afn", "reassoc"},
+      no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def compute_forces(P, C, W, TB, prm, n, t, hon):
     """Contact + wall + body forces, and (when heat is on) the conductances of every
     neighbour slot and wall candidate for the heat step: Hd, Hi, Hw, the radiation
@@ -116,6 +121,8 @@ def compute_forces(P, C, W, TB, prm, n, t, hon):
     wf, wi, tab, ip, fp, lo, hi, periodic = W.wf, W.wi, TB.tab, prm.ip, prm.fp, prm.lo, prm.hi, prm.periodic
     thi = prm.thi
     heat = hon is not None and thi[TI_HEAT] != 0
+    # each heat block tests `hon is not None` first: Numba removes those blocks before typing
+    # when hon is None, so the mechanics-only form neither types nor compiles the heat models
     dmodel = thi[TI_DIRECT]
     crm = thi[TI_CR]
     crc = thi[TI_CORR]
@@ -146,7 +153,7 @@ def compute_forces(P, C, W, TB, prm, n, t, hon):
     e_dir = 0.0
     e_ind = 0.0
     e_wall = 0.0
-    if heat and fric >= 0:
+    if hon is not None and heat and fric >= 0:
         for i in range(n):
             qgen[i] = 0.0
     if fused:
@@ -213,7 +220,7 @@ def compute_forces(P, C, W, TB, prm, n, t, hon):
                     rhist[i, s, 0] = 0.0
                     rhist[i, s, 1] = 0.0
                     rhist[i, s, 2] = 0.0
-                if heat:
+                if hon is not None and heat:
                     if not fused:
                         Hd[i, s] = 0.0
                     if use_age:
@@ -268,7 +275,7 @@ def compute_forces(P, C, W, TB, prm, n, t, hon):
             hist[i, s, 0] = hx
             hist[i, s, 1] = hy
             hist[i, s, 2] = hz
-            if heat:
+            if hon is not None and heat:
                 tc, vimp = _contact_age(age, i, s, vn, dt) if use_age else (0.0, 0.0)
                 fel = (2.0 / 3.0) * kn * delta if model == 0 else kn * delta
                 # contact radius (the dispatcher of dem.thermal.contact_radius, with R* at hand)
@@ -367,12 +374,12 @@ def compute_forces(P, C, W, TB, prm, n, t, hon):
                     wrhist[i, wl, 0] = 0.0
                     wrhist[i, wl, 1] = 0.0
                     wrhist[i, wl, 2] = 0.0
-                if heat:
+                if hon is not None and heat:
                     if use_age:
                         wage[i, wl, 0] = 0.0
                     hw = 0.0
                     if imodel >= 0 and wth[wl, WT_COND] == 1.0 and dist >= ri:
-                        hw = indirect_pw(imodel, ri, dist, 0.0, mi, wi[wl, WMAT], por[i], tmat, gas)
+                        hw = indirect_pw(imodel, ri, dist, 0.0, mi, np.int32(wi[wl, WMAT]), por[i], tmat, gas)
                     if fused:
                         if hw > 0.0:
                             qq = hw * (wall_temperature(wth, wtab, wl, t) - T[i])
@@ -389,7 +396,7 @@ def compute_forces(P, C, W, TB, prm, n, t, hon):
                 maxov = ov
                 who_i = i
                 who_j = -1 - wl
-            mw = wi[wl, WMAT]
+            mw = np.int32(wi[wl, WMAT])  # a material index like the particles' (one compiled form per model)
             cpx = x[i, 0] + dist * nx
             cpy = x[i, 1] + dist * ny
             cpz = x[i, 2] + dist * nz
@@ -412,7 +419,7 @@ def compute_forces(P, C, W, TB, prm, n, t, hon):
             whist[i, wl, 0] = hx
             whist[i, wl, 1] = hy
             whist[i, wl, 2] = hz
-            if heat:
+            if hon is not None and heat:
                 cond = wth[wl, WT_COND]
                 fel = (2.0 / 3.0) * kn * delta if model == 0 else kn * delta
                 tc, vimp = _contact_age(wage, i, wl, vn, dt) if use_age else (0.0, 0.0)
@@ -556,20 +563,17 @@ def drift(P, prm, nown, t):
     return math.sqrt(maxd2) + fp[F_VWALL] * (t - fp[F_TBUILD]) > 0.5 * fp[F_SKIN]
 
 
-@njit(cache=True, error_model="numpy", inline="always")
-def outside(P, prm, nown):
+@njit(cache=True, error_model="numpy")
+def outside(x, lo, hi, periodic, nown):
     """(row, axis) of the first owned particle outside the domain along a closed axis, or (-1, -1)."""
-    x = P.position
-    lo = prm.lo
-    hi = prm.hi
     for i in range(nown):
         for k in range(3):
-            if not prm.periodic[k] and (x[i, k] < lo[k] or x[i, k] > hi[k]):
+            if not periodic[k] and (x[i, k] < lo[k] or x[i, k] > hi[k]):
                 return i, k
     return -1, -1
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def _slot_arrays(n, slots, C, heat, thi):
     """Per-slot heat arrays (Hd, Hi, rnear) for n rows of ``slots``: kept when the shape is
     unchanged (every used slot is rewritten by the next force evaluation), else new."""
@@ -580,7 +584,7 @@ def _slot_arrays(n, slots, C, heat, thi):
     return np.zeros((n, slots)), Hi, rnear
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def after_build(P, C, W, prm, n, nown, t, carry):
     """Phase "rebuild", after the half list of ``C`` (nb, nnb and the history slots, from
     dem.neighbors.build_half_list) was built for rows [0, nown) over [0, n) (the rest are ghosts):
@@ -656,38 +660,59 @@ def heat_phase(P, C, W, TB, prm, n, nown, t):
 
 
 @njit(cache=True, error_model="numpy")
-def advance(nsteps, s0, n, P, C, W, TB, prm, hon):
+def advance(nsteps, s0, n, nown, P, C, W, TB, prm, hon, phases):
     """Advance ``nsteps`` steps from step number s0, time s0 dt (the forces of that time are in
-    P.force, P.torque), composing the phases of one step: drift, rebuild (when due), interact
-    (compute_forces), kick + guards, heat. Step k ends at time (s0 + k) dt, computed from the
-    step number alone, so that splitting a run into calls of any length gives the same
-    arithmetic (bit-identical results). A run on several ranks calls the same phases from
-    dem.simulation with the ghost messages between them.
+    P.force, P.torque), composing the phases of one step: drift (PH_DRIFT), rebuild when due
+    (PH_REBUILD), interact (compute_forces, PH_FORCES), kick + guards (PH_KICK), heat (PH_HEAT).
+    Step k ends at time (s0 + k) dt, computed from the step number alone, so that splitting a
+    run into calls of any length gives the same arithmetic (bit-identical results).
 
-    Mechanics off (frozen packing): only the heat phase, on the conductances computed once.
+    Rows [0, nown) are owned, [nown, n) ghosts. A serial run asks for PH_STEP (every phase;
+    mechanics off, a frozen packing: PH_HEAT only, on the conductances computed once). A run on
+    several ranks calls one step with one group of phases at a time, the ghost messages between
+    the calls: PH_DRIFT returns REBUILD_DUE (no step done) when the lists must be rebuilt,
+    which the caller does around its exchange, ending with PH_AFTER_BUILD (after_build on the
+    lists it built). Every caller goes through this one compiled function: the phases are
+    compiled once per heat switch, and compute_forces, after_build and heat_step have no
+    Python entry of their own (each costs about 1.5 s of compile to unpack the bundles).
+
     Returns (steps done, status, particle, other (j, or -1-wall), value, contacts, rebuilds,
-    Pairs): the neighbour arrays may have been reallocated.
+    Pairs): the neighbour arrays may have been reallocated. Without PH_KICK (a force evaluation
+    alone) particle, other and value are the pair with the largest overlap ratio and that ratio.
     """
     nreb = 0
     ncont = 0
-    mech = prm.ip[I_MECH] != 0
+    maxov = 0.0
+    wi_ = -1
+    wj_ = -1
     thi = prm.thi
     heat = hon is not None and thi[TI_HEAT] != 0
     for step in range(nsteps):
         t = (s0 + step + 1) * prm.fp[F_DT]
-        if mech:
-            if drift(P, prm, n, t):
-                i, k = outside(P, prm, n)
+        if phases & PH_AFTER_BUILD:  # the lists of C were just built from Python (a first build, or
+            # after an exchange with other ranks): the rest of the rebuild, history starting empty
+            C = after_build(P, C, W, prm, n, nown, t, False)
+        if phases & PH_DRIFT:
+            if drift(P, prm, nown, t):
+                if not phases & PH_REBUILD:
+                    return step, REBUILD_DUE, -1, -1, 0.0, ncont, nreb, C
+                i, k = outside(P.position, prm.lo, prm.hi, prm.periodic, nown)
                 if i >= 0:
                     return step + 1, LEFT_DOMAIN, i, -1, P.position[i, k], ncont, nreb, C
                 C = rebuild(P, C, W, prm, n, t)
                 nreb += 1
+        if phases & PH_FORCES:
             maxov, wi_, wj_, ncont = compute_forces(P, C, W, TB, prm, n, t, hon)
-            status, who, other, value = kick_guard(P, prm, n, maxov, wi_, wj_)
+        if phases & PH_KICK:
+            status, who, other, value = kick_guard(P, prm, nown, maxov, wi_, wj_)
             if status != OK:
                 return step + 1, status, who, other, value, ncont, nreb, C
-        if heat:
-            status, who, value = heat_phase(P, C, W, TB, prm, n, n, t)
-            if status != OK:
-                return step + 1, status, who, -1, value, ncont, nreb, C
+        if hon is not None:  # (a branch Numba removes before typing when hon is None: the
+            # mechanics-only form compiles no heat code)
+            if heat and phases & PH_HEAT:
+                status, who, value = heat_phase(P, C, W, TB, prm, n, nown, t)
+                if status != OK:
+                    return step + 1, status, who, -1, value, ncont, nreb, C
+    if not phases & PH_KICK:
+        return nsteps, OK, wi_, wj_, maxov, ncont, nreb, C
     return nsteps, OK, -1, -1, 0.0, ncont, nreb, C

@@ -25,6 +25,7 @@ from .convection import convection_conductance, nusselt_gas
 from .radiation import SIGMA_SB, radiation_accumulate, radiation_env_temperature, radiation_pp_heat
 from .registry import EMISSIVITY, KF, RHO_F, MU_F, PR
 from ..neighbors import pair_distance
+from ..contact.walls import PX, NX, VX, WTYPE, PLANE
 
 # integer thermal parameters
 TI_HEAT, TI_DIRECT, TI_CR, TI_CORR, TI_INDIRECT, TI_CONV, TI_RAD, TI_FRIC, TI_PART, TI_INTEG, TI_AGE = range(11)
@@ -57,7 +58,7 @@ def wall_temperature(wth, wtab, w, t):
     return wtab[w, nt - 1, 1]
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def heat_step(P, C, W, TB, prm, n, nown, dt, t):
     """Advance the temperatures of rows [0, nown) by dt (rows [nown, n) are ghosts: another
     rank advances them). Q receives the net heat rate of each particle (W).
@@ -99,6 +100,8 @@ def heat_step(P, C, W, TB, prm, n, nown, dt, t):
     # particle-reservoir links (Strang splitting: second order, so the steady state of a
     # conduction chain is off by O(dt^2) only; Euler's steady state is exact).
     expo = integ != 0
+    fwd = np.int64(1)  # the sweep direction as a run-time value: one compiled _pair_sweep (a literal
+    # argument compiles one form per constant)
     if expo:
         hs = np.zeros(n)
         hts = np.zeros(n)
@@ -106,9 +109,9 @@ def heat_step(P, C, W, TB, prm, n, nown, dt, t):
             _cross_exchange(nown, dt, T, cinv, nb, nnb, Hd, Hi, has_ind, work, tot)
     if not fused:
         if integ == 0:
-            _pair_sweep(nown, dt, T, cinv, Q, nb, nnb, Hd, Hi, has_ind, 0, 1, tot)
+            _pair_sweep(nown, dt, T, cinv, Q, nb, nnb, Hd, Hi, has_ind, integ, fwd, tot)
         else:
-            _pair_sweep(nown, 0.5 * dt, T, cinv, Q, nb, nnb, Hd, Hi, has_ind, 1, 1, tot)
+            _pair_sweep(nown, 0.5 * dt, T, cinv, Q, nb, nnb, Hd, Hi, has_ind, integ, fwd, tot)
     # ---- radiation environment (from the temperatures after the first pair half-sweep)
     if rad >= 0:
         acc0 = np.zeros(n)
@@ -206,7 +209,7 @@ def heat_step(P, C, W, TB, prm, n, nown, dt, t):
             if rad >= 0:
                 tot[E_RAD] += f * hrad[i] * (tenv[i] - ti)
     if not fused and expo:
-        _pair_sweep(nown, 0.5 * dt, T, cinv, Q, nb, nnb, Hd, Hi, has_ind, 1, -1, tot)
+        _pair_sweep(nown, 0.5 * dt, T, cinv, Q, nb, nnb, Hd, Hi, has_ind, integ, -fwd, tot)
     # ---- explicit terms: generation, sources, fixed fluxes (Q)
     if expo:
         for i in range(nown):
@@ -347,9 +350,11 @@ def local_porosity(n, x, r, nb, nnb, lo, hi, periodic, reach, wf, wi, wnb, wnn, 
         vm = 4.0 / 3.0 * math.pi * rm ** 3
         for q in range(wnn[i]):
             w = wnb[i, q]
-            if wi[w, 0] != 0:
+            if wi[w, WTYPE] != PLANE:
                 continue
-            dist = (x[i, 0] - wf[w, 0]) * wf[w, 3] + (x[i, 1] - wf[w, 1]) * wf[w, 4] + (x[i, 2] - wf[w, 2]) * wf[w, 5]
+            dist = 0.0  # signed distance to the plane at time t (a moving wall where it is now)
+            for k in range(3):
+                dist += (x[i, k] - wf[w, PX + k] - wf[w, VX + k] * t) * wf[w, NX + k]
             if dist < rm:
                 hcap = rm - max(dist, -rm)
                 vm -= math.pi * hcap * hcap * (3.0 * rm - hcap) / 3.0
