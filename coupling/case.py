@@ -220,6 +220,13 @@ class CoupledCase:
     def end_time(self) -> float:
         return self.config.end_time if self.config.end_time is not None else self.control["endTime"]
 
+    @property
+    def end_time_source(self) -> str:
+        """Where the end time comes from (for messages)."""
+        if self.config.end_time is not None:
+            return f"{self.config_file} (end_time)"
+        return f"{self.dir / 'system' / 'controlDict'} (endTime)"
+
 
 def load_case(case_dir, *, build_sim: bool = True) -> CoupledCase:
     """Read and validate the files of a coupled case (no mesh needed)."""

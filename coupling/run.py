@@ -363,7 +363,15 @@ def run_case(case_dir, out=None, *, transport=None, end_time=None, restart=False
     end = case.end_time if end_time is None else float(end_time)
     n_steps = int(round((end - t_start) / dt))
     if n_steps < 1:
-        raise CouplingRunError(f"end time {end:g} s is not after the start time {t_start:g} s")
+        source = "--end-time" if end_time is not None else case.end_time_source
+        if restart and n_steps == 0:  # the run already reached this end time: nothing to do
+            if R.root:
+                log(f"the run in {out} is already complete: it reached t = {t_start:.9g} s, the end time "
+                    f"({end:g} s, from {source}); there is nothing to run. To continue it, give a later "
+                    f"end time: coupling run {case_dir} --out {out} --restart --end-time T")
+            return dict(out=str(out), steps=0, time=t_start, complete=True) if R.root else {}
+        raise CouplingRunError(f"end time {end:g} s (from {source}) is not after the start time {t_start:g} s"
+                               + (" of the restart point: give a later --end-time" if restart else ""))
     def _setup_gas():
         ctl = out / "system" / "controlDict"
         # 17 significant digits: a written time is a restart point that continues to round-off
@@ -1042,6 +1050,45 @@ def cmd_check(args) -> int:
     return 0 if (not rep["problems"] or case.config.force) else EXIT_CHECK
 
 
+def cmd_compile(args) -> int:
+    """Fill Numba's cache with the coupling kernels (done by scripts/setup.sh): for each case
+    shipped in openfoam_cases/ (or the cases named), mesh a temporary copy, then one exchange
+    (locate, void fraction, interpolation, drag, heat terms) and one DEM step with the fluid
+    data, as the first coupling step of a run does. No gas solver runs and nothing is written
+    outside the temporary folders. Every case shares the kernels, so a case of the user's
+    then starts its first step in seconds."""
+    from .case import check_coupled_case, load_case, mesh_in_tmp
+    from .interface import CouplingInterface
+    t0 = time.perf_counter()
+    root = Path(__file__).resolve().parent.parent / "openfoam_cases"
+    cases = [Path(c) for c in args.case] or sorted(p.parent for p in root.glob("*/coupling.toml"))
+    for case_dir in cases:
+        case = load_case(case_dir)
+        tmp, mesh = mesh_in_tmp(case.dir)
+        try:
+            cfg = case.config
+            g = np.asarray(case.sim.scene.simulation["gravity"], float)
+            iface = CouplingInterface(mesh, case.sim, case.gas, drag=cfg.drag, void_fraction=cfg.void_fraction,
+                                      interpolation=cfg.interpolation, model_type=case.model_type,
+                                      eps_min=cfg.eps_min, smoothing_time=cfg.smoothing_time, gravity=g,
+                                      n_satellites=cfg.n_satellites, heat=cfg.heat)
+            eps0 = iface.initial_void_fraction()
+            check_coupled_case(case, mesh, eps0=eps0, clip=dict(iface.clip))
+            nc = mesh.n_cells
+            st = case.sim.state
+            t_gas = float(st.temperature[:st.n_owned].mean()) if case.sim.thermal is not None and st.n_owned else 300.0
+            fluid = {"U": np.zeros((nc, 3)), "gradp": np.zeros((nc, 3)), "T": np.full(nc, float(t_gas))}
+            case.sim.warmup()
+            iface.prepare(fluid, case.dt_cfd)
+            iface.advance_dem(1)
+            iface.map_particles()
+        finally:
+            shutil.rmtree(tmp, ignore_errors=True)
+        print(f"  {case.dir.name}: compiled", flush=True)
+    print(f"coupling kernels compiled and cached in {time.perf_counter() - t0:.1f} s")
+    return 0
+
+
 def cmd_run(args) -> int:
     # SIGINT/SIGTERM from here on (also during meshing and compiling) only set a flag: the
     # coupled loop ends its current coupling step, writes a restart point and stops
@@ -1071,6 +1118,8 @@ def main(argv=None) -> int:
     r.add_argument("--external-solver", action="store_true",
                    help="do not start thermoDemFoam: print the command to run it by hand in a second "
                         "terminal and wait for it")
+    k = sub.add_parser("compile", help="compile and cache the coupling kernels (done by scripts/setup.sh)")
+    k.add_argument("case", nargs="*", help="cases to exercise (default: every case of openfoam_cases/)")
     args = ap.parse_args(argv)
 
     from dem.parallel import launched_rank, launched_size
@@ -1088,7 +1137,7 @@ def main(argv=None) -> int:
     from dem.scene import SceneError
     from dem.simulation import SimulationError
     try:
-        return cmd_check(args) if args.cmd == "check" else cmd_run(args)
+        return {"check": cmd_check, "compile": cmd_compile, "run": cmd_run}[args.cmd](args)
     except CouplingError as e:
         print(f"coupling: error: coupling failed: {e}", file=sys.stderr)
         return EXIT_COUPLING

@@ -32,6 +32,10 @@ if [ "${THERMODEM_NO_OPENFOAM:-0}" != 1 ]; then
     log "building the gas solver (cached)"
     bash scripts/build_openfoam_solver.sh >/dev/null
 fi
-log "compiling the DEM kernels into Numba's cache (about 30 s the first time, then instant)"
+log "compiling the DEM kernels into Numba's cache (about 2 minutes the first time, then instant)"
 "$PY" -m dem.cli compile >&2
+if [ "${THERMODEM_NO_OPENFOAM:-0}" != 1 ]; then
+    log "compiling the coupling kernels (about 30 s the first time, then instant)"
+    "$PY" -m coupling.run compile >&2
+fi
 log "ready"

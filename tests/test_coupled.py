@@ -454,3 +454,21 @@ def test_two_dem_ranks_match_serial(tmp_path, solver):
     ca, cb = read_csv(tmp_path / "one" / "coupling.csv"), read_csv(tmp_path / "two" / "coupling.csv")
     assert cb[-1]["Q_to_gas"] == pytest.approx(ca[-1]["Q_to_gas"], rel=1e-9)
     assert cb[-1]["E_particles"] == pytest.approx(ca[-1]["E_particles"], rel=1e-12)
+
+
+def test_compile_command_fills_the_cache_and_touches_nothing(tmp_path, solver):
+    """`coupling compile CASE` (what scripts/setup.sh runs): meshes a temporary copy, runs one
+    exchange and one DEM step, exits 0; the case folder is unchanged and no temporary copy is
+    left behind."""
+    case = copy_case("single_particle_heating", tmp_path / "case")
+    before = {p.relative_to(case): p.read_bytes() for p in case.rglob("*") if p.is_file()}
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    env = dict(os.environ, TMPDIR=str(tmp), PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    p = subprocess.run([sys.executable, "-m", "coupling.run", "compile", str(case)], capture_output=True,
+                       text=True, env=env, timeout=900)
+    assert p.returncode == 0, p.stdout[-2000:] + p.stderr[-3000:]
+    assert "case: compiled" in p.stdout and "coupling kernels compiled and cached in" in p.stdout
+    after = {q.relative_to(case): q.read_bytes() for q in case.rglob("*") if q.is_file()}
+    assert after == before
+    assert list(tmp.iterdir()) == []

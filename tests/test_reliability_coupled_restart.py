@@ -120,6 +120,11 @@ def test_restart_continues_the_same_run(reference, tmp_path):
     # history.csv continues without duplicates
     h = np.atleast_1d(np.genfromtxt(out / "coupling.csv", delimiter=",", names=True))
     assert np.all(np.diff(h["time"]) > 0) and h["time"][-1] == pytest.approx(END)
+    # continuing a run that already reached its end time says so (exit 0) and changes nothing
+    before = {f: (out / f).read_bytes() for f in ("coupling.csv", "final.npz", "checkpoint.npz")}
+    p = _run(out, END, "--restart")
+    assert "is already complete" in p.stdout and f"--restart --end-time T" in p.stdout, p.stdout
+    assert {f: (out / f).read_bytes() for f in before} == before
 
 
 def _interrupt(out: Path, signum: int, solver_too: bool):
