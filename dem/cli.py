@@ -2,6 +2,7 @@
 import argparse
 import os
 import sys
+import tempfile
 import time
 
 # dt / t_H below which a Hertz impact's restitution and contact time are within 1 % with
@@ -153,7 +154,8 @@ def cmd_compile(args):
             "walls": [{"type": "plane", "point": [0, 0, -0.001], "normal": [0, 0, 1], "material": "m"}]}
     Simulation.from_dict(base).run(progress=False)
     thermal = dict(base, thermal={"direct": "batchelor_obrien", "initial_temperature": 300.0})
-    Simulation.from_dict(thermal).run(progress=False)
+    with tempfile.TemporaryDirectory(prefix="dem_compile_") as tmp:  # the output kernels too
+        Simulation.from_dict(thermal).run(progress=False, out_dir=os.path.join(tmp, "out"))
     frozen = dict(thermal, simulation={"time_step": 1e-5, "end_time": 2.0, "mechanics": False},
                   thermal={"direct": "batchelor_obrien", "initial_temperature": 300.0, "time_step": 1.0})
     Simulation.from_dict(frozen).run(progress=False)
