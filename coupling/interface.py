@@ -103,6 +103,17 @@ class CouplingInterface:
     heat: bool = True
     timer: PhaseTimer = field(default_factory=PhaseTimer)
 
+    @classmethod
+    def for_case(cls, case, mesh):
+        """The interface of a coupled case (coupling.case.CoupledCase) on ``mesh``: the
+        settings of its coupling.toml, its gas, its model type and its scene's gravity."""
+        cfg = case.config
+        return cls(mesh, case.sim, case.gas, drag=cfg.drag, void_fraction=cfg.void_fraction,
+                   interpolation=cfg.interpolation, model_type=case.model_type, eps_min=cfg.eps_min,
+                   smoothing_time=cfg.smoothing_time,
+                   gravity=np.asarray(case.sim.scene.simulation["gravity"], float),
+                   n_satellites=cfg.n_satellites, heat=cfg.heat)
+
     def __post_init__(self):
         self.drag_id = drag_model_id(self.drag)
         if self.model_type not in ("A", "B"):

@@ -41,6 +41,7 @@ serial; more DEM ranks are not supported yet.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import re
@@ -332,12 +333,7 @@ def run_case(case_dir, out=None, *, transport=None, end_time=None, restart=False
     R.on_root(prepare_output, case, out, restart=restart, overwrite=overwrite)
     R.on_root(remove_stale_temporaries, str(out))  # left by a kill -9 of an earlier run (ours only)
     mesh = read_polymesh(str(out))
-    mt, eps_min_cfd = case.model_type, None
-    g = np.asarray(sim.scene.simulation["gravity"], float)
-    iface = CouplingInterface(mesh, sim, case.gas, drag=cfg.drag, void_fraction=cfg.void_fraction,
-                              interpolation=cfg.interpolation, model_type=mt, eps_min=cfg.eps_min,
-                              smoothing_time=cfg.smoothing_time, gravity=g,
-                              n_satellites=cfg.n_satellites, heat=cfg.heat)
+    iface = CouplingInterface.for_case(case, mesh)
     dt = case.dt_cfd
     k = cfg.coupling_interval
     # ---- checks of the case (on the scene's packing: the DEM check evaluates the contact
@@ -1031,20 +1027,28 @@ def _log_tail(path: Path, n=12) -> str:
 
 # --------------------------------------------------------------------------- CLI
 
-def cmd_check(args) -> int:
-    from .case import check_coupled_case, format_report, load_case, mesh_in_tmp
+@contextlib.contextmanager
+def _case_on_temporary_mesh(case_dir):
+    """A case read and checked on a meshed temporary copy of its OpenFOAM part (`coupling
+    check`, `coupling compile`): yields (case, mesh, interface, initial void fraction, check
+    report); the copy is removed afterwards."""
+    from .case import check_coupled_case, load_case, mesh_in_tmp
     from .interface import CouplingInterface
-    case = load_case(args.case)
+    case = load_case(case_dir)
     tmp, mesh = mesh_in_tmp(case.dir)
     try:
-        cfg = case.config
-        iface = CouplingInterface(mesh, case.sim, case.gas, drag=cfg.drag, void_fraction=cfg.void_fraction,
-                                  model_type=case.model_type, eps_min=cfg.eps_min,
-                                  n_satellites=cfg.n_satellites, heat=cfg.heat)
+        iface = CouplingInterface.for_case(case, mesh)
         eps0 = iface.initial_void_fraction()
         rep = check_coupled_case(case, mesh, eps0=eps0, clip=dict(iface.clip))
+        yield case, mesh, iface, eps0, rep
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
+
+
+def cmd_check(args) -> int:
+    from .case import format_report
+    with _case_on_temporary_mesh(args.case) as (case, _mesh, _iface, eps0, rep):
+        pass
     print(format_report(case, rep))
     print(f"  initial void fraction: min {eps0.min():.3f}, mean {eps0.mean():.3f}")
     return 0 if (not rep["problems"] or case.config.force) else EXIT_CHECK
@@ -1057,33 +1061,19 @@ def cmd_compile(args) -> int:
     data, as the first coupling step of a run does. No gas solver runs and nothing is written
     outside the temporary folders. Every case shares the kernels, so a case of the user's
     then starts its first step in seconds."""
-    from .case import check_coupled_case, load_case, mesh_in_tmp
-    from .interface import CouplingInterface
     t0 = time.perf_counter()
     root = Path(__file__).resolve().parent.parent / "openfoam_cases"
     cases = [Path(c) for c in args.case] or sorted(p.parent for p in root.glob("*/coupling.toml"))
     for case_dir in cases:
-        case = load_case(case_dir)
-        tmp, mesh = mesh_in_tmp(case.dir)
-        try:
-            cfg = case.config
-            g = np.asarray(case.sim.scene.simulation["gravity"], float)
-            iface = CouplingInterface(mesh, case.sim, case.gas, drag=cfg.drag, void_fraction=cfg.void_fraction,
-                                      interpolation=cfg.interpolation, model_type=case.model_type,
-                                      eps_min=cfg.eps_min, smoothing_time=cfg.smoothing_time, gravity=g,
-                                      n_satellites=cfg.n_satellites, heat=cfg.heat)
-            eps0 = iface.initial_void_fraction()
-            check_coupled_case(case, mesh, eps0=eps0, clip=dict(iface.clip))
+        with _case_on_temporary_mesh(case_dir) as (case, mesh, iface, _eps0, _rep):
             nc = mesh.n_cells
             st = case.sim.state
             t_gas = float(st.temperature[:st.n_owned].mean()) if case.sim.thermal is not None and st.n_owned else 300.0
-            fluid = {"U": np.zeros((nc, 3)), "gradp": np.zeros((nc, 3)), "T": np.full(nc, float(t_gas))}
+            fluid = {"U": np.zeros((nc, 3)), "gradp": np.zeros((nc, 3)), "T": np.full(nc, t_gas)}
             case.sim.warmup()
             iface.prepare(fluid, case.dt_cfd)
             iface.advance_dem(1)
             iface.map_particles()
-        finally:
-            shutil.rmtree(tmp, ignore_errors=True)
         print(f"  {case.dir.name}: compiled", flush=True)
     print(f"coupling kernels compiled and cached in {time.perf_counter() - t0:.1f} s")
     return 0

@@ -475,7 +475,6 @@ class Simulation:
         heat = self.thermal is not None
         done = 0
         for _ in range(nsteps):
-            t = (self.step_count + 1) * dt
             need = 0.0
             if mech:
                 need = 1.0 if self._phases(K.PH_DRIFT, s0=self.step_count)[1] == K.REBUILD_DUE else 0.0
