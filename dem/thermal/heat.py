@@ -8,6 +8,9 @@ the temperatures with either
 
 * ``euler``: T += dt Q / (m c), Q the sum of all heat rates (the references' scheme;
   stable for dt below the network limit min_i m_i c_i / sum_j H_ij), or
+* ``implicit``: backward Euler over the whole conductance network,
+  (C/dt + K + L)(T^{n+1} - T^n) = Q(T^n), solved by Jacobi-preconditioned conjugate
+  gradients (dem.thermal.implicit; see _implicit_step), or
 * ``exponential``: each pair (and each particle-reservoir link: fixed-temperature
   wall, convection) is advanced with its exact two-body solution
   dT = (T_j - T_i)(1 - exp(-H (1/C_i + 1/C_j) dt)) in sequence; explicit terms
@@ -23,7 +26,8 @@ from numba import njit
 
 from .convection import convection_conductance, nusselt_gas
 from .radiation import SIGMA_SB, radiation_accumulate, radiation_env_temperature, radiation_pp_heat
-from .registry import EMISSIVITY, KF, RHO_F, MU_F, PR
+from .registry import EMISSIVITY, KF, RHO_F, MU_F, PR, RAD_KRAUSE_2017
+from .implicit import jacobi_pcg, CG_RTOL
 from ..neighbors import pair_distance
 from ..contact.walls import PX, NX, VX, WTYPE, PLANE
 
@@ -79,6 +83,8 @@ def heat_step(P, C, W, TB, prm, n, nown, dt, t):
     thi, tot, srcbox = prm.thi, prm.tot, prm.srcbox
     integ = thi[TI_INTEG]
     has_ind = Hi.shape[0] == n
+    if integ == 2:
+        return _implicit_step(P, C, W, TB, prm, nown, dt, t, has_ind)
     conv = thi[TI_CONV]
     rad = thi[TI_RAD]
     fused = thi[TI_FUSED] == 1
@@ -244,6 +250,166 @@ def heat_step(P, C, W, TB, prm, n, nown, dt, t):
             Q[i] = (T[i] - work[i, 0]) / (cinv[i] * dt)
     # guard: report the first non-finite or non-positive temperature
     for i in range(nown):
+        if not (T[i] > 0.0) or not math.isfinite(T[i]):
+            return i
+    return -1
+
+
+@njit(cache=True, error_model="numpy")
+def _implicit_step(P, C, W, TB, prm, m, dt, t, has_ind):
+    """Backward Euler heat step of the rows [0, m) (``integrator = "implicit"``; the scene
+    parser refuses it under MPI, so every row is owned): with d = T^{n+1} - T^n,
+
+        (C/dt + K + L) d = Q(T^n)                                   (dem.thermal.implicit, eq. 1)
+
+    i.e. C (T^{n+1} - T^n) / dt = Q(T^{n+1}) for the linear links: pair conduction (L),
+    fixed-temperature walls at their end-of-step temperature, gas convection h A (T_f - T)
+    (K), and explicit heat rates (generation, sources, fixed wall fluxes). Radiation is
+    linearised about T^n: Q_r(T^{n+1}) ~ Q_r(T^n) - 4 eps sigma A T_i^3 d_i with the
+    environment temperature T_e of T^n (the error of one step is
+    6 eps sigma A T^2 d^2 / 2 in heat rate; nothing at steady state, where d = 0).
+
+    Backward Euler is L-stable (every mode decays, stiff ones at once, no ringing) for any
+    step, and its fixed point (d = 0) is Q(T) = 0: the steady state of the network itself,
+    whatever dt. Energy: sum C d = dt sum(reservoir and explicit heat at T^{n+1}) + dt sum(r)
+    with r the CG residual, ||r|| <= CG_RTOL ||Q(T^n)||, so the balance holds to that
+    tolerance (the pair terms cancel exactly). The totals count the heats at T^{n+1}.
+    Returns the first particle with a non-finite or non-positive temperature, or -1."""
+    T, cinv, Q, v, r, x, mat = (P.temperature, P.inv_heat_capacity, P.heat_rate, P.velocity, P.radius,
+                                P.position, P.material)
+    wnb, wnn, Hw, tf, uf, por, qgen, qsrc = P.wnb, P.wnn, P.Hw, P.tf, P.uf, P.por, P.qgen, P.qsrc
+    nb, nnb, Hd, Hi, rnear = C.nb, C.nnb, C.Hd, C.Hi, C.rnear
+    wth, wtab, wtot, tmat, gas = W.wth, W.wtab, W.wtot, TB.tmat, TB.gas
+    thi, tot, srcbox = prm.thi, prm.tot, prm.srcbox
+    conv = thi[TI_CONV]
+    rad = thi[TI_RAD]
+    n = T.shape[0]
+    b = np.zeros(m)   # Q(T^n), W
+    dg = np.empty(m)  # C/dt + K, W/K
+    for i in range(m):
+        dg[i] = 1.0 / (cinv[i] * dt)
+    # pairs
+    for i in range(m):
+        ti = T[i]
+        for s in range(nnb[i]):
+            j = nb[i, s]
+            if j >= m:
+                continue
+            h = Hd[i, s] + (Hi[i, s] if has_ind else 0.0)
+            if h <= 0.0:
+                continue
+            q = h * (T[j] - ti)
+            b[i] += q
+            b[j] -= q
+    # walls: fixed temperature (implicit, at the end of the step), fixed flux (explicit)
+    for i in range(m):
+        for q in range(wnn[i]):
+            h = Hw[i, q]
+            if h <= 0.0:
+                continue
+            w = wnb[i, q]
+            cond = wth[w, WT_COND]
+            if cond == 1.0:
+                dg[i] += h
+                b[i] += h * (wall_temperature(wth, wtab, w, t) - T[i])
+            elif cond == 2.0:
+                qq = h * wth[w, WT_Q]
+                b[i] += qq
+                wtot[w] += qq * dt
+                tot[E_WALL] += qq * dt
+    # convection
+    hconv = np.zeros(m if conv >= 0 else 0)
+    if conv >= 0:
+        convection_conductances(m, v, r, uf, por, gas, conv, hconv)
+        for i in range(m):
+            dg[i] += hconv[i]
+            b[i] += hconv[i] * (tf[i] - T[i])
+    # radiation, linearised about T^n (environment temperatures from T^n)
+    qrad = np.zeros(m if rad >= 0 else 0)
+    krad = np.zeros(m if rad >= 0 else 0)
+    if rad >= 0:
+        acc0 = np.zeros(n)
+        acc1 = np.zeros(n)
+        for i in range(m):
+            for s in range(nnb[i]):
+                if rnear[i, s]:
+                    j = nb[i, s]
+                    a0, a1 = radiation_accumulate(rad, acc0[i], acc1[i], T[j], tmat[mat[j], EMISSIVITY], r[j])
+                    acc0[i] = a0
+                    acc1[i] = a1
+                    a0, a1 = radiation_accumulate(rad, acc0[j], acc1[j], T[i], tmat[mat[i], EMISSIVITY], r[i])
+                    acc0[j] = a0
+                    acc1[j] = a1
+        for i in range(m):
+            qrad[i] = radiation_pp_heat(rad, tmat[mat[i], EMISSIVITY], r[i], T[i], acc0[i], acc1[i], por[i], tf[i])
+            if not (rad == RAD_KRAUSE_2017 and acc1[i] == 0.0):  # (krause without neighbour: T_e = T_i, no heat)
+                krad[i] = 4.0 * tmat[mat[i], EMISSIVITY] * SIGMA_SB * 4.0 * math.pi * r[i] * r[i] * T[i] ** 3
+            dg[i] += krad[i]
+            b[i] += qrad[i]
+    # explicit heat: generation, sources
+    eg = 0.0
+    es = 0.0
+    has_gen = qgen.shape[0] == n
+    has_src = qsrc.shape[0] == n
+    nbox = srcbox.shape[0]
+    for i in range(m):
+        if has_gen:
+            b[i] += qgen[i]
+            eg += qgen[i] * dt
+        if has_src:
+            b[i] += qsrc[i]
+            es += qsrc[i] * dt
+        for k in range(nbox):
+            if (srcbox[k, 0] <= x[i, 0] <= srcbox[k, 3] and srcbox[k, 1] <= x[i, 1] <= srcbox[k, 4]
+                    and srcbox[k, 2] <= x[i, 2] <= srcbox[k, 5]):
+                qq = srcbox[k, 6] * 4.0 / 3.0 * math.pi * r[i] ** 3
+                b[i] += qq
+                es += qq * dt
+    tot[E_GEN] += eg
+    tot[E_SRC] += es
+    # solve, update
+    d = np.empty(m)
+    jacobi_pcg(m, nb, nnb, Hd, Hi, has_ind, dg, b, d, CG_RTOL, 10 * m + 100)
+    for i in range(m):
+        T[i] += d[i]
+        Q[i] = d[i] / (cinv[i] * dt)
+    # totals at T^{n+1}
+    ed = 0.0
+    ei = 0.0
+    for i in range(m):
+        for s in range(nnb[i]):
+            j = nb[i, s]
+            if j >= m:
+                continue
+            hd = Hd[i, s]
+            hi = Hi[i, s] if has_ind else 0.0
+            h = hd + hi
+            if h <= 0.0:
+                continue
+            e = abs(h * (T[j] - T[i])) * dt
+            ed += e * hd / h
+            ei += e * hi / h
+    tot[E_DIRECT] += ed
+    tot[E_INDIRECT] += ei
+    for i in range(m):
+        for q in range(wnn[i]):
+            h = Hw[i, q]
+            w = wnb[i, q]
+            if h > 0.0 and wth[w, WT_COND] == 1.0:
+                ew = h * (wall_temperature(wth, wtab, w, t) - T[i]) * dt
+                wtot[w] += ew
+                tot[E_WALL] += ew
+    if conv >= 0:
+        ec = 0.0
+        for i in range(m):
+            ec += hconv[i] * (tf[i] - T[i]) * dt
+        tot[E_CONV] += ec
+    if rad >= 0:
+        er = 0.0
+        for i in range(m):
+            er += (qrad[i] - krad[i] * d[i]) * dt
+        tot[E_RAD] += er
+    for i in range(m):
         if not (T[i] > 0.0) or not math.isfinite(T[i]):
             return i
     return -1

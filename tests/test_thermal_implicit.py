@@ -1,0 +1,271 @@
+"""The implicit (backward Euler) thermal integrator, thermal.integrator = "implicit".
+
+Against the exact steady state of the conductance network at steps of 1 to 1000 network
+steps, the exact discrete solution (1 + dt C^-1 A)^-n of backward Euler, the continuous
+solution within the scheme's derived O(dt) bound, energy conservation, and the command line.
+"""
+import math
+import os
+import shutil
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from dem import Simulation
+from test_thermal_runs import base, R, AIR
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+MATP = dict(name="p", density=2500.0, youngs_modulus=1e7, poisson_ratio=0.3, restitution=0.5,
+            friction=0.3, thermal_conductivity=1.0, heat_capacity=840.0, emissivity=0.8)
+HOT = {"condition": "fixed_temperature", "temperature": 400.0}
+COLD = {"condition": "fixed_temperature", "temperature": 300.0}
+
+
+def line_scene(dt, integrator, end, hot=HOT, cold=COLD):
+    """Ten spheres of 1 mm in a line between two walls, touching with a 20 um overlap."""
+    n, ov = 10, 2e-5
+    xs = [R - ov + k * (2 * R - ov) for k in range(n)]
+    L = xs[-1] + R - ov
+    walls = [{"type": "plane", "name": "left", "point": [0, 0, 0], "normal": [1, 0, 0], "material": "p",
+              "thermal": hot},
+             {"type": "plane", "name": "right", "point": [L, 0, 0], "normal": [-1, 0, 0], "material": "p",
+              "thermal": cold}]
+    parts = [{"material": "p", "positions": [[x, 0, 0] for x in xs], "radius": R}]
+    sc = base(parts, {"direct": "batchelor_obrien", "time_step": dt, "initial_temperature": 300.0,
+                      "integrator": integrator}, walls=walls, end=end, mats=[dict(MATP)])
+    sc["domain"] = {"min": [-0.001, -0.01, -0.01], "max": [L + 0.001, 0.01, 0.01]}
+    return sc
+
+
+def line(dt, integrator="implicit", end=1.0):
+    sim = Simulation.from_dict(line_scene(dt, integrator, end))
+    sim.state.temperature[:] = np.linspace(350.0, 300.0, 10)
+    return sim
+
+
+def network(sim):
+    """(C, A, f): heat capacities, the network matrix A = L + K (pairs and fixed-temperature
+    walls) and the wall source f, so that C dT/dt = f - A T (dense: for 10 particles only)."""
+    st = sim.state
+    n = st.n
+    A = np.zeros((n, n))
+    f = np.zeros(n)
+    for i in range(n):
+        for s in range(st.nnb[i]):
+            j, h = st.nb[i, s], st.Hd[i, s]
+            A[i, i] += h
+            A[j, j] += h
+            A[i, j] -= h
+            A[j, i] -= h
+        for q in range(st.wnn[i]):
+            h, w = st.Hw[i, q], st.wnb[i, q]
+            if h > 0 and st.wth[w, 0] == 1.0:
+                A[i, i] += h
+                f[i] += h * st.wth[w, 1]
+    return 1.0 / st.inv_heat_capacity, A, f
+
+
+def modes(sim):
+    """Steady state and the modes of C dT/dt = f - A T: (T_ss, lam, U, c) with
+    T(t) = T_ss + sum_k c_k exp(-lam_k t) U[:, k] from the current temperatures."""
+    C, A, f = network(sim)
+    Tss = np.linalg.solve(A, f)
+    s = 1.0 / np.sqrt(C)
+    lam, V = np.linalg.eigh(s[:, None] * A * s[None, :])
+    U = s[:, None] * V
+    c = V.T @ (np.sqrt(C) * (sim.state.temperature - Tss))
+    return Tss, lam, U, c
+
+
+@pytest.fixture(scope="module")
+def net_limit():
+    return line(1.0).thermal.network_limit()
+
+
+@pytest.mark.parametrize("factor", [1, 10, 100, 1000])
+def test_line_steady_state_exact_at_any_step(net_limit, factor):
+    """The fixed point of backward Euler is Q(T) = 0 whatever dt: the chain reaches the exact
+    network steady state (np.linalg.solve of the 10 x 10 system) to 1e-9 K at steps of 1 to
+    1000 times the Euler limit (the exponential update is off by 7.7e-4 K already at 0.036)."""
+    dt = factor * net_limit
+    sim = line(dt)
+    Tss, lam, _, _ = modes(sim)
+    # the slowest mode decays by 1 / (1 + lam_min dt) a step: to 1e-13 of the initial 100 K
+    nsteps = int(math.ceil(math.log(1e13) / math.log(1.0 + lam[0] * dt))) + 1
+    sim.run(end_time=nsteps * dt, progress=False)
+    assert sim.step_count == nsteps
+    assert np.abs(sim.state.temperature - Tss).max() < 1e-9
+    assert Tss.max() < 400.0 and Tss.min() > 300.0 and np.all(np.diff(Tss) < -1.0)
+
+
+def test_two_particle_relaxation_discrete_formula():
+    """Two spheres (R, 1.5 R), one contact conductance H: backward Euler multiplies
+    T1 - T2 by 1 / (1 + H (1/C1 + 1/C2) dt) a step (a 2 x 2 system: two CG iterations are
+    exact up to round-off), and sum C T is constant."""
+    sc = base([{"material": "p", "positions": [[0, 0, 0]], "radius": R, "temperature": 400.0},
+               {"material": "p", "positions": [[2.5 * R - 2e-5, 0, 0]], "radius": 1.5 * R,
+                "temperature": 300.0}],
+              {"direct": "batchelor_obrien", "time_step": 7.0, "integrator": "implicit"}, end=84.0)
+    sim = Simulation.from_dict(sc)
+    st = sim.state
+    C = 1.0 / st.inv_heat_capacity
+    H = sim.Hd[sim.Hd > 0]
+    assert H.size == 1
+    sim.run(progress=False)
+    n = sim.step_count
+    assert n == 12
+    ratio = (st.temperature[0] - st.temperature[1]) / 100.0
+    z = H[0] * (1 / C[0] + 1 / C[1]) * 7.0
+    assert z > 0.1  # a step the exponential formula and backward Euler tell apart
+    assert ratio == pytest.approx((1.0 + z) ** -n, rel=1e-12)
+    assert np.sum(C * st.temperature) == pytest.approx(C[0] * 400 + C[1] * 300, rel=1e-14)
+
+
+def test_line_transient_within_derived_bound(net_limit):
+    """Small steps (0.1 and 0.2 of the Euler limit), to t = 150 s: the run equals the exact
+    discrete solution T_ss + sum_k c_k (1 + lam_k dt)^-n u_k to the CG tolerance, and each
+    mode's error against exp(-lam t) is bounded by (ln(1+z) >= z - z^2/2, z = lam dt)
+        0 <= (1 + z)^-n - e^{-lam t} <= e^{-lam t} (e^{lam^2 t dt / 2} - 1)      (O(dt)),
+    and Euler's, (ln(1-z) >= -z - z^2 / (2 (1 - z))), by e^{-lam t} (1 - e^{-lam^2 t dt / (2 (1 - z))}):
+    the implicit and Euler runs differ by at most the sum of the two bounds, which halves
+    with the step."""
+    bounds = []
+    for frac in (0.2, 0.1):
+        dt = frac * net_limit
+        end = 150.0
+        runs = {}
+        for integ in ("implicit", "euler"):
+            sim = line(dt, integ, end)
+            Tss, lam, U, c = modes(sim)
+            sim.run(progress=False)
+            runs[integ] = sim.state.temperature.copy()
+        n = sim.step_count
+        t = n * dt
+        umax = np.abs(U).max(0)
+        disc = Tss + U @ (c * (1.0 + lam * dt) ** -n)
+        assert np.abs(runs["implicit"] - disc).max() < 1e-9
+        z = lam * dt
+        b_be = np.sum(np.abs(c) * umax * np.exp(-lam * t) * np.expm1(lam ** 2 * t * dt / 2))
+        b_fe = np.sum(np.abs(c) * umax * np.exp(-lam * t) * -np.expm1(-lam ** 2 * t * dt / (2 * (1 - z))))
+        exact = Tss + U @ (c * np.exp(-lam * t))
+        assert np.abs(runs["implicit"] - exact).max() <= b_be + 1e-9
+        assert np.abs(runs["euler"] - exact).max() <= b_fe + 1e-9
+        diff = np.abs(runs["implicit"] - runs["euler"]).max()
+        assert diff <= b_be + b_fe
+        assert diff > 0.2 * (b_be + b_fe)  # the bound is not vacuous: the first-order errors are there
+        bounds.append(b_be + b_fe)
+    assert bounds[1] / bounds[0] == pytest.approx(0.5, rel=0.05)
+
+
+def bed_scene(dt, end):
+    """A frozen 4 x 4 x 3 lattice of touching spheres (20 um overlaps) on a floor at 400 K, a
+    side wall with a fixed flux of 2 kW/m2, gas convection (350 K gas), continuum radiation
+    and a source of 5 mW per particle of group 1."""
+    ov = 2e-5
+    pitch = 2 * R - ov
+    pos = [[R + i * pitch, R + j * pitch, R - ov + k * pitch] for i in range(4) for j in range(4) for k in range(3)]
+    walls = [{"type": "plane", "name": "floor", "point": [0, 0, 0], "normal": [0, 0, 1], "material": "p",
+              "thermal": HOT},
+             {"type": "plane", "name": "side", "point": [R - ov, 0, 0], "normal": [1, 0, 0], "material": "p",
+              "thermal": {"condition": "fixed_heat_flux", "heat_flux": 2000.0}}]
+    parts = [{"material": "p", "positions": pos[:24], "radius": R, "temperature": 300.0},
+             {"material": "p", "positions": pos[24:], "radius": R, "temperature": 320.0}]
+    sc = base(parts, {"direct": "batchelor_obrien", "convection": "ranz_marshall", "radiation": "zhou_2009",
+                      "time_step": dt, "integrator": "implicit", "sources": [{"group": 1, "power": 0.005}]},
+              walls=walls, gas=dict(AIR, temperature=350.0, velocity=[0.0, 0.0, 0.5]), end=end,
+              mats=[dict(MATP)])
+    sc["domain"] = {"min": [-0.001, -0.001, -0.001], "max": [0.01, 0.01, 0.01]}
+    return sc
+
+
+def test_energy_conserved_on_a_bed_with_walls_gas_radiation_sources(net_limit):
+    """sum C (T - T0) equals the heat in from the walls (fixed temperature and flux), the gas,
+    radiation and the sources, to the CG tolerance (relative 1e-10 a step), at a step far
+    above the explicit limits."""
+    sim = Simulation.from_dict(bed_scene(50.0, 2000.0))
+    st = sim.state
+    C = 1.0 / st.inv_heat_capacity
+    e0 = np.sum(C * st.temperature)
+    assert sim.thermal.network_limit() < 2.0  # dt = 50 s is > 25 network steps
+    sim.run(progress=False)
+    tot = sim.thermal.tot
+    heat_in = tot[2] + tot[3] + tot[4] + tot[5] + tot[6]  # convection, radiation, generation, sources, walls
+    gain = np.sum(C * st.temperature) - e0
+    assert abs(sim.thermal.wtot.sum() - tot[6]) <= 1e-9 * abs(tot[6])
+    assert sim.thermal.wtot[0] > 0 and sim.thermal.wtot[1] > 0 and tot[5] > 0 and tot[2] != 0 and tot[3] != 0
+    scale = np.sum(np.abs(tot[2:7]))
+    assert abs(gain - heat_in) <= 1e-9 * scale
+    assert np.all(np.isfinite(st.temperature)) and st.temperature.min() > 300.0
+
+
+def _dem(*args, cwd, env=None):
+    return subprocess.run([sys.executable, "-m", "dem", *args], capture_output=True, text=True, cwd=cwd,
+                          env=env, timeout=600)
+
+
+def _write_scene(path, integrator, dt=500.0, end=20000.0):
+    from test_scene_errors import to_toml
+    sc = line_scene(dt, integrator, end)
+    sc["simulation"]["output_interval"] = end / 4
+    path.write_text(to_toml(sc))
+
+
+def test_cli_run_implicit_reaches_linear_profile(tmp_path):
+    """`dem run` of the frozen line with integrator = "implicit" and dt = 500 s (27 Euler
+    limits): the equal pair conductances give a linear interior profile, and the two equal
+    wall links a profile symmetric about 350 K, both to 1e-9 K; the heat balance closes."""
+    scene = tmp_path / "line.toml"
+    _write_scene(scene, "implicit")
+    p = _dem("run", str(scene), "--out", str(tmp_path / "out"), "--quiet", cwd=tmp_path)
+    assert p.returncode == 0, p.stderr
+    f = np.load(tmp_path / "out" / "final.npz")
+    T = f["temperature"][np.argsort(f["position"][:, 0])]
+    steps = np.diff(T)
+    assert np.abs(steps - steps.mean()).max() < 1e-9
+    assert abs(T[0] + T[-1] - 700.0) < 1e-9
+    assert 300.0 < T[-1] < T[0] < 400.0
+    import csv
+    with open(tmp_path / "out" / "history.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    h0, h1 = rows[0], rows[-1]
+    gain = float(h1["thermal_energy"]) - float(h0["thermal_energy"])
+    walls = float(h1["E_wall_left"]) + float(h1["E_wall_right"])
+    assert gain == pytest.approx(walls, rel=1e-9, abs=1e-9 * float(h1["E_wall_left"]))
+
+
+def test_cli_bad_integrator_name(tmp_path):
+    scene = tmp_path / "line.toml"
+    _write_scene(scene, "backward_euler")
+    p = _dem("run", str(scene), "--out", str(tmp_path / "out"), "--quiet", cwd=tmp_path)
+    assert p.returncode == 2
+    assert "Traceback" not in p.stderr
+    msg = p.stderr
+    assert "line.toml" in msg and "thermal.integrator" in msg and "'backward_euler'" in msg
+    for name in ("auto", "euler", "exponential", "implicit"):
+        assert name in msg
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.skipif(shutil.which("mpirun") is None, reason="needs Open MPI (mpirun)")
+def test_mpi_refuses_implicit_and_auto_falls_back(tmp_path):
+    """Under MPI the implicit solver is refused before anything is written (file, key, allowed
+    values); auto runs (the exponential update on a frozen packing)."""
+    env = dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1",
+               OMPI_MCA_rmaps_base_oversubscribe="1", OMPI_MCA_mpi_yield_when_idle="1")
+    scene = tmp_path / "line.toml"
+    _write_scene(scene, "implicit", dt=1.0, end=4.0)
+    cmd = ["mpirun", "-np", "2", sys.executable, "-m", "dem", "run", str(scene), "--out", str(tmp_path / "out"),
+           "--quiet"]
+    p = subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=tmp_path, timeout=600)
+    assert p.returncode != 0
+    assert "Traceback" not in p.stderr
+    assert "line.toml" in p.stderr and "thermal.integrator" in p.stderr and "2 MPI ranks" in p.stderr
+    assert "auto, euler or exponential" in p.stderr
+    assert not (tmp_path / "out").exists()
+    _write_scene(scene, "auto", dt=1.0, end=4.0)
+    p = subprocess.run(cmd[:-3] + [str(scene), "--out", str(tmp_path / "auto"), "--quiet"], capture_output=True,
+                       text=True, env=env, cwd=tmp_path, timeout=600)
+    assert p.returncode == 0, p.stderr
+    assert np.load(tmp_path / "auto" / "final.npz")["temperature"].max() < 400.0
