@@ -184,11 +184,11 @@ def test_energy_conserved_on_a_bed_with_walls_gas_radiation_sources(net_limit):
     """sum C (T - T0) equals the heat in from the walls (fixed temperature and flux), the gas,
     radiation and the sources, to the CG tolerance (relative 1e-10 a step), at a step far
     above the explicit limits."""
-    sim = Simulation.from_dict(bed_scene(50.0, 2000.0))
+    sim = Simulation.from_dict(bed_scene(100.0, 3000.0))
     st = sim.state
     C = 1.0 / st.inv_heat_capacity
     e0 = np.sum(C * st.temperature)
-    assert sim.thermal.network_limit() < 2.0  # dt = 50 s is > 25 network steps
+    assert sim.thermal.network_limit() < 10.0  # dt = 100 s is > 10 network steps
     sim.run(progress=False)
     tot = sim.thermal.tot
     heat_in = tot[2] + tot[3] + tot[4] + tot[5] + tot[6]  # convection, radiation, generation, sources, walls
@@ -200,9 +200,12 @@ def test_energy_conserved_on_a_bed_with_walls_gas_radiation_sources(net_limit):
     assert np.all(np.isfinite(st.temperature)) and st.temperature.min() > 300.0
 
 
-def _dem(*args, cwd, env=None):
+ENV = dict(os.environ, PYTHONPATH=ROOT + os.pathsep + os.environ.get("PYTHONPATH", ""))
+
+
+def _dem(*args, cwd):
     return subprocess.run([sys.executable, "-m", "dem", *args], capture_output=True, text=True, cwd=cwd,
-                          env=env, timeout=600)
+                          env=ENV, timeout=600)
 
 
 def _write_scene(path, integrator, dt=500.0, end=20000.0):
@@ -252,7 +255,7 @@ def test_cli_bad_integrator_name(tmp_path):
 def test_mpi_refuses_implicit_and_auto_falls_back(tmp_path):
     """Under MPI the implicit solver is refused before anything is written (file, key, allowed
     values); auto runs (the exponential update on a frozen packing)."""
-    env = dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1",
+    env = dict(ENV, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1",
                OMPI_MCA_rmaps_base_oversubscribe="1", OMPI_MCA_mpi_yield_when_idle="1")
     scene = tmp_path / "line.toml"
     _write_scene(scene, "implicit", dt=1.0, end=4.0)
@@ -265,7 +268,7 @@ def test_mpi_refuses_implicit_and_auto_falls_back(tmp_path):
     assert "auto, euler or exponential" in p.stderr
     assert not (tmp_path / "out").exists()
     _write_scene(scene, "auto", dt=1.0, end=4.0)
-    p = subprocess.run(cmd[:-3] + [str(scene), "--out", str(tmp_path / "auto"), "--quiet"], capture_output=True,
+    p = subprocess.run(cmd[:-4] + [str(scene), "--out", str(tmp_path / "auto"), "--quiet"], capture_output=True,
                        text=True, env=env, cwd=tmp_path, timeout=600)
     assert p.returncode == 0, p.stderr
     assert np.load(tmp_path / "auto" / "final.npz")["temperature"].max() < 400.0
