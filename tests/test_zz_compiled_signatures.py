@@ -3,7 +3,7 @@ same argument types, a disabled feature being an empty array of the same dtype a
 
 Runs every example and test scene plus variants that switch each optional array on (rolling
 springs, contact age, friction heat, indirect conduction, radiation, group sources,
-exponential integration, frozen packing, fluid forces, no walls, periodic axes) in this one
+exponential and implicit integration, frozen packing, fluid forces, no walls, periodic axes) in this one
 process, then counts the compiled signatures of each kernel: at most two (heat on, heat off:
 the ``hon`` switch), whatever ran before in this test session (this file runs last).
 """
@@ -16,6 +16,7 @@ from dem import Simulation
 from dem import scene as scene_mod
 from dem import step as K
 from dem.thermal import heat as H
+from dem.thermal import implicit as IM
 from dem import neighbors as NB
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -37,6 +38,10 @@ def _variants():
     yield "epsd rolling", {"contact": {"rolling": "epsd"}}
     yield "heat, euler fused", {"thermal": dict(heat)}
     yield "heat, exponential", {"thermal": dict(heat, integrator="exponential")}
+    yield "heat, implicit", {"thermal": dict(heat, integrator="implicit")}
+    yield "implicit, radiation, convection, sources", {
+        "thermal": dict(heat, integrator="implicit", radiation="zhou_2009", convection="ranz_marshall",
+                        sources=[{"group": 0, "power": 1e-3}]), "gas": GAS}
     yield "contact age", {"thermal": dict(heat, direct="zhou_2008_collisional")}
     yield "friction heat", {"thermal": dict(heat, friction_heat="nguyen_2009")}
     yield "indirect + convection", {"thermal": dict(heat, indirect="vargas_mccarthy_2002", convection="ranz_marshall"),
@@ -59,7 +64,7 @@ def _run_variant(extra, steps=30):
 
 
 KERNELS = (K.advance, K.compute_forces, K.after_build, K.drift, K.kick_guard, K.heat_phase, K.outside,
-           H.heat_step, NB.build_half_list)
+           H.heat_step, H._implicit_step, IM.jacobi_pcg, IM.laplacian_apply, NB.build_half_list)
 
 
 def test_every_scene_shares_one_kernel_per_heat_switch():

@@ -168,7 +168,7 @@ def line_of_ten(quick):
     if quick:
         dts = dts[1:]
     rows = []
-    for integ in ("euler", "exponential"):
+    for integ in ("euler", "exponential", "implicit"):
         for dt in dts:
             sim = make(dt, integ)
             end = math.ceil(t_end / dt) * dt
@@ -240,6 +240,45 @@ def packed_bed(quick):
                 rows=rows, series="integrator", default_label="exponential (auto, frozen)",
                 default_rows=[r for r in rows if r["integrator"] == "exponential"], particles=len(x),
                 extra=dict(kref=kref, zs=zs, eps=eps, lim=lim))
+
+
+def beaulieu_bed(quick):
+    """The Beaulieu-size frozen bed of benchmarks/packed_bed_heating.py (8,929 spheres of
+    6.4 mm, floor 400 K, 4,000 s): final temperatures at dt = 1 to 100 s against a fine
+    reference (exponential update at dt = 0.25 s), exponential update and backward Euler."""
+    import tempfile
+    from dem import Simulation
+    from benchmarks.packed_bed_heating import make_scene
+
+    def final(dt, integ, tmp):
+        sc = make_scene(tmp, dt)
+        sc["thermal"]["integrator"] = integ
+        sim = Simulation.from_dict(sc, base_dir=tmp)
+        wall = timed_run(sim, 4000.0)
+        return sim, wall, sim.state.temperature[np.argsort(sim.state.id)].copy()
+
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        ref_dt = 0.5 if quick else 0.25
+        sim, ref_wall, Tref = final(ref_dt, "exponential", tmp)
+        lim = sim.thermal.network_limit()
+        n = sim.state.n
+        dts = [1, 10, 100] if quick else [1, 2, 5, 10, 20, 50, 100]
+        for integ in ("euler", "exponential", "implicit"):
+            for dt in dts:
+                if integ == "euler" and dt > lim:
+                    continue
+                sim, wall, T = final(float(dt), integ, tmp)
+                rows.append(dict(integrator=integ, dt=dt, setting=f"dt = {dt:g} s", steps=sim.step_count,
+                                 wall=wall, err=float(np.abs(T - Tref).max()) / 100.0,
+                                 mean=abs(float(T.mean() - Tref.mean()))))
+    return dict(key="beaulieu_bed", title="Frozen packed bed heated from its floor (Beaulieu size)",
+                what=f"{n} spheres of 6.4 mm (benchmarks/packed_bed_heating.py: floor 400 K, Batchelor & O'Brien + "
+                     f"Voronoi A in air, mechanics = false), 4,000 s from 300 K; error = max |T - T_ref| / 100 K, "
+                     f"T_ref the exponential update at dt = {ref_dt:g} s ({ref_wall:.1f} s of run); network step "
+                     f"limit {lim:.3g} s",
+                rows=rows, series="integrator", default_label="exponential (auto, frozen)",
+                default_rows=[r for r in rows if r["integrator"] == "exponential"], particles=n)
 
 
 # ----------------------------------------------------------------------------- impacts
@@ -772,7 +811,7 @@ single_particle_coupled = _coupled("single_particle_coupled")
 schumann_coupled = _coupled("schumann_coupled")
 bubbling_bed = _coupled("bubbling_bed")
 COUPLED = (single_particle_coupled, schumann_coupled, bubbling_bed)
-CASES = [two_particles, single_particle_gas, line_of_ten, packed_bed, impacts, softening, porosity, quadrature,
+CASES = [two_particles, single_particle_gas, line_of_ten, packed_bed, beaulieu_bed, impacts, softening, porosity, quadrature,
          *COUPLED]
 
 
