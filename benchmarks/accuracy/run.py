@@ -212,7 +212,7 @@ def packed_bed(quick):
     zs = zehner_schlunder(eps, 1.0 / 0.026) * 0.026
     rows = []
     dts = [0.5, 1, 2, 5, 10, 20, 50, 100, 200] if not quick else [1, 2, 5, 10, 20, 50, 100, 200]
-    for integ in ("euler", "exponential"):
+    for integ in ("euler", "exponential", "implicit"):
         for dt in dts:
             if integ == "euler" and dt > 2.5 * lim:
                 continue
@@ -589,6 +589,8 @@ def case_markdown(case):
         extra_cols = ["error of the sum"]
     if case["key"] == "bubbling_bed":
         extra_cols = ["temperature rise [K]"]
+    if case["key"] == "beaulieu_bed":
+        extra_cols = ["mean T difference [K]"]
     rows = []
     for r in case["rows"]:
         if soft:
@@ -605,6 +607,8 @@ def case_markdown(case):
             row += [r.get("sum_err")]
         if case["key"] == "bubbling_bed":
             row += [r.get("rise")]
+        if case["key"] == "beaulieu_bed":
+            row += [r.get("mean")]
         rows.append(row)
     txt = f"### {case['title']}\n\n{case['what']}.\n\n" + md_table(cols + extra_cols, rows) + "\n\n"
     txt += f"![{case['key']}](accuracy_{case['key']}.png)\n\n"
@@ -654,6 +658,44 @@ RECOMMEND = """\
 """
 
 
+def implicit_note(c):
+    """The `implicit` integrator against the default: steady state (line of ten, packed-bed
+    k_eff) and the transient of the Beaulieu-size bed (why auto keeps the exponential update)."""
+    if "beaulieu_bed" not in c:
+        return ""
+    bb = c["beaulieu_bed"]["rows"]
+    by = {(r["integrator"], r["dt"]): r for r in bb}
+    dmax = max(r["dt"] for r in bb if r["integrator"] == "implicit")
+    im, ex = by[("implicit", dmax)], by[("exponential", dmax)]
+    cost = (im["wall"] / im["steps"]) / (ex["wall"] / ex["steps"])
+    # the exponential step with the implicit error at dmax (second order: err ~ dt^2), its cost
+    exr = sorted((r for r in bb if r["integrator"] == "exponential"), key=lambda r: r["dt"])
+    txt = ("  `integrator = \"implicit\"` (backward Euler, conjugate gradients): exact steady state at any step")
+    if "line_of_ten" in c:
+        lr = [r for r in c["line_of_ten"]["rows"] if r["integrator"] == "implicit"]
+        w = max(lr, key=lambda r: r["dt"])
+        txt += f" (line of ten: error {fmt(w['err'])} at dt = {fmt(w['dt'])} s)"
+    if "packed_bed" in c:
+        pr = [r for r in c["packed_bed"]["rows"] if r["integrator"] == "implicit"]
+        if pr:
+            w = max(pr, key=lambda r: r["dt"])
+            txt += f", packed-bed k_eff error {fmt(w['err'])} at dt = {fmt(w['dt'])} s"
+    txt += (f". On the Beaulieu-size bed at dt = {fmt(dmax)} s it is {fmt(ex['err'] / im['err'])} x more accurate "
+            f"than the exponential update (error {fmt(im['err'])} against {fmt(ex['err'])}) for {fmt(cost)} x the "
+            f"cost per step; but it is first order, so for errors below about {fmt(im['err'])} the second-order "
+            f"exponential update is cheaper (")
+    parts = []
+    for r in exr:
+        ri = by.get(("implicit", r["dt"]))
+        if ri is not None:
+            parts.append(f"dt = {fmt(r['dt'])} s: exponential {fmt(r['err'])} in {fmt(r['wall'])} s, implicit "
+                         f"{fmt(ri['err'])} in {fmt(ri['wall'])} s")
+    txt += "; ".join(parts) + "). `auto` keeps the exponential update for frozen beds (the implicit one is not at "
+    txt += ("least as fast for the same accuracy everywhere); choose `implicit` for steady states and long heating "
+            "at steps far beyond the network limit.")
+    return txt
+
+
 def recommendations(cases):
     c = {k["key"]: k for k in cases}
     out = []
@@ -679,6 +721,9 @@ def recommendations(cases):
                    f"the network limit is exact and {_cost_ratio(pb)} x cheaper per step (the exponential update "
                    f"evaluates an exp() per pair each step); the default stays exponential because it is the only "
                    f"one that is right for transients at any step.")
+    note = implicit_note(c)
+    if note:
+        out.append(note)
     if "impact" in c:
         im = c["impact"]
         ex = [r for r in im["rows"] if r["damping"] == "exact"]
