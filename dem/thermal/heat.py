@@ -255,7 +255,7 @@ def heat_step(P, C, W, TB, prm, n, nown, dt, t):
     return -1
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def _implicit_step(P, C, W, TB, prm, m, dt, t, has_ind):
     """Backward Euler heat step of the rows [0, m) (``integrator = "implicit"``; the scene
     parser refuses it under MPI, so every row is owned): with d = T^{n+1} - T^n,
