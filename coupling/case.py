@@ -298,11 +298,28 @@ def _max_speed_of_field(path: Path, n_cells: int) -> float:
     return vmax
 
 
-# Packing fractions of random sphere packings: the loosest mechanically stable one of frictional
-# spheres (Onoda & Liniger 1990, Phys. Rev. Lett. 64, 2727: 0.555) and random close packing
-# (Scott & Kilgour 1969, J. Phys. D 2, 863: 0.637).
-RANDOM_LOOSE_PACKING = 0.555
+# Random close packing of equal spheres (Scott & Kilgour 1969, J. Phys. D 2, 863: 0.637): the
+# densest a settling random packing gets.
 RANDOM_CLOSE_PACKING = 0.637
+# A packing rests when its particles touch: a mechanically stable packing of frictional spheres
+# has a mean coordination number of at least 4 (isostatic limit; Silbert et al. 2002, Phys.
+# Rev. E 65, 031304), walls included; without the wall contacts the check counts, 3.
+COORDINATION_AT_REST = 3.0
+TOUCH_GAP = 1e-3      # touching: centre distance <= (1 + TOUCH_GAP) (R_i + R_j)
+
+
+def _coordination(x, r) -> float:
+    """Mean number of particles each particle touches (walls not counted)."""
+    from scipy.spatial import cKDTree
+    n = len(r)
+    if n < 2:
+        return 0.0
+    pairs = cKDTree(x).query_pairs(2 * float(r.max()) * (1 + TOUCH_GAP), output_type="ndarray")
+    if not len(pairs):
+        return 0.0
+    i, j = pairs[:, 0], pairs[:, 1]
+    touch = np.linalg.norm(x[i] - x[j], axis=1) <= (1 + TOUCH_GAP) * (r[i] + r[j])
+    return 2.0 * float(touch.sum()) / n
 
 
 def _particle_speeds(sim, gas, u_s, d, n) -> tuple[dict, dict]:
@@ -310,18 +327,20 @@ def _particle_speeds(sim, gas, u_s, d, n) -> tuple[dict, dict]:
     (the particle Courant rule takes the largest; docs/models.md "Particle Courant number"):
 
     * ``particle_speed_initial``: the largest initial particle speed.
-    * ``particle_settling_speed``: a packing looser than the loosest stable random packing
-      (RANDOM_LOOSE_PACKING) cannot rest: it settles under gravity. Its mean solid fraction
-      phi = V_solid / (H A) (H: its extent along g, A: the domain's cross-section normal to
-      g) rises at most to random close packing, so its top falls at most
-      H_fall = H (1 - phi / RANDOM_CLOSE_PACKING), at up to sqrt(2 g H_fall) (free fall;
-      the gas drag only slows it). 0 for a packing at rest (phi >= 0.555) or without gravity.
+    * ``particle_settling_speed``: a packing whose particles do not touch (mean coordination
+      number below COORDINATION_AT_REST, e.g. a loose insertion) cannot rest: it settles
+      under gravity. Its mean solid fraction phi = V_solid / (H A) (H: its extent along g,
+      A: the domain's cross-section normal to g) rises at most to random close packing, so
+      its top falls at most H_fall = H (1 - phi / RANDOM_CLOSE_PACKING), at up to
+      sqrt(2 g H_fall) (free fall; the gas drag only slows it). 0 for a packing at rest
+      (touching particles: a settled bed, a lattice) or without gravity.
     * ``gas_excess_speed``: the gas moves a resting bed only if its superficial speed u_s
       (the largest of 0/U) exceeds the minimum fluidization velocity U_mf (Wen & Yu 1966, of
       the particle that is lifted first). Then the gas in excess of U_mf crosses the bed as
       bubbles, which carry the particles (two-phase theory, Toomey & Johnstone 1952): the
       particle speed scale is u_s - U_mf. Below U_mf: 0 (the drag does not lift the bed).
-    Returns (speeds, info): info holds ``packing_fraction`` phi and ``u_mf``."""
+    Returns (speeds, info): info holds ``coordination_number``, ``packing_fraction`` phi and
+    ``u_mf``."""
     from .drag import wen_yu_1966_umf
     st = sim.state
     out, info = {}, {}
@@ -339,7 +358,9 @@ def _particle_speeds(sim, gas, u_s, d, n) -> tuple[dict, dict]:
         box = hi - lo
         A = float(np.prod(box)) / float(np.abs(box * e).sum())   # volume / extent along g
         phi = float((4.0 / 3.0 * math.pi * r ** 3).sum()) / (H * A)
-        h_fall = H * (1.0 - phi / RANDOM_CLOSE_PACKING) if phi < RANDOM_LOOSE_PACKING else 0.0
+        z_c = _coordination(st.position[:n], r)
+        h_fall = max(0.0, H * (1.0 - phi / RANDOM_CLOSE_PACKING)) if z_c < COORDINATION_AT_REST else 0.0
+        info["coordination_number"] = z_c
         info["packing_fraction"] = phi
         out["particle_settling_speed"] = math.sqrt(2.0 * gmag * h_fall)
     if u_s > 0:
