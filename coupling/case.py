@@ -26,14 +26,21 @@ Layout::
     force = false                 # run despite failed checks (reported as problems)
     solver_nice = 0               # nice level of the solver (serial runs; 0 = unchanged)
 
+One end time per case: ``endTime`` of system/controlDict. ``end_time`` of coupling.toml and
+``[simulation] end_time`` of dem.toml may be omitted (they take controlDict's) and are refused
+by ``load_case`` when they differ from it (``coupling run --end-time`` overrides for one run).
+
 Checks (``check_coupled_case``), in the spirit of CFDEMcoupling's: CFD deltaT =
-coupling_interval x DEM dt; gas CFL; particle Courant number (particle displacement per
-coupling step / cell size); coupling step / particle relaxation time m/beta_p (at the initial void fraction of
-the particle's cell, at most 0.4); cell size / particle diameter (warning under 3, a
-stronger warning under 1); the initial void fraction clipped at eps_min (warning, a
-problem when more than 5 % of the particle volume is clipped); gas properties of dem.toml
-[gas] equal to constant/transportProperties; particles inside the mesh; plus the DEM's own
-time-step checks (``Simulation.check``) and ``foam_case.check_case``.
+coupling_interval x DEM dt; gas CFL; particle Courant number (displacement per coupling step /
+cell edge, at the speed of what can move the particles: ``_particle_speeds``); coupling step /
+particle relaxation time m/beta_p (at the initial void fraction of the particle's cell, at most
+0.4); the void fraction's averaging length / particle diameter for the case's void-fraction
+model (warning under 3, a stronger warning for cells under 1 diameter: ``_cell_size_advice``);
+the initial void fraction clipped at eps_min (warning, a problem when more than 5 % of the
+particle volume is clipped); the Biot number h (V/A) / k_p from the case's Nusselt correlation
+at its gas speed (warning above 0.1: ``_biot_check``); gas properties of dem.toml [gas] equal
+to constant/transportProperties; particles inside the mesh; plus the DEM's own time-step checks
+(``Simulation.check``) and ``foam_case.check_case``. docs/models.md, "Checks", derives them.
 """
 from __future__ import annotations
 

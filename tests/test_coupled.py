@@ -279,7 +279,7 @@ def test_packed_bed_heating_schumann(tmp_path, solver):
 
     The case meets Schumann's assumptions: plug flow (one lateral cell, slip walls,
     uniform lattice), no conduction in the bed (thermal.direct = none), lumped particles
-    (the DEM; Biot 0.03), negligible axial gas conduction (Peclet u_i L / alpha = 2,900).
+    (the DEM; Biot h (V/A) / k_p = 0.035), negligible axial gas conduction (Peclet u_i L / alpha = 2,900).
     Measured (dt = 1 ms, 4 mm cells = 0.28 in Y): max |error| 0.27 % of Tin - T0 in the
     interior layers (O(dt / tau_gas) lag of the staggered exchange, tau_gas = 14 ms: halving
     dt lowers it; second-order upwind in Y), 0.76 % in the last bed layer (second-order
