@@ -417,6 +417,12 @@ def _biot_check(case, thermal, u_s, d, eps0, cells, n, vals, warnings):
             f"temperatures as mean temperatures")
 
 
+def wider_void_fraction_models(model: str) -> str | None:
+    """The void-fraction models that spread a particle wider than ``model`` (for advice that
+    never names the model in use); None for 'smoothed', the widest."""
+    return {"centre": "'divided' or 'smoothed'", "divided": "'smoothed'"}.get(model)
+
+
 def _cell_size_advice(mesh, cfg: CouplingConfig, dmax: float, dx_min: float) -> dict:
     """The cell-size rule of the unresolved model, for the case's void-fraction model.
 
