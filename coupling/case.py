@@ -21,19 +21,26 @@ Layout::
     timeout = 60                  # s waiting for one frame
     send_velocity = "cell"        # cell | flux (system/couplingDict sendVelocity)
     heat = true                   # exchange heat (needs [thermal] convection in dem.toml)
-    end_time = 0.5                # s (default: endTime of system/controlDict)
+    end_time = 0.5                # s, optional: must equal endTime of system/controlDict (the case's end time)
     output_interval = 0.01        # s, DEM output (default: dem.toml simulation.output_interval)
     force = false                 # run despite failed checks (reported as problems)
     solver_nice = 0               # nice level of the solver (serial runs; 0 = unchanged)
 
+One end time per case: ``endTime`` of system/controlDict. ``end_time`` of coupling.toml and
+``[simulation] end_time`` of dem.toml may be omitted (they take controlDict's) and are refused
+by ``load_case`` when they differ from it (``coupling run --end-time`` overrides for one run).
+
 Checks (``check_coupled_case``), in the spirit of CFDEMcoupling's: CFD deltaT =
-coupling_interval x DEM dt; gas CFL; particle Courant number (particle displacement per
-coupling step / cell size); coupling step / particle relaxation time m/beta_p (at the initial void fraction of
-the particle's cell, at most 0.4); cell size / particle diameter (warning under 3, a
-stronger warning under 1); the initial void fraction clipped at eps_min (warning, a
-problem when more than 5 % of the particle volume is clipped); gas properties of dem.toml
-[gas] equal to constant/transportProperties; particles inside the mesh; plus the DEM's own
-time-step checks (``Simulation.check``) and ``foam_case.check_case``.
+coupling_interval x DEM dt; gas CFL; particle Courant number (displacement per coupling step /
+cell edge, at the speed of what can move the particles: ``_particle_speeds``); coupling step /
+particle relaxation time m/beta_p (at the initial void fraction of the particle's cell, at most
+0.4); the void fraction's averaging length / particle diameter for the case's void-fraction
+model (warning under 3, a stronger warning for cells under 1 diameter: ``_cell_size_advice``);
+the initial void fraction clipped at eps_min (warning, a problem when more than 5 % of the
+particle volume is clipped); the Biot number h (V/A) / k_p from the case's Nusselt correlation
+at its gas speed (warning above 0.1: ``_biot_check``); gas properties of dem.toml [gas] equal
+to constant/transportProperties; particles inside the mesh; plus the DEM's own time-step checks
+(``Simulation.check``) and ``foam_case.check_case``. docs/models.md, "Checks", derives them.
 """
 from __future__ import annotations
 
@@ -218,13 +225,13 @@ class CoupledCase:
 
     @property
     def end_time(self) -> float:
-        return self.config.end_time if self.config.end_time is not None else self.control["endTime"]
+        """The case's one end time: endTime of system/controlDict (dem.toml and coupling.toml
+        may repeat it, equal; load_case refuses a disagreement)."""
+        return self.control["endTime"]
 
     @property
     def end_time_source(self) -> str:
         """Where the end time comes from (for messages)."""
-        if self.config.end_time is not None:
-            return f"{self.config_file} (end_time)"
         return f"{self.dir / 'system' / 'controlDict'} (endTime)"
 
 
@@ -247,13 +254,42 @@ def load_case(case_dir, *, build_sim: bool = True) -> CoupledCase:
     gas = gas_properties(case_dir)
     mt, _ = model_type(case_dir)
     ctl = control(case_dir)
+    end = ctl["endTime"]
+    ctl_file = case_dir / "system" / "controlDict"
+    if cfg.end_time is not None and not _same_time(cfg.end_time, end):
+        raise CaseConfigError(cfg_file, _end_time_conflict(cfg.end_time, "end_time", cfg_file, end, ctl_file),
+                              "coupling.end_time")
     sim = None
     if build_sim:
+        from dem import scene as scene_mod
         try:
-            sim = dem.Simulation.from_file(str(dem_file))  # memory checked before allocating
+            # without simulation.end_time the scene takes the case's (controlDict endTime)
+            scene = scene_mod.load(str(dem_file), end_time=end)
+        except SceneError as e:
+            raise CaseConfigError(dem_file, str(e).split(": ", 1)[-1]) from None
+        if scene.end_time_in_file and not _same_time(scene.simulation["end_time"], end):
+            raise CaseConfigError(dem_file, _end_time_conflict(scene.simulation["end_time"], "[simulation] end_time",
+                                                               dem_file, end, ctl_file), "simulation.end_time")
+        try:
+            sim = dem.Simulation(scene)  # memory checked before allocating
         except SceneError as e:
             raise CaseConfigError(dem_file, str(e).split(": ", 1)[-1]) from None
     return CoupledCase(case_dir, cfg, dem_file, cfg_file, gas, mt, ctl, sim)
+
+
+END_TIME_RTOL = 1e-9
+
+
+def _same_time(a: float, b: float) -> bool:
+    return math.isclose(a, b, rel_tol=END_TIME_RTOL, abs_tol=0.0)
+
+
+def _end_time_conflict(value: float, key: str, path: Path, end: float, ctl_file: Path) -> str:
+    """The message refusing a second end time that disagrees with controlDict's."""
+    return (f"{key} = {value:.9g} s disagrees with endTime = {end:.9g} s of {ctl_file}: a coupled case has one "
+            f"end time, the endTime of system/controlDict. Remove end_time from {path.name} (it then takes "
+            f"controlDict's) or make the two equal; to run one time to another end, give coupling run "
+            f"--end-time T")
 
 
 # --------------------------------------------------------------------------- checks
@@ -267,6 +303,175 @@ def _max_speed_of_field(path: Path, n_cells: int) -> float:
         v = np.array(m.group(1).split(), float)
         vmax = max(vmax, float(np.linalg.norm(v)))
     return vmax
+
+
+# Random close packing of equal spheres (Scott & Kilgour 1969, J. Phys. D 2, 863: 0.637): the
+# densest a settling random packing gets.
+RANDOM_CLOSE_PACKING = 0.637
+# A packing rests when its particles touch: a mechanically stable packing of frictional spheres
+# has a mean coordination number of at least 4 (isostatic limit; Silbert et al. 2002, Phys.
+# Rev. E 65, 031304), walls included; without the wall contacts the check counts, 3.
+COORDINATION_AT_REST = 3.0
+TOUCH_GAP = 1e-3      # touching: centre distance <= (1 + TOUCH_GAP) (R_i + R_j)
+
+
+def _coordination(x, r) -> float:
+    """Mean number of particles each particle touches (walls not counted)."""
+    from scipy.spatial import cKDTree
+    n = len(r)
+    if n < 2:
+        return 0.0
+    pairs = cKDTree(x).query_pairs(2 * float(r.max()) * (1 + TOUCH_GAP), output_type="ndarray")
+    if not len(pairs):
+        return 0.0
+    i, j = pairs[:, 0], pairs[:, 1]
+    touch = np.linalg.norm(x[i] - x[j], axis=1) <= (1 + TOUCH_GAP) * (r[i] + r[j])
+    return 2.0 * float(touch.sum()) / n
+
+
+def _particle_speeds(sim, gas, u_s, d, n) -> tuple[dict, dict]:
+    """The speeds that can move the particles of a mechanics run in the first coupling steps
+    (the particle Courant rule takes the largest; docs/models.md "Particle Courant number"):
+
+    * ``particle_speed_initial``: the largest initial particle speed.
+    * ``particle_settling_speed``: a packing whose particles do not touch (mean coordination
+      number below COORDINATION_AT_REST, e.g. a loose insertion) cannot rest: it settles
+      under gravity. Its mean solid fraction phi = V_solid / (H A) (H: its extent along g,
+      A: the domain's cross-section normal to g) rises at most to random close packing, so
+      its top falls at most H_fall = H (1 - phi / RANDOM_CLOSE_PACKING), at up to
+      sqrt(2 g H_fall) (free fall; the gas drag only slows it). 0 for a packing at rest
+      (touching particles: a settled bed, a lattice) or without gravity.
+    * ``gas_excess_speed``: the gas moves a resting bed only if its superficial speed u_s
+      (the largest of 0/U) exceeds the minimum fluidization velocity U_mf (Wen & Yu 1966, of
+      the particle that is lifted first). Then the gas in excess of U_mf crosses the bed as
+      bubbles, which carry the particles (two-phase theory, Toomey & Johnstone 1952): the
+      particle speed scale is u_s - U_mf. Below U_mf: 0 (the drag does not lift the bed).
+    Returns (speeds, info): info holds ``coordination_number``, ``packing_fraction`` phi and
+    ``u_mf``."""
+    from .drag import wen_yu_1966_umf
+    st = sim.state
+    out, info = {}, {}
+    if not n:
+        return out, info
+    out["particle_speed_initial"] = float(np.sqrt((st.velocity[:n] ** 2).sum(1)).max())
+    g = np.asarray(sim.scene.simulation["gravity"], float)
+    gmag = float(np.linalg.norm(g))
+    r = st.radius[:n]
+    if gmag > 0:
+        e = g / gmag
+        z = st.position[:n] @ e
+        H = float((z + r).max() - (z - r).min())
+        lo, hi = np.asarray(sim.scene.domain["min"], float), np.asarray(sim.scene.domain["max"], float)
+        box = hi - lo
+        A = float(np.prod(box)) / float(np.abs(box * e).sum())   # volume / extent along g
+        phi = float((4.0 / 3.0 * math.pi * r ** 3).sum()) / (H * A)
+        z_c = _coordination(st.position[:n], r)
+        h_fall = max(0.0, H * (1.0 - phi / RANDOM_CLOSE_PACKING)) if z_c < COORDINATION_AT_REST else 0.0
+        info["coordination_number"] = z_c
+        info["packing_fraction"] = phi
+        out["particle_settling_speed"] = math.sqrt(2.0 * gmag * h_fall)
+    if u_s > 0:
+        rho_p = st.mass[:n] / (4.0 / 3.0 * math.pi * r ** 3)
+        pairs = np.unique(np.stack([d, rho_p], axis=1), axis=0)
+        umf = min(wen_yu_1966_umf(float(dd), float(rr), gas.rho, gas.mu, gmag) for dd, rr in pairs)
+        info["u_mf"] = umf
+        out["gas_excess_speed"] = max(0.0, u_s - umf)
+    return out, info
+
+
+def _biot_check(case, thermal, u_s, d, eps0, cells, n, vals, warnings):
+    """Bi = h L_c / k_p with L_c = V/A = R/3 (lumped-capacitance convention) for every
+    particle, h = Nu k_f / d from the case's convection correlation (the compiled function
+    the heat step uses, dem.thermal kernel.convection_biot) at the case's gas speed: u_s,
+    the largest speed of 0/U, is the superficial velocity (the inlet value, where eps = 1);
+    in the bed the interstitial gas speed is u_s / eps, so for particles at rest the
+    correlations' Re = eps rho |u_f - v_p| d / mu = rho u_s d / mu; eps (Gunn, Li-Mason) is
+    the initial void fraction of the particle's cell. Reports the particle with the largest
+    Bi; warns above 0.1."""
+    from dem.thermal.convection import BIOT_LUMPED
+    gas = case.gas
+    eps_p = eps0[np.maximum(cells, 0)] if eps0 is not None else np.ones(n)
+    re = gas.rho * u_s * d / gas.mu
+    nu, h, bi = thermal.convection_biot(re, eps_p)
+    if not n:
+        return
+    i = int(np.argmax(bi))
+    vals["biot_gas_speed"] = float(u_s)
+    vals["biot_reynolds"] = float(re[i])
+    vals["biot_nusselt"] = float(nu[i])
+    vals["biot_h"] = float(h[i])
+    vals["biot"] = float(bi[i])
+    if bi[i] > BIOT_LUMPED:
+        st = case.sim.state
+        kp = float(h[i] * d[i] / (6 * bi[i]))   # Bi = h (d/2) / (3 k_p)
+        name = thermal.cfg["convection"]
+        warnings.append(
+            f"Biot number h (V/A) / k_p = h R / (3 k_p) = {bi[i]:.3g} > {BIOT_LUMPED:g} (particle id "
+            f"{int(st.id[i])}: d = {d[i]:.3g} m, k_p = {kp:.3g} W/(m K); {name} Nu = {nu[i]:.3g} at Re = "
+            f"{re[i]:.4g} from the {u_s:.3g} m/s of 0/U, h = {h[i]:.3g} W/(m2 K)): the DEM gives each particle "
+            f"one (lumped) temperature and ignores the temperature gradients inside it; its surface, which "
+            f"exchanges the heat, differs from the mean by about 0.6 Bi = {60 * bi[i]:.2g} % of the "
+            f"surface-to-gas difference (quasi-steady sphere), so the heat exchanged is off by about as much. "
+            f"Bi < {BIOT_LUMPED:g} needs smaller particles, a slower gas or a more conductive material "
+            f"(thermal_conductivity in dem.toml, only if the material has it); otherwise read the particle "
+            f"temperatures as mean temperatures")
+
+
+def wider_void_fraction_models(model: str) -> str | None:
+    """The void-fraction models that spread a particle wider than ``model`` (for advice that
+    never names the model in use); None for 'smoothed', the widest."""
+    return {"centre": "'divided' or 'smoothed'", "divided": "'smoothed'"}.get(model)
+
+
+def _cell_size_advice(mesh, cfg: CouplingConfig, dmax: float, dx_min: float) -> dict:
+    """The cell-size rule of the unresolved model, for the case's void-fraction model.
+
+    What the rule protects is the volume over which the void fraction is averaged: one
+    particle of volume V_p changes a cell's solid fraction by V_p / V_avg, and the drag and
+    heat-transfer closures assume an average over many particles. V_avg is the cell for
+    'centre' and 'divided' (divided spreads a particle only over the cells it overlaps),
+    and the kernel volume, about 2.1 cells, for 'smoothed' (voidfraction.averaging_volume,
+    measured on the mesh with the model's own stencil). The rule: the averaging length
+    L = V_avg^(1/3) (smallest over the cells) at least CELL_DIAMETERS largest diameters.
+    The advice names only what changes L for the current model: 'smoothed' for 'centre'
+    and 'divided' when it passes on this mesh, else the cell size that passes with the
+    model in use (and with 'smoothed')."""
+    from .voidfraction import averaging_volume
+    model = cfg.void_fraction
+    need = CELL_DIAMETERS * dmax
+
+    def length(m):
+        return float(np.cbrt(averaging_volume(mesh, m, dmax / 2, n_satellites=cfg.n_satellites).min()))
+
+    L = length(model)
+    ok = L >= need * (1 - 1e-9)
+    cell_for = lambda m, Lm: need * dx_min / Lm   # noqa: E731  the cell size that makes L = need
+    blockmesh = "(system/blockMeshDict)"
+    if model == "smoothed":
+        advice = f"use cells of at least {cell_for(model, L):.3g} m {blockmesh}; the case already uses 'smoothed'"
+        clip = (f"the case already uses void_fraction = 'smoothed' (the widest stencil): use cells of at least "
+                f"{cell_for(model, L):.3g} m {blockmesh}")
+    else:
+        Ls = length("smoothed")
+        cs = cell_for("smoothed", Ls)
+        if Ls >= need * (1 - 1e-9):
+            advice = (f"use void_fraction = 'smoothed' in coupling.toml (now '{model}'; it averages over "
+                      f"{Ls:.3g} m = {Ls / dmax:.2f} diameters on this mesh) or cells of at least "
+                      f"{cell_for(model, L):.3g} m {blockmesh}")
+        else:
+            advice = (f"use cells of at least {cell_for(model, L):.3g} m with '{model}' or {cs:.3g} m with "
+                      f"void_fraction = 'smoothed' {blockmesh}")
+        spread = ("'divided' or 'smoothed' (they spread a particle over the cells it overlaps, or over a "
+                  "kernel of about 2 cells)" if model == "centre" else
+                  "'smoothed' (it spreads a particle over a kernel of about 2 cells)")
+        clip = (f"use void_fraction = {spread} in coupling.toml (now '{model}') or cells of at least "
+                f"{cell_for(model, L):.3g} m {blockmesh}")
+    what = "the cells" if model != "smoothed" else "the smoothing kernel (about 2 cells)"
+    message = (f"void fraction averaged over {L:.3g} m = {L / dmax:.2f} particle diameters (< {CELL_DIAMETERS:g}; "
+               f"void_fraction = '{model}' averages over {what}; smallest cell {dx_min:.3g} m): one particle "
+               f"changes a cell's void fraction by up to {(math.pi / 6) * dmax ** 3 / L ** 3:.2g}, so the void "
+               f"fraction and drag of the unresolved model are inaccurate; {advice}")
+    return dict(length=L, ok=ok, message=message, advice=advice, clip_advice=clip)
 
 
 def check_coupled_case(case: CoupledCase, mesh, *, eps0: np.ndarray | None = None,
@@ -327,16 +532,16 @@ def check_coupled_case(case: CoupledCase, mesh, *, eps0: np.ndarray | None = Non
     vals["cells"] = mesh.n_cells
     vals["cell_size_min"] = dx_min
     vals["cell_over_diameter"] = dx_min / float(d.max())
+    cell_advice = _cell_size_advice(mesh, cfg, float(d.max()), dx_min)
+    vals["averaging_length"] = cell_advice["length"]
+    vals["averaging_over_diameter"] = cell_advice["length"] / float(d.max())
     if dx_min < d.max() * (1 - 1e-9):
         warnings.append(f"smallest cell {dx_min:.3g} m is {dx_min / d.max():.2f} particle diameters: particles "
                         f"larger than the cells are outside the unresolved model (void fraction clipped at "
                         f"eps_min, drag and heat exchange inconsistent between gas and particles, with every "
-                        f"void_fraction model); use cells of at least {CELL_DIAMETERS:g} particle diameters")
-    elif dx_min < CELL_DIAMETERS * d.max() * (1 - 1e-9):
-        warnings.append(f"smallest cell {dx_min:.3g} m is {dx_min / d.max():.2f} particle diameters "
-                        f"(< {CELL_DIAMETERS:g}): void fraction and drag of the unresolved model are "
-                        f"inaccurate; use void_fraction = 'divided' or 'smoothed'"
-                        + ("" if cfg.void_fraction != "centre" else " (now 'centre')"))
+                        f"void_fraction model); {cell_advice['advice']}")
+    elif not cell_advice["ok"]:
+        warnings.append(cell_advice["message"])
     # --- initial void fraction below eps_min (clipped: solid volume the gas does not see)
     if clip is not None:
         vals["eps_initial_raw_min"] = clip["eps_raw_min"]
@@ -345,9 +550,8 @@ def check_coupled_case(case: CoupledCase, mesh, *, eps0: np.ndarray | None = Non
         if clip["cells"]:
             msg = (f"initial void fraction below coupling.eps_min = {cfg.eps_min:g} in {clip['cells']} cell(s) "
                    f"(lowest 1 - V_solid/V_cell = {clip['eps_raw_min']:.3g}): clipping hides "
-                   f"{100 * clip['fraction']:.3g} % of the particle volume from the gas; use cells of at least "
-                   f"{CELL_DIAMETERS:g} particle diameters or void_fraction = 'divided' or 'smoothed' (now "
-                   f"'{cfg.void_fraction}')")
+                   f"{100 * clip['fraction']:.3g} % of the particle volume from the gas; "
+                   f"{cell_advice['clip_advice']}")
             (problems if clip["fraction"] > CLIPPED_VOLUME else warnings).append(
                 msg + (f" (refused above {100 * CLIPPED_VOLUME:g} %)" if clip["fraction"] > CLIPPED_VOLUME else ""))
     vals["cell_over_particle_volume"] = float(V.min() / ((math.pi / 6) * d.max() ** 3))
@@ -370,19 +574,37 @@ def check_coupled_case(case: CoupledCase, mesh, *, eps0: np.ndarray | None = Non
                         f"cell {dx_edge:.3g} m): lower deltaT in system/controlDict (and coupling_interval)")
     elif cfl > GAS_CFL[0]:
         warnings.append(f"gas CFL {cfl:.3g} > {GAS_CFL[0]}")
+    # --- Biot number of the particles in the case's gas stream
+    if thermal is not None and cfg.heat:
+        _biot_check(case, thermal, umax, d, eps0, cells, n, vals, warnings)
     # --- particle Courant number: displacement per coupling step / cell size
-    vp0 = float(np.sqrt((st.velocity[:n] ** 2).sum(1)).max()) if n else 0.0
-    gmag = float(np.linalg.norm(sim.scene.simulation["gravity"]))
     mech = bool(sim.scene.simulation["mechanics"])
-    v_char = max(vp0, umax if mech else 0.0, math.sqrt(gmag * dx_min) if mech else 0.0)
+    speeds, info = _particle_speeds(sim, gas, umax, d, n) if mech else ({}, {})
+    vals.update(info)
+    vals.update(speeds)
+    v_char = max(speeds.values(), default=0.0)
+    if mech:
+        vals["particle_speed_char"] = v_char
     co = v_char * dt_cfd / dx_edge
-    vals["particle_speed_char"] = v_char
     vals["particle_courant"] = co
-    if co > PARTICLE_COURANT[1]:
-        problems.append(f"particle Courant number {co:.3g} > {PARTICLE_COURANT[1]} (speed {v_char:.3g} m/s "
-                        f"x coupling step {dt_cfd:g} s / cell {dx_edge:.3g} m): lower deltaT")
-    elif co > PARTICLE_COURANT[0]:
-        warnings.append(f"particle Courant number {co:.3g} > {PARTICLE_COURANT[0]}")
+    if co > PARTICLE_COURANT[0]:
+        source = max(speeds, key=speeds.get)
+        why = {"particle_speed_initial": "the largest initial particle speed",
+               "particle_settling_speed": "the fall of the loose packing as it settles, sqrt(2 g H_fall)",
+               "gas_excess_speed": "the gas above minimum fluidization, U - U_mf"}[source]
+        k_pass = int(math.floor(PARTICLE_COURANT[0] * dx_edge / (v_char * dt_dem) * (1 + 1e-9)))
+        fix = (f"set deltaT = {k_pass * dt_dem:.6g} s in system/controlDict and coupling_interval = {k_pass} in "
+               f"coupling.toml (Courant {v_char * k_pass * dt_dem / dx_edge:.2g})" if k_pass >= 1 else
+               f"even one DEM step ({dt_dem:g} s) moves a particle {v_char * dt_dem / dx_edge:.2g} cells: lower the "
+               f"DEM time_step below {PARTICLE_COURANT[0] * dx_edge / v_char:.3g} s, with deltaT = coupling_interval x "
+               f"time_step, or use coarser cells")
+        msg = (f"particle Courant number {co:.3g} > {{limit}}: particles move up to {v_char:.3g} m/s ({why}) x "
+               f"coupling step {dt_cfd:g} s = {co:.2g} of the smallest cell edge {dx_edge:.3g} m per coupling step, "
+               f"so the gas sees a void fraction and drag that lag the particles; {fix}")
+        if co > PARTICLE_COURANT[1]:
+            problems.append(msg.format(limit=PARTICLE_COURANT[1]))
+        else:
+            warnings.append(msg.format(limit=PARTICLE_COURANT[0]))
     # --- coupling step / particle relaxation time (explicit drag over one coupling step)
     if mech:
         mass = st.mass[:n]
@@ -411,10 +633,12 @@ def check_coupled_case(case: CoupledCase, mesh, *, eps0: np.ndarray | None = Non
     except SceneError as e:
         problems.append(f"{case.dem_file}: {str(e).split(': ', 1)[-1]}")
         rep = {}
-    for k in ("dt_over_rayleigh", "dt_over_hertz", "thermal_critical_step", "biot_max"):
+    for k in ("dt_over_rayleigh", "dt_over_hertz", "thermal_critical_step"):
         if k in rep:
             vals[k] = rep[k]
-    warnings += rep.get("warnings", [])
+    # the DEM's own Biot number is at the gas velocity it has before the first exchange (none:
+    # the stagnant Nu); the coupled one above, at the gas speed of 0/U, replaces it
+    warnings += [w for w in rep.get("warnings", []) if not w.startswith("Biot number")]
     if cfg.gas_processes > (os.cpu_count() or 1):
         warnings.append(f"gas_processes {cfg.gas_processes} > {os.cpu_count()} cores (oversubscribed)")
     return dict(values=vals, warnings=warnings, problems=problems)

@@ -52,7 +52,7 @@ __all__ = [
     "di_felice_1994", "gidaspow_1994", "huilin_gidaspow_2003", "beetstra_2007",
     "ergun_beta", "wen_yu_beta",
     "drag_coefficient", "drag_coefficients", "drag_model_id", "DRAG_MODELS",
-    "pressure_gradient_force", "buoyancy_force",
+    "pressure_gradient_force", "buoyancy_force", "wen_yu_1966_umf",
 ]
 
 _PI = math.pi
@@ -293,3 +293,20 @@ def buoyancy_force(d, rho_f, g):
     for i in range(3):
         out[i] = -rho_f * vp * g[i]
     return out
+
+
+@njit(cache=True, error_model="numpy")
+def wen_yu_1966_umf(d, rho_p, rho_f, mu_f, g):
+    """Minimum fluidization velocity [m/s] (superficial) of spheres of diameter d.
+
+    Wen, C.Y. & Yu, Y.H. (1966), A generalized method for predicting the minimum
+    fluidization velocity, AIChE J. 12(3) 610-612: Ergun's pressure drop equal to the bed
+    weight, with 1/(phi eps_mf^3) ~ 14 and (1 - eps_mf)/(phi^2 eps_mf^3) ~ 11, gives
+    Re_mf = sqrt(33.7^2 + 0.0408 Ar) - 33.7, Ar = rho_f (rho_p - rho_f) g d^3 / mu_f^2,
+    U_mf = Re_mf mu_f / (rho_f d). Zero or negative buoyant weight (rho_p <= rho_f or g = 0):
+    0 (nothing holds the particles down)."""
+    ar = rho_f * (rho_p - rho_f) * g * d ** 3 / (mu_f * mu_f)
+    if ar <= 0.0:
+        return 0.0
+    re_mf = math.sqrt(33.7 * 33.7 + 0.0408 * ar) - 33.7
+    return re_mf * mu_f / (rho_f * d)

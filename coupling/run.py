@@ -772,13 +772,15 @@ class RunWatch:
         if c["cells"]:
             if c["fraction"] >= self.CLIPPED and "clip" not in self._said:
                 self._said.add("clip")
+                from .case import wider_void_fraction_models
+                alt = wider_void_fraction_models(self.cfg.void_fraction)
                 self.log(f"coupling: WARNING: at t = {t:.9g} s the void fraction of {c['cells']} cell(s) is below "
                          f"coupling.eps_min = {self.cfg.eps_min:g} (lowest 1 - V_solid/V_cell = "
                          f"{c['eps_raw_min']:.3g} in {self._at(c['cell'])}) and is clipped: "
                          f"{100 * c['fraction']:.3g} % of the particle volume is not seen by the gas (drag and "
-                         f"pressure drop too low there). Use cells of at least 3 particle diameters, void_fraction "
-                         f"= 'divided' or 'smoothed' (now '{self.cfg.void_fraction}'), or a lower eps_min for a "
-                         f"really dense bed")
+                         f"pressure drop too low there). Use cells of at least 3 particle diameters, "
+                         + (f"void_fraction = {alt} (now '{self.cfg.void_fraction}'), " if alt else "")
+                         + "or a lower eps_min for a really dense bed")
             if self.clip is None:
                 self.clip = dict(cells=0, fraction=0.0, eps_raw_min=1.0, first_time=t)
             self.clip["cells"] = max(self.clip["cells"], c["cells"])

@@ -40,7 +40,8 @@ def cmd_check(args):
     if "radiation_step_limit" in rep:
         p(f"euler radiation limit C / (4 eps sigma A T_max^3): {rep['radiation_step_limit']:.4g} s")
     if "biot_max" in rep:
-        p(f"largest Biot number h R / k_p: {rep['biot_max']:.3g} (lumped temperature valid below 0.1)")
+        p(f"largest Biot number h R / (3 k_p) (length V/A = R/3): {rep['biot_max']:.3g} (lumped temperature "
+          f"valid below 0.1)")
     for w in rep.get("warnings", []):
         p(f"warning: {w}")
     p(f"memory: {rep['memory_bytes'] / 2**20:.2f} MiB ({rep['memory_per_particle']:.0f} B per particle)")

@@ -156,8 +156,11 @@ RAYLEIGH_FRACTION = 0.3
 HERTZ_FRACTION = 0.1
 
 
-def load(path):
-    """Read and validate a scene file; returns a :class:`Scene`."""
+def load(path, end_time=None):
+    """Read and validate a scene file; returns a :class:`Scene`. ``end_time``: the end time
+    a caller supplies when the file has no ``simulation.end_time`` (a coupled case takes
+    its end time from system/controlDict); without it the key is required. The scene
+    records whether the file gave one (``Scene.end_time_in_file``)."""
     path = os.fspath(path)
     if os.path.isdir(path):
         raise SceneError(path, "", "is a folder; give the scene file (.toml)")
@@ -178,7 +181,7 @@ def load(path):
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise SceneError(path, "", f"not valid TOML: {exc}") from None
-    return parse(data, path, base_dir=os.path.dirname(os.path.abspath(path)))
+    return parse(data, path, base_dir=os.path.dirname(os.path.abspath(path)), end_time=end_time)
 
 
 class Scene:
@@ -262,14 +265,18 @@ def _finite_rows(v, arr, key):
                              "check the units")
 
 
-def parse(data, file="<dict>", base_dir="."):
+def parse(data, file="<dict>", base_dir=".", end_time=None):
+    """Validate a scene given as a dict (see :func:`load` for ``end_time``)."""
     v = _V(file)
     v.table(data, "", TOP_KEYS, required=("simulation", "domain", "materials", "particles"))
     # --- simulation
-    s = v.table(data["simulation"], "simulation", SIM_KEYS, required=("time_step", "end_time"))
+    need_end = end_time is None
+    s = v.table(data["simulation"], "simulation", SIM_KEYS,
+                required=("time_step", "end_time") if need_end else ("time_step",))
     sim = dict(
         time_step=v.num(s, "time_step", "simulation", lo=0, lo_open=True, required=True),
-        end_time=v.num(s, "end_time", "simulation", lo=0, required=True),
+        end_time=v.num(s, "end_time", "simulation", lo=0, required=need_end,
+                       default=None if need_end else float(end_time)),
         gravity=v.vec(s, "gravity", "simulation", default=np.array([0.0, 0.0, -9.81])),
         seed=v.integer(s, "seed", "simulation", default=0, lo=0),
         force=v.boolean(s, "force", "simulation"),
@@ -566,7 +573,7 @@ def parse(data, file="<dict>", base_dir="."):
                parallel=parallel, id=ids, position=x, radius=r, velocity=np.ascontiguousarray(np.concatenate(P["v"])),
                angular_velocity=np.ascontiguousarray(np.concatenate(P["w"])),
                material=np.concatenate(P["mat"]), group=group,
-               temperature=P["T"], raw=data, thermal=None)
+               temperature=P["T"], raw=data, thermal=None, end_time_in_file="end_time" in s)
     _check_overlaps(v, sc)
     _thermal_hook(v, sc, data)
     return sc

@@ -92,8 +92,10 @@ class Simulation:
 
     # ------------------------------------------------------------------ construction
     @classmethod
-    def from_file(cls, path):
-        return cls(scene_mod.load(path))
+    def from_file(cls, path, end_time=None):
+        """Scene file -> Simulation; ``end_time`` is used when the file has no
+        simulation.end_time (:func:`dem.scene.load`)."""
+        return cls(scene_mod.load(path, end_time=end_time))
 
     @classmethod
     def from_dict(cls, data, base_dir=".", name="<dict>"):

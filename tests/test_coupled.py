@@ -92,8 +92,7 @@ def test_ergun_pressure_drop(tmp_path, solver, u):
     """Fixed lattice bed (eps = 1 - pi/6), Gidaspow (Ergun) drag: pressure drop vs Ergun."""
     case = copy_case("ergun", tmp_path / "case")
     set_inlet_velocity(case, u)
-    set_toml(case / "coupling.toml", end_time=0.01)
-    s = run_case(case, tmp_path / "out", solver=solver, quiet=True)
+    s = run_case(case, tmp_path / "out", end_time=0.01, solver=solver, quiet=True)
     out = Path(s["out"])
     d = read_csv(out / "coupling.csv")
     eps = 1 - math.pi / 6
@@ -111,7 +110,7 @@ def test_ergun_pressure_drop(tmp_path, solver, u):
 # --------------------------------------------------------------------------- transports
 
 def test_file_and_socket_bit_identical(tmp_path, solver):
-    """Fluidized bed, 20 coupling steps (200 DEM steps, heat on): same particle temperatures."""
+    """Fluidized bed, 4 coupling steps (200 DEM steps, heat on): same particle temperatures."""
     res = {}
     for tr in ("file", "socket"):
         s = run_case(CASES / "fluidized_bed_heating", tmp_path / tr, transport=tr, end_time=0.002,
@@ -129,7 +128,6 @@ def test_file_and_socket_bit_identical(tmp_path, solver):
 CLOSED_BOX_DEM = """
 [simulation]
 time_step = 1e-4
-end_time = 1.0
 mechanics = false
 output_interval = 0.01
 
@@ -175,7 +173,8 @@ def make_closed_box(dest: Path) -> Path:
     (case / "dem.toml").write_text(CLOSED_BOX_DEM)
     (case / "coupling.toml").write_text(
         '[coupling]\ntransport = "socket"\ncoupling_interval = 1\ndrag = "gidaspow_1994"\n'
-        'void_fraction = "centre"\nheat = true\nend_time = 0.05\noutput_interval = 0.005\n')
+        'void_fraction = "centre"\nheat = true\noutput_interval = 0.005\n')
+    fc.set_entries(case / "system" / "controlDict", {"endTime": "0.05"})   # the case's one end time
     # walls everywhere: gas at rest, no inlet/outlet
     u = (case / "0" / "U").read_text()
     u = re.sub(r"internalField\s+uniform \([^)]*\);", "internalField   uniform (0 0 0);", u)
@@ -280,7 +279,7 @@ def test_packed_bed_heating_schumann(tmp_path, solver):
 
     The case meets Schumann's assumptions: plug flow (one lateral cell, slip walls,
     uniform lattice), no conduction in the bed (thermal.direct = none), lumped particles
-    (the DEM; Biot 0.03), negligible axial gas conduction (Peclet u_i L / alpha = 2,900).
+    (the DEM; Biot h (V/A) / k_p = 0.035), negligible axial gas conduction (Peclet u_i L / alpha = 2,900).
     Measured (dt = 1 ms, 4 mm cells = 0.28 in Y): max |error| 0.27 % of Tin - T0 in the
     interior layers (O(dt / tau_gas) lag of the staggered exchange, tau_gas = 14 ms: halving
     dt lowers it; second-order upwind in Y), 0.76 % in the last bed layer (second-order
@@ -363,7 +362,7 @@ def test_solver_killed_checkpoint_restart(tmp_path, solver):
     assert "checkpoint" in err
     # the checkpoint is usable: a new Simulation continues from it
     import dem
-    sim = dem.Simulation.from_file(str(out / "dem.toml"))
+    sim = dem.Simulation.from_file(str(out / "dem.toml"), end_time=3.0)   # the scene takes controlDict's
     sim.load_checkpoint(str(out / "checkpoint.npz"))
     assert sim.time > 1.2
     T = sim.state.temperature.copy()
@@ -433,7 +432,7 @@ def test_bad_cases_refused(tmp_path, capsys):
 def test_two_dem_ranks_match_serial(tmp_path, solver):
     """mpirun -np 2 coupling run: the DEM split over two ranks (each adds its particles' void
     fraction, drag and heat terms; rank 0 talks to thermoDemFoam) gives the serial result
-    to round-off after 20 coupling steps (200 DEM steps) of the heated fluidized bed."""
+    to round-off after 4 coupling steps (200 DEM steps) of the heated fluidized bed."""
     if shutil.which("mpirun") is None:
         pytest.skip("needs Open MPI")
     s = run_case(CASES / "fluidized_bed_heating", tmp_path / "one", end_time=0.002, solver=solver, quiet=True)

@@ -234,15 +234,19 @@ def test_coupled_check_cell_size_and_clipping(tmp_path, solver, capsys):
     assert "WARNING: smallest cell 0.001 m is 0.50 particle diameters: particles larger than the cells" in out
     assert re.search(r"PROBLEM: initial void fraction below coupling.eps_min = 0.3 in 243 cell\(s\) \(lowest "
                      r"1 - V_solid/V_cell = -3.19\): clipping hides [0-9.]+ % of the particle volume from the gas; "
-                     r"use cells of at least 3 particle diameters or void_fraction = 'divided' or 'smoothed' \(now "
-                     r"'centre'\) \(refused above 5 %\)", out), out
+                     r"use void_fraction = 'divided' or 'smoothed' \(.*\) in coupling.toml \(now 'centre'\) or cells "
+                     r"of at least 0.006 m \(system/blockMeshDict\) \(refused above 5 %\)", out), out
     assert "verdict: refused (fix the problems or set coupling.force = true)" in out
     # 4 mm cells, divided: a warning only
     c = _case(tmp_path, "mid", nxy=5, nz=5, void_fraction="divided")
     rc = coupling_main(["check", str(c)])
     out = capsys.readouterr().out
     assert rc == 0, out
-    assert "WARNING: smallest cell 0.004 m is 2.00 particle diameters (< 3): void fraction and drag" in out
+    w = [ln for ln in out.splitlines() if "WARNING: void fraction averaged over 0.004 m = 2.00 particle diameters "
+         "(< 3; void_fraction = 'divided' averages over the cells; smallest cell 0.004 m)" in ln]
+    assert len(w) == 1 and "void fraction and drag of the unresolved model are inaccurate" in w[0], out
+    assert "use cells of at least 0.006 m with 'divided'" in w[0], w[0]    # 3 diameters
+    assert "void_fraction = 'divided' in" not in w[0]                    # never the model in use
     assert "larger than the cells" not in out and "PROBLEM" not in out
 
 
@@ -254,8 +258,10 @@ def test_coupled_run_refused_by_particle_courant(tmp_path, solver):
         run_case(c, tmp_path / "out", quiet=True)
     msg = str(ei.value)
     assert "coupling.toml: case refused by the checks" in msg
-    assert re.search(r"particle Courant number 5 > 0.5 \(speed 20 m/s x coupling step 0.001 s / cell 0.004 m\): "
-                     r"lower deltaT", msg), msg
+    assert re.search(r"particle Courant number 5 > 0.5: particles move up to 20 m/s \(the largest initial particle "
+                     r"speed\) x coupling step 0.001 s = 5 of the smallest cell edge 0.004 m per coupling step", msg), msg
+    # the fix: 0.1 x 4 mm / (20 m/s x 1e-5 s) = 2 DEM steps per coupling step
+    assert "set deltaT = 2e-05 s in system/controlDict and coupling_interval = 2 in coupling.toml" in msg, msg
     assert not (tmp_path / "out" / "log.thermoDemFoam").exists()      # the solver never started
 
 

@@ -27,7 +27,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 CASE = ROOT / "openfoam_cases" / "fluidized_bed_heating"
-DT = 1e-3                  # CFD step = coupling step of the case (system/controlDict deltaT)
+DT = 5e-4                  # CFD step = coupling step of the case (system/controlDict deltaT)
 N = 10                     # coupling steps before the restart; the runs have 2 N
 END = 2 * N * DT
 TOL = 1e-10                # relative

@@ -109,6 +109,22 @@ def convection_conductance(R, k_f, Nu):
     return 2.0 * math.pi * R * k_f * Nu
 
 
+# Lumped-capacitance limit Bi = h L_c / k_p < 0.1 with L_c = V/A (Incropera & DeWitt,
+# Fundamentals of Heat and Mass Transfer, 6th ed., section 5.1, eq. 5.10). For a sphere in the
+# quasi-steady (parabolic) profile the mean temperature differs from the surface one by
+# (3/5) Bi (T_s - T_gas): 6 % of the surface-to-gas difference at the limit.
+BIOT_LUMPED = 0.1
+
+
+@numba.njit(cache=True, error_model="numpy")
+def biot_lumped(h, R, k_p):
+    """Biot number of a sphere with the lumped-capacitance length L_c = V/A = R/3
+    (Incropera & DeWitt, Fundamentals of Heat and Mass Transfer, 6th ed., eq. 5.10):
+    Bi = h L_c / k_p = h R / (3 k_p) [-]; the lumped (uniform) temperature holds for Bi < 0.1.
+    Scalars or arrays."""
+    return h * R / (3.0 * k_p)
+
+
 # ----------------------------------------------------------------- records
 # (the switch nusselt_id_opt is written by hand: records give names, ids and inputs)
 _CONV = ("conductivity", "prandtl", "density", "viscosity", "temperature", "velocity", "porosity")

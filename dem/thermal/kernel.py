@@ -8,6 +8,7 @@ import math
 import numpy as np
 
 from . import registry as R
+from .convection import BIOT_LUMPED
 from .heat import (NTI, NTF, NTOT, TI_HEAT, TI_DIRECT, TI_CR, TI_CORR, TI_INDIRECT, TI_CONV, TI_RAD,
                    TI_FRIC, TI_PART, TI_INTEG, TI_AGE, TI_LOCALPOR, TI_FUSED, TF_DFACTOR, TF_RADRANGE, TF_CT,
                    TF_CN, TF_CHI, WT_COND, WT_T, WT_Q, WT_NTAB, E_DIRECT, E_INDIRECT, E_CONV, E_RAD,
@@ -235,22 +236,37 @@ class ThermalModel:
                                 f"the temperature change (measured for radiation alone, "
                                 f"benchmarks/radiation_step_error.py); lower thermal.time_step for accuracy")
         if self.thi[TI_CONV] >= 0:
-            from .convection import nusselt_gas
             g = self.gas
-            kp = self.tmat[st.material, R.K_COND]
-            ur = np.linalg.norm(st.uf - st.velocity, axis=1)
-            bi = 0.0
-            for i in range(st.n):
-                re = st.por[i] * g[R.RHO_F] * ur[i] * 2 * st.radius[i] / g[R.MU_F]
-                nu = nusselt_gas(int(self.thi[TI_CONV]), re, g[R.PR], st.por[i], g)
-                h = nu * g[R.KF] / (2 * st.radius[i])
-                bi = max(bi, h * st.radius[i] / kp[i])
+            n = st.n
+            ur = np.linalg.norm(st.uf[:n] - st.velocity[:n], axis=1)
+            re = st.por[:n] * g[R.RHO_F] * ur * 2 * st.radius[:n] / g[R.MU_F]
+            _, _, bi = self.convection_biot(re, st.por[:n])
+            bi = float(bi.max()) if bi.size else 0.0
             rep["biot_max"] = bi
-            if bi > 0.1:
-                warnings.append(f"Biot number {bi:.3g} > 0.1: the lumped (uniform) particle temperature "
-                                f"is not accurate")
+            if bi > BIOT_LUMPED:
+                warnings.append(f"Biot number h (V/A) / k_p = h R / (3 k_p) = {bi:.3g} > {BIOT_LUMPED:g}: the "
+                                f"lumped (uniform) particle temperature ignores the temperature gradients inside "
+                                f"the particles; use a higher thermal_conductivity only if the material has it, "
+                                f"or smaller particles")
         rep["warnings"] = warnings
         return rep
+
+    def convection_biot(self, re, por):
+        """Nusselt number, heat transfer coefficient h = Nu k_f / d [W/(m2 K)] and Biot number
+        Bi = h L_c / k_p with the lumped-capacitance length L_c = V/A = R/3 of each particle,
+        for the particle Reynolds numbers ``re`` and void fractions ``por`` (arrays over the
+        first len(re) particles), with the selected convection correlation and the gas table (the compiled
+        function the heat step uses). A check, not a step: a Python loop is fine here."""
+        from .convection import biot_lumped, nusselt_gas
+        st, g = self.state, self.gas
+        corr = int(self.thi[TI_CONV])
+        re = np.asarray(re, float)
+        por = np.asarray(por, float)
+        n = re.shape[0]
+        nu = np.array([nusselt_gas(corr, float(re[i]), g[R.PR], float(por[i]), g) for i in range(n)])
+        h = nu * g[R.KF] / (2 * st.radius[:n])
+        kp = self.tmat[st.material[:n], R.K_COND]
+        return nu, h, biot_lumped(h, st.radius[:n], kp)
 
     def models_report(self):
         """`dem check`'s runs/skipped lines: one per mechanism of registry.MECHANISMS that the step
