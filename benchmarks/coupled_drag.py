@@ -113,7 +113,7 @@ def terminal_velocity(d, rho_p, eps=1.0, drag="di_felice_1994"):
     return 0.5 * (lo + hi)
 
 
-def single_particle(dest: Path, d: float, steps_per_tau: float, n_steps: int, dt_dem: float = 1e-6,
+def single_particle(dest: Path, d: float, steps_per_tau: float, n_steps: int, dt_dem: float = 5e-7,
                     cell: float = 0.01) -> tuple[Path, float, float]:
     """One bead of diameter d (2500 kg/m3) falling from rest in the still gas of a column of one
     cell per layer (cell x cell x 3 cells, slip sides: the gas of a layer cannot move

@@ -73,6 +73,12 @@ def test_single_particle_terminal_velocity_at_ten_relaxation_times(tmp_path, sol
     # continuity with the closed inlet), sideways not at all
     assert -v[2] == pytest.approx(vt, rel=0.005), (v, vt)
     assert math.hypot(v[0], v[1]) < 1e-6 * vt
-    # and it got there monotonically, without overshoot (v_max per coupling step)
+    # the way there: over the first coupling step (10 relaxation times) the bead reaches the
+    # terminal velocity of the drag coefficient of that frame, taken at zero slip (Di Felice's
+    # drag grows with sqrt(Re): 1.9 % above v_t here); from the next frame on it is within 0.5 %
+    from coupling.drag import drag_coefficient, drag_model_id
+    b0 = drag_coefficient(drag_model_id("di_felice_1994"), d, 1.0, CD.RHO_G, CD.RHO_G * CD.NU_G, 0.0)
+    w = (CD.RHO_P - CD.RHO_G) * math.pi / 6 * d ** 3 * 9.81
     vm = data["v_max"]
-    assert np.all(np.diff(vm) >= -1e-12 * vt) and vm.max() <= vt * 1.005
+    assert vm[1] == pytest.approx(w / b0, rel=0.005), (vm[1], w / b0, vt)
+    assert np.all(np.abs(vm[2:] / vt - 1) < 0.005), vm / vt
