@@ -101,6 +101,7 @@ class CouplingInterface:
     gravity: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, -9.81]))
     n_satellites: int = 29
     heat: bool = True
+    drag_integration: str = "implicit_bed"   # | implicit_particle | explicit (docs/models.md)
     timer: PhaseTimer = field(default_factory=PhaseTimer)
 
     @classmethod
@@ -112,16 +113,18 @@ class CouplingInterface:
                    interpolation=cfg.interpolation, model_type=case.model_type, eps_min=cfg.eps_min,
                    smoothing_time=cfg.smoothing_time,
                    gravity=np.asarray(case.sim.scene.simulation["gravity"], float),
-                   n_satellites=cfg.n_satellites, heat=cfg.heat)
+                   n_satellites=cfg.n_satellites, heat=cfg.heat, drag_integration=cfg.drag_integration)
 
     def __post_init__(self):
         self.drag_id = drag_model_id(self.drag)
+        self.drag_mode = DRAG_INTEGRATION[self.drag_integration]
         if self.model_type not in ("A", "B"):
             raise ValueError(f"modelType must be A or B, got {self.model_type!r}")
         self.V = self.mesh.cell_volumes
         self.hint = None
         self.eps_sent = None
         self.ksl_sent = None
+        self.us_sent = None           # Us of the last frame: the particle velocity the gas responded to
         self.heat = bool(self.heat) and self.sim.thermal is not None
         self.last = {}
         self.n_lost = 0
@@ -200,10 +203,11 @@ class CouplingInterface:
         them). (The cell hints need not be kept: they only speed up the search.)"""
         nc = self.V.shape[0]
         d = dict(eps_sent=np.zeros(0) if self.eps_sent is None else np.asarray(self.eps_sent, float),
-                 ksl_sent=np.zeros(0) if self.ksl_sent is None else np.asarray(self.ksl_sent, float))
-        for k in ("eps_sent", "ksl_sent"):
-            if d[k].size not in (0, nc):
-                raise ValueError(f"{k} has {d[k].size} values, the mesh {nc} cells")
+                 ksl_sent=np.zeros(0) if self.ksl_sent is None else np.asarray(self.ksl_sent, float),
+                 us_sent=np.zeros((0, 3)) if self.us_sent is None else np.asarray(self.us_sent, float))
+        for k in ("eps_sent", "ksl_sent", "us_sent"):
+            if d[k].shape[0] not in (0, nc):
+                raise ValueError(f"{k} has {d[k].shape[0]} rows, the mesh {nc} cells")
         return d
 
     def restore_state(self, d: dict) -> None:
@@ -211,12 +215,12 @@ class CouplingInterface:
         ``prepare`` relaxes from exactly the eps and Ksl the gas last received. Raises
         ValueError naming the array that does not fit this mesh / these particles."""
         nc = self.V.shape[0]
-        for k in ("eps_sent", "ksl_sent"):
-            a = np.ascontiguousarray(d[k], dtype=np.float64)
+        for k, shape in (("eps_sent", (nc,)), ("ksl_sent", (nc,)), ("us_sent", (nc, 3))):
+            a = np.ascontiguousarray(d.get(k, np.zeros(0)), dtype=np.float64)
             if a.size == 0:
                 setattr(self, k, None)
                 continue
-            if a.shape != (nc,) or not np.all(np.isfinite(a)):
+            if a.shape != shape or not np.all(np.isfinite(a)):
                 raise ValueError(f"{k} has shape {a.shape}, the mesh {nc} cells (or holds non-finite values)")
             setattr(self, k, a.copy())
 
@@ -270,16 +274,22 @@ class CouplingInterface:
                 tg[lost] = np.nan
 
         with self.timer("exchange_terms"):
-            force, beta = _particle_forces(self.drag_id, self.model_type == "B", rad, vel, uf, gradp, eps_p,
-                                           self.gas.rho, self.gas.mu, self.gravity, cells)
+            # the particle velocity the gas of this frame responded to: Us of the last frame at the
+            # particle (its own velocity at the first frame)
+            up = vel if self.us_sent is None else _gather_vector(pw.cells, pw.weights, self.us_sent, vel)
+            force, beta, bimp, fexp = _particle_forces(self.drag_id, self.model_type == "B", rad, vel, uf, gradp,
+                                                       eps_p, self.gas.rho, self.gas.mu, self.gravity, cells, up,
+                                                       self.drag_mode)
+            # semi-implicit drag: the DEM takes the fluid force's response to the particle velocity,
+            # -beta_imp (v - v_frame), implicitly in v; it gets beta_imp and the explicit part
             if self.heat:
                 tgas = np.where(lost, st.temperature[:n], tg)
-                sim.set_fluid(force=force, velocity=uf, temperature=tgas, porosity=eps_p)
+                sim.set_fluid(force=fexp, drag=bimp, velocity=uf, temperature=tgas, porosity=eps_p)
                 hA = sim.thermal.convection_h()[:n]
                 hA[lost] = 0.0
                 Tp = st.temperature[:n]
             else:
-                sim.set_fluid(force=force)
+                sim.set_fluid(force=fexp, drag=bimp)
                 hA = np.zeros(n)
                 Tp = np.zeros(n)
             sums = _scatter_sums(pw.cells, pw.weights, beta, vel, hA, Tp, self.V.shape[0])
@@ -288,6 +298,7 @@ class CouplingInterface:
             ksl_raw, us, simp, sexp = _finish_terms(*sums, self.V)
             ksl = self._relax(self.ksl_sent, ksl_raw, dt_cfd)
             self.ksl_sent = ksl
+            self.us_sent = us
         self.last = dict(beta=beta, force=force, hA=hA, eps_p=eps_p, uf=uf, eps_raw=eps_raw,
                          Tg=tg)
         return dict(eps=eps, Ksl=ksl, Us=us, Simp=simp, Sexp=sexp)
@@ -328,13 +339,67 @@ def _gather_cell(scells, sweights, cells, U, gradp, T, eps):
     return uf, gp, tg, ep
 
 
+# how the DEM integrates the drag over a coupling step (coupling.toml drag_integration;
+# docs/models.md, "Semi-implicit drag and the stability of the coupled step")
+DRAG_EXPLICIT, DRAG_IMPLICIT_PARTICLE, DRAG_IMPLICIT_BED = 0, 1, 2
+DRAG_INTEGRATION = {"explicit": DRAG_EXPLICIT, "implicit_particle": DRAG_IMPLICIT_PARTICLE,
+                    "implicit_bed": DRAG_IMPLICIT_BED}
+
+
 @njit(cache=True, error_model="numpy")
-def _particle_forces(model_id, model_b, rad, vel, uf, gradp, eps_p, rho, mu, g, cells):
-    """beta_p (drag law; /eps for model B) and the fluid force on each particle:
-    A: beta (u_f - u_p) - V_p grad p;  B: beta (u_f - u_p) - rho V_p g."""
+def _gather_vector(scells, sweights, field, own):
+    """Stencil-weighted mean of a per-cell vector field at each particle (``own`` where the
+    particle has no cell)."""
+    n = scells.shape[0]
+    out = np.empty((n, 3))
+    for p in range(n):
+        ws = 0.0
+        a0 = a1 = a2 = 0.0
+        for j in range(scells.shape[1]):
+            c = scells[p, j]
+            if c >= 0:
+                w = sweights[p, j]
+                ws += w
+                a0 += w * field[c, 0]
+                a1 += w * field[c, 1]
+                a2 += w * field[c, 2]
+        if ws > 0.0:
+            out[p, 0] = a0 / ws
+            out[p, 1] = a1 / ws
+            out[p, 2] = a2 / ws
+        else:
+            out[p, 0] = own[p, 0]
+            out[p, 1] = own[p, 1]
+            out[p, 2] = own[p, 2]
+    return out
+
+
+@njit(cache=True, error_model="numpy")
+def _particle_forces(model_id, model_b, rad, vel, uf, gradp, eps_p, rho, mu, g, cells, up, mode):
+    """beta_p (drag law; /eps for model B) and the fluid force on each particle at the frame:
+    A: beta (u_f - u_p) - V_p grad p;  B: beta (u_f - u_p) - rho V_p g.
+
+    Returns (force, beta, beta_imp, F_exp) for the drag integration of the DEM
+    (dem.step.half_kick_implicit: v_new = (v + h (F_other + F_exp) / m) / (1 + h beta_imp / m)),
+    by ``mode`` (DRAG_*):
+
+    * implicit_bed: beta_imp = beta_A / eps_p^2 (= beta / eps_p for model B), the rate at which
+      the fluid force on a particle of a bed falls when the bed moves (the gas responding
+      through continuity and its pressure gradient), and F_exp = force + beta u_p +
+      (beta_imp - beta) up, ``up`` the particle velocity the gas of this frame responded to
+      (Us of the previous frame at the particle): the force the DEM integrates is then
+      F_0 - beta_imp v, stable and monotone for any coupling step (docs/models.md,
+      "Semi-implicit drag and the stability of the coupled step");
+    * implicit_particle: beta_imp = beta, F_exp = force + beta u_p (the drag alone implicit);
+    * explicit: beta_imp = 0, F_exp = force (held over the coupling step).
+
+    In every mode the force at the frame's velocities is the frame force, so the terminal
+    velocity of any step is the drag law's."""
     n = rad.shape[0]
     force = np.zeros((n, 3))
+    fexp = np.zeros((n, 3))
     beta = np.zeros(n)
+    bimp = np.zeros(n)
     for p in range(n):
         if cells[p] < 0:
             continue
@@ -347,16 +412,29 @@ def _particle_forces(model_id, model_b, rad, vel, uf, gradp, eps_p, rho, mu, g, 
         if model_b:
             b /= eps_p[p]
         beta[p] = b
+        e = eps_p[p]
+        if mode == DRAG_IMPLICIT_BED:
+            bi = b / e if model_b else b / (e * e)
+        elif mode == DRAG_IMPLICIT_PARTICLE:
+            bi = b
+        else:
+            bi = 0.0
+        bimp[p] = bi
         vp = math.pi / 6.0 * d * d * d
         force[p, 0] = b * r0
         force[p, 1] = b * r1
         force[p, 2] = b * r2
         for i in range(3):
             if model_b:
-                force[p, i] -= rho * vp * g[i]
+                rest = -rho * vp * g[i]
             else:
-                force[p, i] -= vp * gradp[p, i]
-    return force, beta
+                rest = -vp * gradp[p, i]
+            force[p, i] += rest
+            if mode == DRAG_IMPLICIT_BED:
+                fexp[p, i] = force[p, i] + b * vel[p, i] + (bi - b) * up[p, i]
+            else:
+                fexp[p, i] = force[p, i] + bi * vel[p, i]
+    return force, beta, bimp, fexp
 
 
 @njit(cache=True, error_model="numpy")

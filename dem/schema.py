@@ -86,7 +86,11 @@ FIELDS = (
     _f("x_build", "particle", F8, (3,), checkpoint="state_x_build",
        doc="position at the last neighbour build (rebuild test)"),
     _f("external_force", "particle", F8, (3,), when="fluid", doc="fluid force of a coupled run (N), "
-       "set by the coupling before each interval (not checkpointed: the coupling state is)"),
+       "set by the coupling before each interval (not checkpointed: the coupling state is); with the "
+       "drag coefficient below, the explicit part only: beta u_f + pressure-gradient / buoyancy force"),
+    _f("drag_beta", "particle", F8, when="fluid", doc="beta_p (kg/s) of the coupled run's drag "
+       "beta_p (u_f - v), taken implicitly in the particle velocity by each half kick (set by the coupling "
+       "before each interval with external_force; not checkpointed: the coupling state is)"),
     # ---------------------------------------------------------------- particles (heat)
     _f("temperature", "particle", F8, when="heat", ghost=True, forward="temperature",
        checkpoint="state_temperature", output="temperature", doc="K"),

@@ -526,11 +526,14 @@ class Simulation:
         if self.thermal is not None and self.thermal.voronoi and self.scene.simulation["mechanics"]:
             self.thermal.update_porosity(self.time)
 
-    def set_fluid(self, force=None, velocity=None, temperature=None, porosity=None):
+    def set_fluid(self, force=None, velocity=None, temperature=None, porosity=None, drag=None):
         """Fluid data at each owned particle (rows of ``state``) for the next steps of a
-        coupled run: force (N, drag + pressure gradient + buoyancy, added every step),
-        gas velocity (m/s) and temperature (K) for convection, void fraction (replaces the
-        locally measured porosity in the heat models)."""
+        coupled run: force (N, added every step), gas velocity (m/s) and temperature (K) for
+        convection, void fraction (replaces the locally measured porosity in the heat models).
+        ``drag`` (kg/s, optional): the drag coefficient beta_p of a drag beta_p (u_f - v) that
+        the kicks take implicitly in the particle velocity v (dem.step.half_kick_implicit);
+        ``force`` then holds the rest, beta_p u_f + pressure gradient / buoyancy. Without it
+        ``force`` is the whole fluid force, held over the interval."""
         st = self.state
         k = st.n_owned
         if force is not None:
@@ -538,6 +541,8 @@ class Simulation:
                 st.enable(fluid=True)
             st.external_force[:k] = force
             st.external_force[k:] = 0.0
+            st.drag_beta[:k] = 0.0 if drag is None else drag
+            st.drag_beta[k:] = 0.0
         th = self.thermal
         if th is None:
             return

@@ -502,20 +502,46 @@ def build_wall_list(x, r, n, wf, wi, nwalls, reach, t, wnb, wnn, whist, wrhist):
         wnn[i] = c
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def half_kick_implicit(v, f, inv_m, beta, i, h):
+    """Half kick of particle i with its fluid drag taken implicitly (semi-implicit drag of a
+    coupled run): the drag beta (u_f - v) is evaluated at the new velocity,
+
+        v_new = (v + h (F + beta u_f) / m) / (1 + h beta / m),
+
+    where ``f`` holds F + beta u_f (contacts, gravity, the explicit part of the fluid force)
+    and beta, u_f come from the last gas frame. Unconditionally stable for the drag (the
+    factor 1 / (1 + h beta / m) is in (0, 1] for any step) and exact at the terminal velocity
+    v = u_f + F / beta for any step; to first order in h beta / m the same as the explicit kick.
+    (Semi-implicit drag as in e.g. Xiao & Sun 2011, J. Comput. Phys. 230, 7222; docs/models.md.)"""
+    a = h * inv_m[i]
+    den = 1.0 + a * beta[i]
+    for k in range(3):
+        v[i, k] = (v[i, k] + a * f[i, k]) / den
+
+
 @njit(cache=True, error_model="numpy")
-def kick_drift(n, x, v, w, f, tq, inv_m, inv_i, xb, lo, hi, periodic, dt):
+def kick_drift(n, x, v, w, f, tq, inv_m, inv_i, beta, xb, lo, hi, periodic, dt):
     """First half of velocity Verlet for rows [0, n): half kick, drift, periodic wrap.
-    Returns the largest squared displacement since the last neighbour build."""
+    Returns the largest squared displacement since the last neighbour build.
+    ``beta`` (a coupled run; else empty): drag coefficients taken implicitly (:func:`half_kick`)."""
     half = 0.5 * dt
     L0 = hi[0] - lo[0]
     L1 = hi[1] - lo[1]
     L2 = hi[2] - lo[2]
     maxd2 = 0.0
+    drag = beta.shape[0] >= n
     for i in range(n):
-        for k in range(3):
-            v[i, k] += half * f[i, k] * inv_m[i]
-            w[i, k] += half * tq[i, k] * inv_i[i]
-            x[i, k] += dt * v[i, k]
+        if drag:
+            half_kick_implicit(v, f, inv_m, beta, i, half)
+            for k in range(3):
+                w[i, k] += half * tq[i, k] * inv_i[i]
+                x[i, k] += dt * v[i, k]
+        else:
+            for k in range(3):
+                v[i, k] += half * f[i, k] * inv_m[i]
+                w[i, k] += half * tq[i, k] * inv_i[i]
+                x[i, k] += dt * v[i, k]
         if periodic[0]:
             x[i, 0] -= L0 * math.floor((x[i, 0] - lo[0]) / L0)
         if periodic[1]:
@@ -538,14 +564,21 @@ def kick_drift(n, x, v, w, f, tq, inv_m, inv_i, xb, lo, hi, periodic, dt):
 
 
 @njit(cache=True, error_model="numpy")
-def kick(n, v, w, f, tq, inv_m, inv_i, dt):
-    """Second half kick for rows [0, n); returns a row with a non-finite velocity, or -1."""
+def kick(n, v, w, f, tq, inv_m, inv_i, beta, dt):
+    """Second half kick for rows [0, n); returns a row with a non-finite velocity, or -1.
+    ``beta`` (a coupled run; else empty): drag coefficients taken implicitly (:func:`half_kick`)."""
     half = 0.5 * dt
     bad = -1
+    drag = beta.shape[0] >= n
     for i in range(n):
-        for k in range(3):
-            v[i, k] += half * f[i, k] * inv_m[i]
-            w[i, k] += half * tq[i, k] * inv_i[i]
+        if drag:
+            half_kick_implicit(v, f, inv_m, beta, i, half)
+            for k in range(3):
+                w[i, k] += half * tq[i, k] * inv_i[i]
+        else:
+            for k in range(3):
+                v[i, k] += half * f[i, k] * inv_m[i]
+                w[i, k] += half * tq[i, k] * inv_i[i]
         if not (math.isfinite(v[i, 0] + v[i, 1] + v[i, 2])
                 and math.isfinite(w[i, 0] + w[i, 1] + w[i, 2])):
             bad = i
@@ -559,7 +592,7 @@ def drift(P, prm, nown, t):
     more than half the skin since the last build, counting the walls' motion)."""
     fp = prm.fp
     maxd2 = kick_drift(nown, P.position, P.velocity, P.angular_velocity, P.force, P.torque, P.inv_mass,
-                       P.inv_inertia, P.x_build, prm.lo, prm.hi, prm.periodic, fp[F_DT])
+                       P.inv_inertia, P.drag_beta, P.x_build, prm.lo, prm.hi, prm.periodic, fp[F_DT])
     return math.sqrt(maxd2) + fp[F_VWALL] * (t - fp[F_TBUILD]) > 0.5 * fp[F_SKIN]
 
 
@@ -641,7 +674,7 @@ def kick_guard(P, prm, nown, maxov, who_i, who_j):
     (status, particle, other, value): NONFINITE (a non-finite velocity), OVERLAP (the largest
     overlap ratio of the force evaluation above simulation.max_overlap_ratio) or OK."""
     bad = kick(nown, P.velocity, P.angular_velocity, P.force, P.torque, P.inv_mass, P.inv_inertia,
-               prm.fp[F_DT])
+               P.drag_beta, prm.fp[F_DT])
     if bad >= 0:
         return NONFINITE, bad, -1, 0.0
     if maxov > prm.fp[F_MAXOV]:

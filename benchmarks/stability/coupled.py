@@ -51,7 +51,9 @@ def write_case(dest: Path, *, L: float, H: float, nxy: int, nz: int, positions, 
                void_fraction: str = "divided", eps_min: float = 0.3, smoothing_time: float = 0.0,
                mechanics: bool = True, force: bool = False, youngs: float = 1e7,
                periodic: bool = True, walls_top: bool = True, max_overlap_ratio: float | None = None,
-               heat: bool = True, diameter: float = D, density: float = 2500.0) -> Path:
+               heat: bool = True, diameter: float = D, density: float = 2500.0, rho_g: float = RHO_G,
+               nu_g: float = NU_G, drag: str = "di_felice_1994", friction: float = 0.3,
+               restitution: float = 0.9, floor: float = 0.0, drag_integration: str | None = None) -> Path:
     """A coupled case: L x L x H box meshed nxy x nxy x nz, hot gas entering at the bottom
     at u_in (superficial), beads of 2 mm at the given positions (300 K)."""
     from dem import outdir   # dest: new, empty or this benchmark's earlier case (replaced), never a user's
@@ -72,6 +74,9 @@ def write_case(dest: Path, *, L: float, H: float, nxy: int, nz: int, positions, 
     _sub(ctl, r"\ndeltaT\s+[^;]+;", f"\ndeltaT          {dt_cfd!r};")
     _sub(ctl, r"\nendTime\s+[^;]+;", f"\nendTime         {end!r};")
     _sub(ctl, r"\nwriteInterval\s+[^;]+;", "\nwriteInterval   100000;")
+    tp = dest / "constant" / "transportProperties"
+    _sub(tp, r"\nnu\s+[^;]+;", f"\nnu              {nu_g!r};")
+    _sub(tp, r"\nrho\s+[^;]+;", f"\nrho             {rho_g!r};")
     u = dest / "0" / "U"
     _sub(u, r"uniform \(0 0 2\.0\)", f"uniform (0 0 {u_in!r})")
     # the DEM column is periodic: the side walls of the gas are slip planes (symmetry)
@@ -87,8 +92,8 @@ def write_case(dest: Path, *, L: float, H: float, nxy: int, nz: int, positions, 
             '[[particles]]\nmaterial = "glass"\nradius = {r!r}\ntemperature = 300.0\npositions = {p}\n'
             'velocities = {v}\n'.format(r=diameter / 2, p=_toml_list(x),
                           v=_toml_list(np.asarray(velocities, float))))
-    walls = ['[[walls]]\ntype = "plane"\nname = "distributor"\npoint = [0.0, 0.0, 0.0]\nnormal = [0.0, 0.0, 1.0]\n'
-             'material = "glass"\n']
+    walls = ['[[walls]]\ntype = "plane"\nname = "distributor"\npoint = [0.0, 0.0, {f!r}]\nnormal = [0.0, 0.0, 1.0]\n'
+             'material = "glass"\n'.format(f=float(floor))]
     if walls_top:
         walls.append(f'[[walls]]\ntype = "plane"\nname = "top"\npoint = [0.0, 0.0, {H!r}]\n'
                      'normal = [0.0, 0.0, -1.0]\nmaterial = "glass"\n')
@@ -118,8 +123,8 @@ name = "glass"
 density = {density!r}
 youngs_modulus = {youngs!r}
 poisson_ratio = 0.25
-restitution = 0.9
-friction = 0.3
+restitution = {restitution!r}
+friction = {friction!r}
 heat_capacity = 840.0
 thermal_conductivity = 1.0
 
@@ -132,8 +137,8 @@ porosity = "global"
 
 [gas]
 conductivity = {K_G!r}
-density = {RHO_G!r}
-viscosity = {RHO_G * NU_G!r}
+density = {rho_g!r}
+viscosity = {rho_g * nu_g!r}
 heat_capacity = {CP_G!r}
 temperature = {T_IN!r}
 
@@ -143,10 +148,11 @@ vtk = false
     (dest / "dem.toml").write_text(dem)
     (dest / "coupling.toml").write_text(
         "[coupling]\ntransport = \"socket\"\n"
-        f"coupling_interval = {interval}\ndrag = \"di_felice_1994\"\nvoid_fraction = \"{void_fraction}\"\n"
+        f"coupling_interval = {interval}\ndrag = \"{drag}\"\nvoid_fraction = \"{void_fraction}\"\n"
         f"interpolation = \"cell\"\neps_min = {eps_min!r}\nsmoothing_time = {smoothing_time!r}\n"
         f"heat = {'true' if heat else 'false'}\ntimeout = 60\nend_time = {end!r}\noutput_interval = {dt_cfd!r}\n"
-        f"force = {'true' if force else 'false'}\n")
+        f"force = {'true' if force else 'false'}\n"
+        + (f"drag_integration = \"{drag_integration}\"\n" if drag_integration else ""))
     return dest
 
 
