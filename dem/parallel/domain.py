@@ -224,18 +224,25 @@ class ParallelDomain:
         """Copy the owners' current values into the ghost rows."""
         from mpi4py import MPI
         st = sim.state
-        want = {"motion": motion, "temperature": temperature, "porosity": porosity, "rate": rate}
-        cols = []
-        for f in S.of("particle"):  # the arrays declared with that forward message (dem.schema)
-            if f.forward and want[f.forward]:
-                a = getattr(st, f.name)
-                if f.forward == "rate":  # cross-rank conductance rates of the exponential heat update
-                    a = a[:, 1]
-                cols.append((a, a.shape[1] if a.ndim == 2 else 1, f.name == "position"))
+        key = (motion, temperature, porosity, rate)
+        b = st.bundles()  # the same object until an array of the state is replaced
+        cache = self.__dict__.get("_cols")
+        if cache is None or cache[0] is not b:
+            cache = self._cols = (b, {})
+        cols = cache[1].get(key)
+        if cols is None:
+            want = {"motion": motion, "temperature": temperature, "porosity": porosity, "rate": rate}
+            cols = []
+            for f in S.of("particle"):  # the arrays declared with that forward message (dem.schema)
+                if f.forward and want[f.forward]:
+                    a = getattr(st, f.name)
+                    if f.forward == "rate":  # cross-rank conductance rates of the exponential heat update
+                        a = a[:, 1]
+                    cols.append((a, a.shape[1] if a.ndim == 2 else 1, f.name == "position"))
+            cache[1][key] = cols
         nf = sum(c[1] for c in cols)
         if nf == 0 or not self.neigh:
             return 0
-        key = (motion, temperature, porosity, rate)
         bufs = self._bufs.get(key)
         if bufs is None:
             bufs = ([np.empty((rows.size, nf)) for _, rows, _ in self.sends],
