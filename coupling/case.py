@@ -668,6 +668,10 @@ def format_report(case: CoupledCase, rep: dict) -> str:
     lines = [f"coupled case {case.dir}",
              f"  transport {case.config.transport}, drag {case.config.drag}, void fraction "
              f"{case.config.void_fraction}, model {case.model_type}, interpolation {case.config.interpolation}"]
+    cfg = case.config
+    if cfg.torque != "none" or cfg.lift != "none" or cfg.virtual_mass:
+        lines.append(f"  fluid torque {cfg.torque}, lift {cfg.lift}, virtual mass "
+                     f"{'on (C_vm 0.5)' if cfg.virtual_mass else 'off'} (docs/models.md)")
     for k, v in rep["values"].items():
         lines.append(f"  {k:28s} {v:.4g}" if isinstance(v, float) else f"  {k:28s} {v}")
     for w in rep["warnings"]:
