@@ -26,6 +26,9 @@ Layout::
     output_interval = 0.01        # s, DEM output (default: dem.toml simulation.output_interval)
     force = false                 # run despite failed checks (reported as problems)
     solver_nice = 0               # nice level of the solver (serial runs; 0 = unchanged)
+    torque = "none"               # none | rotational_drag: fluid torque on the particles (docs/models.md)
+    lift = "none"                 # none | saffman_mei | magnus: lift force
+    virtual_mass = false          # virtual (added) mass force, C_vm = 0.5
 
 One end time per case: ``endTime`` of system/controlDict. ``end_time`` of coupling.toml and
 ``[simulation] end_time`` of dem.toml may be omitted (they take controlDict's) and are refused
@@ -57,6 +60,7 @@ import numpy as np
 
 from . import foam_case as fc
 from .drag import DRAG_MODELS, drag_coefficients, drag_model_id
+from .forces import LIFT_MODELS, TORQUE_MODELS
 from .interface import GasProperties
 from .interpolate import METHODS as INTERP_METHODS
 from .voidfraction import MODELS as VF_MODELS
@@ -99,7 +103,9 @@ class CouplingConfig:
     force: bool = False
     n_satellites: int = 29
     solver_nice: int = 0
-
+    torque: str = "none"
+    lift: str = "none"
+    virtual_mass: bool = False
 
 
 _KEYS = {
@@ -120,6 +126,9 @@ _KEYS = {
     "force": (bool, None),
     "n_satellites": (int, (1, 10000)),
     "solver_nice": (int, (0, 19)),
+    "torque": (str, tuple(TORQUE_MODELS)),
+    "lift": (str, tuple(LIFT_MODELS)),
+    "virtual_mass": (bool, None),
 }
 
 
@@ -659,6 +668,10 @@ def format_report(case: CoupledCase, rep: dict) -> str:
     lines = [f"coupled case {case.dir}",
              f"  transport {case.config.transport}, drag {case.config.drag}, void fraction "
              f"{case.config.void_fraction}, model {case.model_type}, interpolation {case.config.interpolation}"]
+    cfg = case.config
+    if cfg.torque != "none" or cfg.lift != "none" or cfg.virtual_mass:
+        lines.append(f"  fluid torque {cfg.torque}, lift {cfg.lift}, virtual mass "
+                     f"{'on (C_vm 0.5)' if cfg.virtual_mass else 'off'} (docs/models.md)")
     for k, v in rep["values"].items():
         lines.append(f"  {k:28s} {v:.4g}" if isinstance(v, float) else f"  {k:28s} {v}")
     for w in rep["warnings"]:

@@ -38,7 +38,9 @@ from numba import njit
 
 from . import voidfraction as vf
 from .drag import drag_coefficient, drag_model_id
-from .interpolate import interpolate
+from .forces import (C_VM, LIFT_MODELS, TORQUE_MODELS, magnus_oesterle_bui_dinh_1998,
+                     rotational_drag_dennis_1980, saffman_mei_1992)
+from .interpolate import cell_gradient, interpolate
 
 __all__ = ["GasProperties", "CouplingInterface", "PhaseTimer"]
 
@@ -102,6 +104,9 @@ class CouplingInterface:
     n_satellites: int = 29
     heat: bool = True
     drag_integration: str = "implicit_bed"   # | implicit_particle | explicit (docs/models.md)
+    torque: str = "none"              # | rotational_drag (coupling.forces)
+    lift: str = "none"                # | saffman_mei | magnus
+    virtual_mass: bool = False
     timer: PhaseTimer = field(default_factory=PhaseTimer)
 
     @classmethod
@@ -113,11 +118,20 @@ class CouplingInterface:
                    interpolation=cfg.interpolation, model_type=case.model_type, eps_min=cfg.eps_min,
                    smoothing_time=cfg.smoothing_time,
                    gravity=np.asarray(case.sim.scene.simulation["gravity"], float),
-                   n_satellites=cfg.n_satellites, heat=cfg.heat, drag_integration=cfg.drag_integration)
+                   n_satellites=cfg.n_satellites, heat=cfg.heat, drag_integration=cfg.drag_integration,
+                   torque=cfg.torque, lift=cfg.lift, virtual_mass=cfg.virtual_mass)
 
     def __post_init__(self):
         self.drag_id = drag_model_id(self.drag)
         self.drag_mode = DRAG_INTEGRATION[self.drag_integration]
+        if self.torque not in TORQUE_MODELS:
+            raise ValueError(f"torque must be one of {', '.join(TORQUE_MODELS)}, got {self.torque!r}")
+        if self.lift not in LIFT_MODELS:
+            raise ValueError(f"lift must be one of {', '.join(LIFT_MODELS)}, got {self.lift!r}")
+        self.torque_id = TORQUE_MODELS[self.torque]
+        self.lift_id = LIFT_MODELS[self.lift]
+        self.virtual_mass = bool(self.virtual_mass)
+        self.u_prev = None            # gas velocity of the last frame (virtual mass: dU/dt)
         if self.model_type not in ("A", "B"):
             raise ValueError(f"modelType must be A or B, got {self.model_type!r}")
         self.V = self.mesh.cell_volumes
@@ -204,8 +218,9 @@ class CouplingInterface:
         nc = self.V.shape[0]
         d = dict(eps_sent=np.zeros(0) if self.eps_sent is None else np.asarray(self.eps_sent, float),
                  ksl_sent=np.zeros(0) if self.ksl_sent is None else np.asarray(self.ksl_sent, float),
-                 us_sent=np.zeros((0, 3)) if self.us_sent is None else np.asarray(self.us_sent, float))
-        for k in ("eps_sent", "ksl_sent", "us_sent"):
+                 us_sent=np.zeros((0, 3)) if self.us_sent is None else np.asarray(self.us_sent, float),
+                 u_prev=np.zeros((0, 3)) if self.u_prev is None else np.asarray(self.u_prev, float))
+        for k in ("eps_sent", "ksl_sent", "us_sent", "u_prev"):
             if d[k].shape[0] not in (0, nc):
                 raise ValueError(f"{k} has {d[k].shape[0]} rows, the mesh {nc} cells")
         return d
@@ -215,7 +230,7 @@ class CouplingInterface:
         ``prepare`` relaxes from exactly the eps and Ksl the gas last received. Raises
         ValueError naming the array that does not fit this mesh / these particles."""
         nc = self.V.shape[0]
-        for k, shape in (("eps_sent", (nc,)), ("ksl_sent", (nc,)), ("us_sent", (nc, 3))):
+        for k, shape in (("eps_sent", (nc,)), ("ksl_sent", (nc,)), ("us_sent", (nc, 3)), ("u_prev", (nc, 3))):
             a = np.ascontiguousarray(d.get(k, np.zeros(0)), dtype=np.float64)
             if a.size == 0:
                 setattr(self, k, None)
@@ -272,6 +287,15 @@ class CouplingInterface:
                 uf[lost] = 0.0
                 gradp[lost] = 0.0
                 tg[lost] = np.nan
+            extra = self.torque_id != 0 or self.lift_id != 0 or self.virtual_mass
+            if extra:
+                # gas velocity gradient (least squares, coupling.interpolate.cell_gradient):
+                # G[c, i, j] = d u_i / d x_j; vorticity and, for virtual mass, Du/Dt per cell
+                U = np.ascontiguousarray(fluid["U"], dtype=np.float64)
+                G = cell_gradient(self.mesh, U)
+                acc = (_material_derivative(U, G, np.zeros((0, 3)) if self.u_prev is None else self.u_prev, dt_cfd)
+                       if self.virtual_mass else np.zeros((0, 3)))
+                self.u_prev = U.copy()
 
         with self.timer("exchange_terms"):
             # the particle velocity the gas of this frame responded to: Us of the last frame at the
@@ -280,16 +304,26 @@ class CouplingInterface:
             force, beta, bimp, fexp = _particle_forces(self.drag_id, self.model_type == "B", rad, vel, uf, gradp,
                                                        eps_p, self.gas.rho, self.gas.mu, self.gravity, cells, up,
                                                        self.drag_mode)
+            tframe = None
+            if extra:
+                fadd, texp, krot, madd, tframe = _extra_terms(
+                    self.torque_id, self.lift_id, self.virtual_mass, rad, vel, st.angular_velocity[:n], uf, cells,
+                    G, acc, self.gas.rho, self.gas.mu, C_VM)
+                # lift and the Du_f/Dt part of the virtual mass: explicit, held over the interval
+                fexp += fadd
+                force += fadd
+            fl = dict(torque=texp if self.torque_id else None, torque_drag=krot if self.torque_id else None,
+                      added_mass=madd if self.virtual_mass else None) if extra else {}
             # semi-implicit drag: the DEM takes the fluid force's response to the particle velocity,
             # -beta_imp (v - v_frame), implicitly in v; it gets beta_imp and the explicit part
             if self.heat:
                 tgas = np.where(lost, st.temperature[:n], tg)
-                sim.set_fluid(force=fexp, drag=bimp, velocity=uf, temperature=tgas, porosity=eps_p)
+                sim.set_fluid(force=fexp, drag=bimp, velocity=uf, temperature=tgas, porosity=eps_p, **fl)
                 hA = sim.thermal.convection_h()[:n]
                 hA[lost] = 0.0
                 Tp = st.temperature[:n]
             else:
-                sim.set_fluid(force=fexp, drag=bimp)
+                sim.set_fluid(force=fexp, drag=bimp, **fl)
                 hA = np.zeros(n)
                 Tp = np.zeros(n)
             sums = _scatter_sums(pw.cells, pw.weights, beta, vel, hA, Tp, self.V.shape[0])
@@ -300,7 +334,7 @@ class CouplingInterface:
             self.ksl_sent = ksl
             self.us_sent = us
         self.last = dict(beta=beta, force=force, hA=hA, eps_p=eps_p, uf=uf, eps_raw=eps_raw,
-                         Tg=tg)
+                         Tg=tg, torque=tframe)
         return dict(eps=eps, Ksl=ksl, Us=us, Simp=simp, Sexp=sexp)
 
     def advance_dem(self, k: int) -> None:
@@ -435,6 +469,81 @@ def _particle_forces(model_id, model_b, rad, vel, uf, gradp, eps_p, rho, mu, g, 
             else:
                 fexp[p, i] = force[p, i] + bi * vel[p, i]
     return force, beta, bimp, fexp
+
+
+@njit(cache=True, error_model="numpy")
+def _material_derivative(U, G, u_prev, dt):
+    """Du/Dt of the gas per cell: (U - U_prev) / dt + (U . grad) U, i.e. the change of the gas
+    velocity of the cell between the last two frames plus the convective part from the
+    least-squares gradient G[c, i, j] = d u_i / d x_j. At the first frame (no U_prev: a
+    start, or a restart point written before this option was on) the time part is 0."""
+    nc = U.shape[0]
+    a = np.zeros((nc, 3))
+    have = u_prev.shape[0] == nc
+    for c in range(nc):
+        for i in range(3):
+            s = G[c, i, 0] * U[c, 0] + G[c, i, 1] * U[c, 1] + G[c, i, 2] * U[c, 2]
+            if have:
+                s += (U[c, i] - u_prev[c, i]) / dt
+            a[c, i] = s
+    return a
+
+
+@njit(cache=True, error_model="numpy")
+def _extra_terms(torque_id, lift_id, vm, rad, vel, angvel, uf, cells, G, acc, rho, mu, cvm):
+    """Fluid torque, lift and virtual mass of each particle at the frame (coupling.forces),
+    from the gas velocity uf at the particle and the gradient G of its cell (vorticity
+    om = curl u_f, Omega_f = om / 2). Returns
+
+    * fadd: lift + C_vm rho_f V_p Du_f/Dt (added to the explicit force);
+    * texp, krot: the explicit part k_rot Omega_f of the torque and k_rot, for the DEM's
+      implicit angular kick (torque k_rot (Omega_f - omega));
+    * madd: the added mass C_vm rho_f V_p (the DEM's kick takes -madd dv/dt implicitly);
+    * tframe: the torque k_rot (Omega_f - omega_p) at the frame (for the record)."""
+    n = rad.shape[0]
+    fadd = np.zeros((n, 3))
+    texp = np.zeros((n, 3))
+    krot = np.zeros(n)
+    madd = np.zeros(n)
+    tframe = np.zeros((n, 3))
+    for p in range(n):
+        c = cells[p]
+        if c < 0:
+            continue
+        d = 2.0 * rad[p]
+        om0 = G[c, 2, 1] - G[c, 1, 2]
+        om1 = G[c, 0, 2] - G[c, 2, 0]
+        om2 = G[c, 1, 0] - G[c, 0, 1]
+        w0 = 0.5 * om0 - angvel[p, 0]
+        w1 = 0.5 * om1 - angvel[p, 1]
+        w2 = 0.5 * om2 - angvel[p, 2]
+        ur0 = uf[p, 0] - vel[p, 0]
+        ur1 = uf[p, 1] - vel[p, 1]
+        ur2 = uf[p, 2] - vel[p, 2]
+        if torque_id == 1:
+            k = rotational_drag_dennis_1980(d, rho, mu, math.sqrt(w0 * w0 + w1 * w1 + w2 * w2))
+            krot[p] = k
+            texp[p, 0] = 0.5 * k * om0
+            texp[p, 1] = 0.5 * k * om1
+            texp[p, 2] = 0.5 * k * om2
+            tframe[p, 0] = k * w0
+            tframe[p, 1] = k * w1
+            tframe[p, 2] = k * w2
+        if lift_id == 1:
+            f0, f1, f2 = saffman_mei_1992(d, rho, mu, ur0, ur1, ur2, om0, om1, om2)
+        elif lift_id == 2:
+            f0, f1, f2 = magnus_oesterle_bui_dinh_1998(d, rho, mu, ur0, ur1, ur2, w0, w1, w2)
+        else:
+            f0, f1, f2 = 0.0, 0.0, 0.0
+        fadd[p, 0] = f0
+        fadd[p, 1] = f1
+        fadd[p, 2] = f2
+        if vm:
+            ma = cvm * rho * math.pi / 6.0 * d * d * d
+            madd[p] = ma
+            for i in range(3):
+                fadd[p, i] += ma * acc[c, i]
+    return fadd, texp, krot, madd, tframe
 
 
 @njit(cache=True, error_model="numpy")

@@ -347,11 +347,13 @@ def scene_record(sim):
         thermal.update(gas=_plain(th["gas"]), gas_velocity=_plain(th["gas_velocity"]),
                        sources=_plain(th["sources"]))
     simulation = {k: _plain(v) for k, v in sc.simulation.items()}
+    from . import schema as S
     return dict(particles=dict(n=int(sim.n_particles), digests=particle_digests(sc)),
                 step_count=int(sim.step_count), time=float(sim.time), dt=float(sim.dt),
                 reach=float(sim.reach), simulation=simulation, domain=_plain(sc.domain),
                 contact=_plain(sc.contact), materials=mats, walls=walls, thermal=thermal,
-                features={k: bool(v) for k, v in sim.state.features.items() if k != "fluid"},
+                features={k: bool(v) for k, v in sim.state.features.items()
+                          if k not in S.COUPLING_FEATURES},
                 output=_plain(sc.output), parallel=_plain(sc.parallel))
 
 

@@ -91,6 +91,15 @@ FIELDS = (
     _f("drag_beta", "particle", F8, when="fluid", doc="beta_p (kg/s) of the coupled run's drag "
        "beta_p (u_f - v), taken implicitly in the particle velocity by each half kick (set by the coupling "
        "before each interval with external_force; not checkpointed: the coupling state is)"),
+    _f("external_torque", "particle", F8, (3,), when="fluid_torque", doc="fluid torque of a coupled run "
+       "(N m) with rotational drag (coupling.toml torque), set by the coupling before each interval (not "
+       "checkpointed): the explicit part k_rot Omega_f, Omega_f = curl(u_f) / 2 at the particle"),
+    _f("rot_drag", "particle", F8, when="fluid_torque", doc="k_rot (N m s) of the fluid torque "
+       "k_rot (Omega_f - omega), taken implicitly in the angular velocity by each half kick (set with "
+       "external_torque; not checkpointed)"),
+    _f("inv_mass_eff", "particle", F8, when="virtual_mass", doc="1 / (m + C_vm rho_f V_p) (1/kg): the "
+       "translational half kicks of a coupled run with virtual mass (coupling.toml virtual_mass) take the "
+       "-C_vm rho_f V_p dv/dt part implicitly by this effective mass (set by the coupling; not checkpointed)"),
     # ---------------------------------------------------------------- particles (heat)
     _f("temperature", "particle", F8, when="heat", ghost=True, forward="temperature",
        checkpoint="state_temperature", output="temperature", doc="K"),
@@ -168,8 +177,13 @@ Tables = _bundle("table", "Material-pair and gas tables.")
 Params = _bundle("param", "Switches, scalars, domain and run totals.")
 
 # what enables an array; a feature a scene does not name is off
-FEATURES = ("heat", "fluid", "epsd", "contact_age", "friction_heat", "group_sources", "indirect",
-            "radiation")
+FEATURES = ("heat", "fluid", "fluid_torque", "virtual_mass", "epsd", "contact_age", "friction_heat",
+            "group_sources", "indirect", "radiation")
+
+
+# features a coupling sets before each interval (its arrays are not checkpointed: the coupling
+# recomputes them from its own state)
+COUPLING_FEATURES = ("fluid", "fluid_torque", "virtual_mass")
 
 
 def enabled(field, feats):

@@ -541,14 +541,22 @@ class Simulation:
         if self.thermal is not None and self.thermal.voronoi and self.scene.simulation["mechanics"]:
             self.thermal.update_porosity(self.time)
 
-    def set_fluid(self, force=None, velocity=None, temperature=None, porosity=None, drag=None):
+    def set_fluid(self, force=None, velocity=None, temperature=None, porosity=None, drag=None, torque=None,
+                  torque_drag=None, added_mass=None):
         """Fluid data at each owned particle (rows of ``state``) for the next steps of a
         coupled run: force (N, added every step), gas velocity (m/s) and temperature (K) for
         convection, void fraction (replaces the locally measured porosity in the heat models).
         ``drag`` (kg/s, optional): the drag coefficient beta_p of a drag beta_p (u_f - v) that
         the kicks take implicitly in the particle velocity v (dem.step.half_kick_implicit);
         ``force`` then holds the rest, beta_p u_f + pressure gradient / buoyancy. Without it
-        ``force`` is the whole fluid force, held over the interval."""
+        ``force`` is the whole fluid force, held over the interval.
+
+        ``torque`` (N m, optional): fluid torque added every step; with ``torque_drag`` k_rot
+        (N m s) the torque k_rot (Omega_f - omega) is taken implicitly in the angular velocity
+        (dem.step.half_kick_angular_implicit) and ``torque`` holds its explicit part
+        k_rot Omega_f. ``added_mass`` (kg, optional): C_vm rho_f V_p of a virtual-mass force, taken
+        implicitly as an effective mass m + added_mass in the translational kicks (``force`` then
+        holds C_vm rho_f V_p Du_f/Dt). Without them (None) no fluid torque / virtual mass."""
         st = self.state
         k = st.n_owned
         if force is not None:
@@ -558,6 +566,18 @@ class Simulation:
             st.external_force[k:] = 0.0
             st.drag_beta[:k] = 0.0 if drag is None else drag
             st.drag_beta[k:] = 0.0
+        if torque is not None:
+            if not st.features.get("fluid_torque"):
+                st.enable(fluid_torque=True)
+            st.external_torque[:k] = torque
+            st.external_torque[k:] = 0.0
+            st.rot_drag[:k] = 0.0 if torque_drag is None else torque_drag
+            st.rot_drag[k:] = 0.0
+        if added_mass is not None:
+            if not st.features.get("virtual_mass"):
+                st.enable(virtual_mass=True)
+            st.inv_mass_eff[:k] = 1.0 / (st.mass[:k] + added_mass)
+            st.inv_mass_eff[k:] = st.inv_mass[k:]
         th = self.thermal
         if th is None:
             return

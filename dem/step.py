@@ -176,6 +176,8 @@ def compute_forces(P, C, W, TB, prm, n, t, hon):
     py = periodic[1]
     pz = periodic[2]
     has_ext = fext.shape[0] == n
+    text = P.external_torque
+    has_text = text.shape[0] == n
     nown = ip[I_NOWN]
     for i in range(n):
         f[i, 0] = m[i] * gx
@@ -185,9 +187,14 @@ def compute_forces(P, C, W, TB, prm, n, t, hon):
             f[i, 0] += fext[i, 0]
             f[i, 1] += fext[i, 1]
             f[i, 2] += fext[i, 2]
-        tq[i, 0] = 0.0
-        tq[i, 1] = 0.0
-        tq[i, 2] = 0.0
+        if has_text:
+            tq[i, 0] = text[i, 0]
+            tq[i, 1] = text[i, 1]
+            tq[i, 2] = text[i, 2]
+        else:
+            tq[i, 0] = 0.0
+            tq[i, 1] = 0.0
+            tq[i, 2] = 0.0
     maxov = 0.0
     who_i = -1
     who_j = -1
@@ -520,28 +527,51 @@ def half_kick_implicit(v, f, inv_m, beta, i, h):
         v[i, k] = (v[i, k] + a * f[i, k]) / den
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def half_kick_angular_implicit(w, tq, inv_i, kr, i, h):
+    """Half kick of the angular velocity of particle i with the fluid's rotational drag
+    torque k_rot (Omega_f - omega) taken implicitly (coupling.toml torque = "rotational_drag"):
+
+        omega_new = (omega + h (T + k_rot Omega_f) / I) / (1 + h k_rot / I),
+
+    ``tq`` holding T + k_rot Omega_f (contacts, the explicit part of the fluid torque). Stable
+    for any step (the factor is in (0, 1]) and exact at the steady spin omega = Omega_f + T / k_rot,
+    as :func:`half_kick_implicit` for the drag."""
+    a = h * inv_i[i]
+    den = 1.0 + a * kr[i]
+    for k in range(3):
+        w[i, k] = (w[i, k] + a * tq[i, k]) / den
+
+
 @njit(cache=True, error_model="numpy")
-def kick_drift(n, x, v, w, f, tq, inv_m, inv_i, beta, xb, lo, hi, periodic, dt):
+def kick_drift(n, x, v, w, f, tq, inv_m, inv_i, beta, xb, lo, hi, periodic, dt, kr, inv_me):
     """First half of velocity Verlet for rows [0, n): half kick, drift, periodic wrap.
     Returns the largest squared displacement since the last neighbour build.
-    ``beta`` (a coupled run; else empty): drag coefficients taken implicitly (:func:`half_kick`)."""
+    ``beta`` (a coupled run; else empty): drag coefficients taken implicitly (:func:`half_kick`);
+    ``kr`` (coupled, fluid torque; else empty): rotational drag taken implicitly
+    (:func:`half_kick_angular_implicit`); ``inv_me`` (coupled, virtual mass; else empty): the
+    inverse effective mass m + C_vm rho_f V_p of the translational kick instead of 1/m."""
     half = 0.5 * dt
     L0 = hi[0] - lo[0]
     L1 = hi[1] - lo[1]
     L2 = hi[2] - lo[2]
     maxd2 = 0.0
     drag = beta.shape[0] >= n
+    rdrag = kr.shape[0] >= n
+    im = inv_me if inv_me.shape[0] >= n else inv_m
     for i in range(n):
         if drag:
-            half_kick_implicit(v, f, inv_m, beta, i, half)
-            for k in range(3):
-                w[i, k] += half * tq[i, k] * inv_i[i]
-                x[i, k] += dt * v[i, k]
+            half_kick_implicit(v, f, im, beta, i, half)
         else:
             for k in range(3):
-                v[i, k] += half * f[i, k] * inv_m[i]
+                v[i, k] += half * f[i, k] * im[i]
+        if rdrag:
+            half_kick_angular_implicit(w, tq, inv_i, kr, i, half)
+        else:
+            for k in range(3):
                 w[i, k] += half * tq[i, k] * inv_i[i]
-                x[i, k] += dt * v[i, k]
+        for k in range(3):
+            x[i, k] += dt * v[i, k]
         if periodic[0]:
             x[i, 0] -= L0 * math.floor((x[i, 0] - lo[0]) / L0)
         if periodic[1]:
@@ -564,20 +594,24 @@ def kick_drift(n, x, v, w, f, tq, inv_m, inv_i, beta, xb, lo, hi, periodic, dt):
 
 
 @njit(cache=True, error_model="numpy")
-def kick(n, v, w, f, tq, inv_m, inv_i, beta, dt):
+def kick(n, v, w, f, tq, inv_m, inv_i, beta, dt, kr, inv_me):
     """Second half kick for rows [0, n); returns a row with a non-finite velocity, or -1.
-    ``beta`` (a coupled run; else empty): drag coefficients taken implicitly (:func:`half_kick`)."""
+    ``beta``, ``kr``, ``inv_me`` (a coupled run; else empty): as in :func:`kick_drift`."""
     half = 0.5 * dt
     bad = -1
     drag = beta.shape[0] >= n
+    rdrag = kr.shape[0] >= n
+    im = inv_me if inv_me.shape[0] >= n else inv_m
     for i in range(n):
         if drag:
-            half_kick_implicit(v, f, inv_m, beta, i, half)
-            for k in range(3):
-                w[i, k] += half * tq[i, k] * inv_i[i]
+            half_kick_implicit(v, f, im, beta, i, half)
         else:
             for k in range(3):
-                v[i, k] += half * f[i, k] * inv_m[i]
+                v[i, k] += half * f[i, k] * im[i]
+        if rdrag:
+            half_kick_angular_implicit(w, tq, inv_i, kr, i, half)
+        else:
+            for k in range(3):
                 w[i, k] += half * tq[i, k] * inv_i[i]
         if not (math.isfinite(v[i, 0] + v[i, 1] + v[i, 2])
                 and math.isfinite(w[i, 0] + w[i, 1] + w[i, 2])):
@@ -592,7 +626,8 @@ def drift(P, prm, nown, t):
     more than half the skin since the last build, counting the walls' motion)."""
     fp = prm.fp
     maxd2 = kick_drift(nown, P.position, P.velocity, P.angular_velocity, P.force, P.torque, P.inv_mass,
-                       P.inv_inertia, P.drag_beta, P.x_build, prm.lo, prm.hi, prm.periodic, fp[F_DT])
+                       P.inv_inertia, P.drag_beta, P.x_build, prm.lo, prm.hi, prm.periodic, fp[F_DT],
+                       P.rot_drag, P.inv_mass_eff)
     return math.sqrt(maxd2) + fp[F_VWALL] * (t - fp[F_TBUILD]) > 0.5 * fp[F_SKIN]
 
 
@@ -674,7 +709,7 @@ def kick_guard(P, prm, nown, maxov, who_i, who_j):
     (status, particle, other, value): NONFINITE (a non-finite velocity), OVERLAP (the largest
     overlap ratio of the force evaluation above simulation.max_overlap_ratio) or OK."""
     bad = kick(nown, P.velocity, P.angular_velocity, P.force, P.torque, P.inv_mass, P.inv_inertia,
-               P.drag_beta, prm.fp[F_DT])
+               P.drag_beta, prm.fp[F_DT], P.rot_drag, P.inv_mass_eff)
     if bad >= 0:
         return NONFINITE, bad, -1, 0.0
     if maxov > prm.fp[F_MAXOV]:

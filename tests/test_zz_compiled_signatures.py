@@ -3,7 +3,8 @@ same argument types, a disabled feature being an empty array of the same dtype a
 
 Runs every example and test scene plus variants that switch each optional array on (rolling
 springs, contact age, friction heat, indirect conduction, radiation, group sources,
-exponential and implicit integration, frozen packing, fluid forces, no walls, periodic axes) in this one
+exponential and implicit integration, frozen packing, fluid forces, fluid torque and virtual
+mass, no walls, periodic axes) in this one
 process, then counts the compiled signatures of each kernel: at most two (heat on, heat off:
 the ``hon`` switch), whatever ran before in this test session (this file runs last).
 """
@@ -78,6 +79,13 @@ def test_every_scene_shares_one_kernel_per_heat_switch():
     sim.set_fluid(force=np.full((sim.state.n_owned, 3), 1e-9), velocity=np.zeros((sim.state.n_owned, 3)),
                   temperature=np.full(sim.state.n_owned, 310.0))
     sim.step(10)
+    # fluid torque (implicit rotational drag) and virtual mass (added mass) of a coupled run
+    sim = _run_variant({})
+    n = sim.state.n_owned
+    sim.set_fluid(force=np.full((n, 3), 1e-9), drag=np.full(n, 1e-6), torque=np.full((n, 3), 1e-12),
+                  torque_drag=np.full(n, 1e-12), added_mass=np.full(n, 1e-9))
+    sim.step(10)
+    assert np.all(np.isfinite(sim.state.angular_velocity))
     assert len(K.advance.signatures) >= 1  # every run calls advance (its phases, serial or MPI)
     for k in KERNELS:  # (a phase called only inside advance has no signature of its own when
         # advance came from the cache, one per heat switch when it was compiled here)
