@@ -62,6 +62,34 @@ def wall_temperature(wth, wtab, w, t):
     return wtab[w, nt - 1, 1]
 
 
+@njit(cache=True, error_model="numpy")
+def explicit_heat(m, n, x, r, qgen, qsrc, srcbox, dt, Q, tot):
+    """Add the explicit heat rates of rows [0, m) to Q (W): friction/impact generation qgen,
+    per-particle sources qsrc, and the volumetric source boxes of srcbox (rows
+    [xlo, ylo, zlo, xhi, yhi, zhi, W/m3]); their energies over dt go to the run totals
+    (E_GEN, E_SRC). qgen / qsrc are empty (not of n rows) when off. Serves every integrator."""
+    eg = 0.0
+    es = 0.0
+    has_gen = qgen.shape[0] == n
+    has_src = qsrc.shape[0] == n
+    nbox = srcbox.shape[0]
+    for i in range(m):
+        if has_gen:
+            Q[i] += qgen[i]
+            eg += qgen[i] * dt
+        if has_src:
+            Q[i] += qsrc[i]
+            es += qsrc[i] * dt
+        for k in range(nbox):
+            if (srcbox[k, 0] <= x[i, 0] <= srcbox[k, 3] and srcbox[k, 1] <= x[i, 1] <= srcbox[k, 4]
+                    and srcbox[k, 2] <= x[i, 2] <= srcbox[k, 5]):
+                qq = srcbox[k, 6] * 4.0 / 3.0 * math.pi * r[i] ** 3
+                Q[i] += qq
+                es += qq * dt
+    tot[E_GEN] += eg
+    tot[E_SRC] += es
+
+
 @njit(cache=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def heat_step(P, C, W, TB, prm, n, nown, dt, t):
     """Advance the temperatures of rows [0, nown) by dt (rows [nown, n) are ghosts: another
@@ -221,26 +249,7 @@ def heat_step(P, C, W, TB, prm, n, nown, dt, t):
         for i in range(nown):
             work[i, 2] = Q[i]  # explicit wall flux so far
             Q[i] = 0.0
-    eg = 0.0
-    es = 0.0
-    has_gen = qgen.shape[0] == n
-    has_src = qsrc.shape[0] == n
-    nbox = srcbox.shape[0]
-    for i in range(nown):
-        if has_gen:
-            Q[i] += qgen[i]
-            eg += qgen[i] * dt
-        if has_src:
-            Q[i] += qsrc[i]
-            es += qsrc[i] * dt
-        for b in range(nbox):
-            if (srcbox[b, 0] <= x[i, 0] <= srcbox[b, 3] and srcbox[b, 1] <= x[i, 1] <= srcbox[b, 4]
-                    and srcbox[b, 2] <= x[i, 2] <= srcbox[b, 5]):
-                qq = srcbox[b, 6] * 4.0 / 3.0 * math.pi * r[i] ** 3
-                Q[i] += qq
-                es += qq * dt
-    tot[E_GEN] += eg
-    tot[E_SRC] += es
+    explicit_heat(nown, n, x, r, qgen, qsrc, srcbox, dt, Q, tot)
     if integ == 0:
         for i in range(nown):
             T[i] += dt * Q[i] * cinv[i]
@@ -347,26 +356,7 @@ def _implicit_step(P, C, W, TB, prm, m, dt, t, has_ind):
             dg[i] += krad[i]
             b[i] += qrad[i]
     # explicit heat: generation, sources
-    eg = 0.0
-    es = 0.0
-    has_gen = qgen.shape[0] == n
-    has_src = qsrc.shape[0] == n
-    nbox = srcbox.shape[0]
-    for i in range(m):
-        if has_gen:
-            b[i] += qgen[i]
-            eg += qgen[i] * dt
-        if has_src:
-            b[i] += qsrc[i]
-            es += qsrc[i] * dt
-        for k in range(nbox):
-            if (srcbox[k, 0] <= x[i, 0] <= srcbox[k, 3] and srcbox[k, 1] <= x[i, 1] <= srcbox[k, 4]
-                    and srcbox[k, 2] <= x[i, 2] <= srcbox[k, 5]):
-                qq = srcbox[k, 6] * 4.0 / 3.0 * math.pi * r[i] ** 3
-                b[i] += qq
-                es += qq * dt
-    tot[E_GEN] += eg
-    tot[E_SRC] += es
+    explicit_heat(m, n, x, r, qgen, qsrc, srcbox, dt, b, tot)
     # solve, update
     d = np.empty(m)
     jacobi_pcg(m, nb, nnb, Hd, Hi, has_ind, dg, b, d, CG_RTOL, 10 * m + 100)
