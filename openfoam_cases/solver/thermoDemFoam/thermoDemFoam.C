@@ -34,7 +34,7 @@ Description
 #include "turbulentTransportModel.H"
 #include "pimpleControl.H"
 #include "fvOptions.H"
-#include "fixedFluxPressureFvPatchScalarField.H"
+#include "dragFaces.H"
 #include "couplingIO.H"
 
 #include <csignal>
@@ -73,11 +73,26 @@ Foam::List<Foam::scalarField> outgoingColumns
     const Foam::dimensionedScalar& rho,
     const Foam::surfaceScalarField& phi,
     const Foam::volScalarField& eps,
+    const Foam::volScalarField& epsP,
+    const Foam::volScalarField& Ksl,
+    const Foam::volVectorField& Us,
+    const Foam::surfaceScalarField& phiI,
+    const Foam::dimensionedScalar& nu,
+    const Foam::dimensionedVector& g,
     const bool fluxVelocity
 )
 {
     using namespace Foam;
-    const volVectorField gradp(rho*fvc::grad(p));
+    // the gradient of the cell momentum balance (dragFaces.H): from the fields of the
+    // step alone, so that a restart sends exactly what the interrupted run sent
+    const volVectorField gradp
+    (
+        rho*dragFaces::pressureGradient
+        (
+            p, dragFaces::resistance(Ksl/rho, eps, epsP), Ksl/rho*Us/epsP,
+            phiI, nu, g
+        )
+    );
 
     // Velocity for the DEM: the cell (momentum) velocity, or, with fluxVelocity,
     // reconstructed from the conservative face fluxes (superficial flux / eps),
@@ -146,7 +161,7 @@ int main(int argc, char *argv[])
         (
             runTime.timeIndex(),
             runTime.value(),
-            outgoingColumns(U, T, p, rho, phi, eps, fluxVelocity),
+            outgoingColumns(U, T, p, rho, phi, eps, epsP, Ksl, Us, phiI, nu, g, fluxVelocity),
             0
         );
     }
@@ -277,7 +292,7 @@ int main(int argc, char *argv[])
             (
                 step,
                 runTime.value(),
-                outgoingColumns(U, T, p, rho, phi, eps, fluxVelocity),
+                outgoingColumns(U, T, p, rho, phi, eps, epsP, Ksl, Us, phiI, nu, g, fluxVelocity),
                 (lastStep ? demCoupling::flagFinal : 0)
               | (label(stopSig & 0xff) << demCoupling::signalShift)
             );
