@@ -97,14 +97,20 @@ def test_ergun_pressure_drop(tmp_path, solver, u):
     d = read_csv(out / "coupling.csv")
     eps = 1 - math.pi / 6
     g = ergun_gradient(u, eps)
-    # total: bottom cell centre (z = 3 mm) .. bed top (60 mm) + hydrostatics to the top cell
+    # total: bottom cell centre (z = 3 mm) .. bed top (60 mm) + hydrostatics to the top cell.
+    # Measured -0.1 % (0.1 m/s) to -0.8 % (0.8 m/s), where the momentum of the bed's
+    # interstitial jets, rho u^2 (1/eps - 1), is 0.3 % of the drop (before the face treatment
+    # of the drag, dragFaces.H: -2.6 to -4.6 %)
     expected = g * (0.06 - 0.003) + RHO * 9.81 * (0.117 - 0.003)
-    assert d["dp"][-1] == pytest.approx(expected, rel=0.10)
+    assert d["dp"][-1] == pytest.approx(expected, rel=0.015)
     # inside the bed the gradient (written p is kinematic) is Ergun's
     n = 320
     p = fc.read_internal_field(out / "0.01" / "p", n).reshape(20, 16).mean(axis=1) * RHO
     grad = (p[1] - p[8]) / 0.042 - RHO * 9.81
-    assert grad == pytest.approx(g, rel=0.02)
+    assert grad == pytest.approx(g, rel=0.005)
+    # the gas of the top bed cell moves at u/eps (measured 0.96-0.99; before: 0.71-0.73)
+    U = fc.read_internal_field(out / "0.01" / "U", n)[:, 2].reshape(20, 16).mean(axis=1)
+    assert U[9] * eps / u == pytest.approx(1.0, abs=0.05)
 
 
 # --------------------------------------------------------------------------- transports
