@@ -43,6 +43,13 @@ class CheckpointError(SceneError):
 
 
 # ---------------------------------------------------------------------------- writing
+
+# Arrays that checkpoints of earlier versions do not hold: such a checkpoint still continues.
+# th_Hwg (the gas-gap part of each wall conductance) is recomputed from the restored state;
+# th_wgap (heat across the gas gap per wall since the start) starts at 0, so a continued run
+# counts the gap heat of the earlier part as contact heat (issue 14: the wall records by path).
+ADDED_LATER = ("th_Hwg", "th_wgap")
+
 def content_digest(arrays):
     """sha256 over every entry but ``checksum``: name, dtype, shape, then the bytes."""
     h = hashlib.sha256()
@@ -215,6 +222,8 @@ def validate(path, arrays, record):
         for f in S.of(owner):
             if not f.checkpoint:
                 continue
+            if f.checkpoint in ADDED_LATER and f.checkpoint not in arrays:
+                continue  # an older checkpoint: the loader fills it (Simulation.load_checkpoint)
             on = feats.get(f.when, None) if f.when is not None else True
             full = f.shape(rows, W1, slots) if owner != "wall" else (W1,)
             if owner == "param":
@@ -694,10 +703,11 @@ def _remap_walls(arrays, plan, sim):
         if f.tail[0] == "W":  # one column per wall: moved with the wall
             b[:, dst] = a[:, src]
         arrays[f.checkpoint] = b  # per candidate: rebuilt (wnb below) or recomputed (Hw)
-    if "th_wtot" in arrays:
-        w = np.zeros(W1)
-        w[dst] = arrays["th_wtot"][src]
-        arrays["th_wtot"] = w
+    for key in ("th_wtot", "th_wgap"):
+        if key in arrays:
+            w = np.zeros(W1)
+            w[dst] = arrays[key][src]
+            arrays[key] = w
     arrays["wnb"] = new  # the candidates' wall indices, renumbered
     arrays["wnn"] = np.ascontiguousarray(wnn, np.int32)
 

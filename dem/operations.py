@@ -230,6 +230,33 @@ class HistoryWriter(Operation):
             run.sim.root_write(lambda: self.hist.add(row))
 
 
+class WallHeatWriter(Operation):
+    """wall_heat.csv (dem.thermal.wall_heat: heat through each wall by path) on the steps of
+    the history rows (collective sums; the root writes)."""
+
+    def __init__(self, out_dir, n, write_initial, keep_until=None):
+        self.path = os.path.join(out_dir, "wall_heat.csv")
+        self.write_initial, self.keep_until = write_initial, keep_until
+        self.trigger = Every(n) | AtEnd(unless_every=n) | OnStop(unless_every=n)
+        self.file = None
+
+    def start(self, run):
+        from .thermal.wall_heat import WallHeatFile, wall_area
+        sim = run.sim
+        if sim.is_root:
+            lo, hi = sim.scene.domain["min"], sim.scene.domain["max"]
+            walls = sim.scene.walls
+            self.file = WallHeatFile(self.path, walls, [wall_area(w, lo, hi) for w in walls], self.keep_until)
+        if self.write_initial:
+            self.act(run, PAUSE)
+
+    def act(self, run, event):
+        sim = run.sim
+        totals = sim.wall_heat_totals()
+        if self.file is not None:
+            sim.root_write(lambda: self.file.add(sim.time, totals))
+
+
 class VTKWriter(Operation):
     """particles.pvd + vtk/ frames (collective gather; the root writes), on the steps of
     the history rows."""
@@ -354,6 +381,8 @@ def standard(sim, end_step, out_dir=None, restarted=False, progress=None, log=No
         initial = sim.step_count == 0 or not restarted
         keep = sim.time if restarted else None
         ops.append(HistoryWriter(out_dir, out_every, initial, keep))
+        if sim.thermal is not None and sim.scene.walls:
+            ops.append(WallHeatWriter(out_dir, out_every, initial, keep))
         if sim.scene.output["vtk"]:
             ops.append(VTKWriter(out_dir, out_every, initial))
         ops += [FinalState(out_dir), FailedState(out_dir),

@@ -124,6 +124,8 @@ FIELDS = (
        doc="contact age and impact speed per wall"),
     _f("Hw", "particle", F8, ("Q",), when="heat", checkpoint="th_Hw",
        doc="wall conductance per candidate (W/K; contact area for a fixed-flux wall)"),
+    _f("Hwg", "particle", F8, ("Q",), when="indirect", checkpoint="th_Hwg",
+       doc="the part of Hw across the gas gap (indirect conduction, W/K)"),
     # ---------------------------------------------------------------- pairs (neighbour slots)
     _f("nb", "pair", I4, ("S",), checkpoint="nb", doc="half neighbour list (row of the other particle)"),
     _f("nnb", "pair", I4, checkpoint="nnb", doc="used slots of each row"),
@@ -139,6 +141,8 @@ FIELDS = (
     _f("wth", "wall", F8, (4,), doc="thermal condition, temperature, flux, table length"),
     _f("wtab", "wall", F8, (None, 2), doc="temperature table [time, T]"),
     _f("wtot", "wall", F8, (), checkpoint="th_wtot", doc="heat through each wall since the start (J)"),
+    _f("wgap", "wall", F8, (), checkpoint="th_wgap",
+       doc="the part of wtot across the gas gap (indirect conduction, J); the rest went through the contacts"),
     # ---------------------------------------------------------------- tables
     _f("tab", "table", F8, (None, None), doc="pair tables E*, G*, damping, mu, mu_r [5, mat, mat]"),
     _f("tmat", "table", F8, (None,), doc="thermal material table (dem.thermal.registry)"),

@@ -359,9 +359,9 @@ class Simulation:
         """The interact phase at the current time (no step): forces, torques and (with heat)
         the conductances; the heat totals are left as they were."""
         st = self.state
-        saved = (st.tot.copy(), st.wtot.copy())  # the initial force evaluation exchanges no heat
+        saved = (st.tot.copy(), st.wtot.copy(), st.wgap.copy())  # the initial force evaluation exchanges no heat
         _, _, i, j, maxov, nc, _, _ = self._phases(K.PH_FORCES)
-        st.tot[:], st.wtot[:] = saved
+        st.tot[:], st.wtot[:], st.wgap[:] = saved
         self._nc2 = nc
         self.last_contacts = nc // 2
         return maxov
@@ -656,6 +656,18 @@ class Simulation:
         return max_overlap_ratio(st.n, st.position, st.radius, st.nb, st.nnb, self.lo, self.hi,
                                  self.periodic, self.wf, self.wi, self.nwalls, self.time)
 
+    def wall_heat_totals(self):
+        """Heat through each wall since the start (J), summed over the ranks (collective):
+        [n_walls, 2] of (all paths, across the gas gap); None without heat or walls."""
+        nw = len(self.scene.walls)
+        if self.thermal is None or nw == 0:
+            return None
+        st = self.state
+        a = np.c_[st.wtot[:nw], st.wgap[:nw]].astype(float)
+        if self.par is not None:
+            a = np.asarray(self.par.allsum(a.ravel()), float).reshape(nw, 2)
+        return a
+
     def history_columns(self):
         cols = ["time", "kinetic_energy", "rotational_energy", "contacts", "max_overlap_ratio"]
         if self.thermal is not None:
@@ -774,11 +786,12 @@ class Simulation:
         _, arrays, record, plan = ready
         ckpt.apply_edits(arrays, plan, self)
         z = ckpt.ArrayView(arrays)
+        self._recompute_after_load = False
         if self.par is not None or int(z["ranks"]) != 1 or "nb" not in z.files or plan.rebuild:
             self._load_portable(path, z)
         else:
             self._load_serial(z)
-        if plan.recompute_forces:
+        if plan.recompute_forces or self._recompute_after_load:
             self._recompute_forces_keeping_history()
         self.restart_changes = plan.applied
         if self.is_root:
@@ -790,8 +803,11 @@ class Simulation:
         st = self.state
         for f in self._checkpointed("particle") + self._checkpointed("pair"):
             if f.checkpoint not in z.files:
+                if self._added_later(f):
+                    continue
                 raise SimulationError(f"checkpoint lacks {f.checkpoint!r} (thermal or contact settings changed?)")
             setattr(st, f.name, np.ascontiguousarray(z[f.checkpoint], f.dtype))
+        st.allocate()  # what an older checkpoint lacks (dem.checkpoint.ADDED_LATER)
         self._load_totals(z, root=True)
         self.fp[K.F_TBUILD] = float(z["fp_tbuild"])
         self.step_count = int(z["step_count"])
@@ -804,7 +820,17 @@ class Simulation:
             return
         st = self.state
         for f in self._checkpointed("wall") + self._checkpointed("param"):
-            getattr(st, f.name)[:] = z[f.checkpoint] if root else 0.0
+            getattr(st, f.name)[:] = z[f.checkpoint] if root and f.checkpoint in z.files else 0.0
+
+    def _added_later(self, f):
+        """True for an array that an older checkpoint may lack (dem.checkpoint.ADDED_LATER);
+        a conductance among them makes load_checkpoint recompute the forces and conductances."""
+        from .checkpoint import ADDED_LATER
+        if f.checkpoint not in ADDED_LATER:
+            return False
+        if f.owner == "particle":
+            self._recompute_after_load = True
+        return True
 
     def _recompute_forces_keeping_history(self):
         """Forces at the restart time with the edited physics (masses, tables, walls,
@@ -832,6 +858,8 @@ class Simulation:
         st.enable(fluid=False)  # the coupling sets the fluid data again
         for f in self._checkpointed("particle"):
             if f.checkpoint not in z.files:
+                if self._added_later(f):
+                    continue
                 raise SimulationError(f"{path}: checkpoint lacks {f.checkpoint!r} (thermal or contact settings "
                                       f"changed?)")
             setattr(st, f.name, np.ascontiguousarray(z[f.checkpoint][rows], f.dtype))

@@ -136,6 +136,9 @@ def compute_forces(P, C, W, TB, prm, n, t, hon):
     gas = TB.gas
     ereal = TB.ereal
     Hw = P.Hw
+    Hwg = P.Hwg
+    has_wg = Hwg.shape[0] == n
+    wgap = W.wgap
     wth = W.wth
     por = P.por
     qgen = P.qgen
@@ -392,9 +395,12 @@ def compute_forces(P, C, W, TB, prm, n, t, hon):
                             qq = hw * (wall_temperature(wth, wtab, wl, t) - T[i])
                             Q[i] += qq
                             wtot[wl] += qq * dt
+                            wgap[wl] += qq * dt  # no contact: all across the gas gap
                             e_wall += qq
                     else:
                         Hw[i, q] = hw
+                        if has_wg:
+                            Hwg[i, q] = hw
                 continue
             ncont += 2
             delta = ri - dist
@@ -431,18 +437,22 @@ def compute_forces(P, C, W, TB, prm, n, t, hon):
                 fel = (2.0 / 3.0) * kn * delta if model == 0 else kn * delta
                 tc, vimp = _contact_age(wage, i, wl, vn, dt) if use_age else (0.0, 0.0)
                 hw = 0.0
+                hwg = 0.0  # the part across the gas gap
                 if cond != 0.0:
                     rc = contact_radius_pw(crm, crc, ri, dist, fel, tab[T_ESTAR, mi, mw], ereal[mi, mw])
                     if cond == 1.0:
                         if dmodel >= 0:
                             hw = dfac * direct_pw(dmodel, ri, dist, rc, mi, mw, tmat, gas, tc, vimp)
                         if imodel >= 0:
-                            hw += indirect_pw(imodel, ri, dist, rc, mi, mw, por[i], tmat, gas)
+                            hwg = indirect_pw(imodel, ri, dist, rc, mi, mw, por[i], tmat, gas)
+                            hw += hwg
                     else:
                         hw = math.pi * rc * rc
                 if fused:
                     if cond == 1.0:
-                        qq = hw * (wall_temperature(wth, wtab, wl, t) - T[i])
+                        dtw = wall_temperature(wth, wtab, wl, t) - T[i]
+                        qq = hw * dtw
+                        wgap[wl] += hwg * dtw * dt
                     elif cond == 2.0:
                         qq = hw * wth[wl, 2]
                     else:
@@ -452,6 +462,8 @@ def compute_forces(P, C, W, TB, prm, n, t, hon):
                     e_wall += qq
                 else:
                     Hw[i, q] = hw
+                    if has_wg:
+                        Hwg[i, q] = hwg
                 if fric >= 0:
                     qf = _contact_heat(fric, tab[T_MU, mi, mw], thf, vtx, vty, vtz, ftx, fty, ftz, fn, vn)
                     qgen[i] += partition(pmodel, mi, mw, tmat) * qf

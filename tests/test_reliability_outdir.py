@@ -126,7 +126,7 @@ def test_dem_run_twice_overwrite_restart(scene, tmp_path):
     r = dem("run", scene, "--out", out, "--end-time", "0.005", "--quiet")
     assert r.returncode == 0, r.stderr
     written = set(os.listdir(out)) - {MANIFEST}
-    assert written == {"history.csv", "vtk", "particles.pvd", "final.npz", "checkpoint.npz"}
+    assert written == {"history.csv", "wall_heat.csv", "vtk", "particles.pvd", "final.npz", "checkpoint.npz"}
     assert listed(out) == written
     before = tree(out)
     # a second run into it: refused, nothing changed

@@ -108,6 +108,8 @@ def heat_step(P, C, W, TB, prm, n, nown, dt, t):
     wnb, wnn, Hw, tf, uf, por, qgen, qsrc, work = P.wnb, P.wnn, P.Hw, P.tf, P.uf, P.por, P.qgen, P.qsrc, P.work
     nb, nnb, Hd, Hi, rnear = C.nb, C.nnb, C.Hd, C.Hi, C.rnear
     wth, wtab, wtot, tmat, gas = W.wth, W.wtab, W.wtot, TB.tmat, TB.gas
+    Hwg, wgap = P.Hwg, W.wgap
+    has_wg = Hwg.shape[0] == n
     thi, tot, srcbox = prm.thi, prm.tot, prm.srcbox
     integ = thi[TI_INTEG]
     has_ind = Hi.shape[0] == n
@@ -178,6 +180,8 @@ def heat_step(P, C, W, TB, prm, n, nown, dt, t):
                     hts[i] += h * tw
                     continue
                 qq = h * (tw - T[i])
+                if has_wg:
+                    wgap[w] += Hwg[i, q] * (tw - T[i]) * dt
             elif cond == 2.0:
                 qq = h * wth[w, WT_Q]  # fixed flux: explicit in both schemes
             else:
@@ -235,9 +239,12 @@ def heat_step(P, C, W, TB, prm, n, nown, dt, t):
                 for q in range(wnn[i]):
                     w = wnb[i, q]
                     if Hw[i, q] > 0.0 and wth[w, WT_COND] == 1.0:
-                        ew = f * Hw[i, q] * (wall_temperature(wth, wtab, w, t) - ti)
+                        dtw = wall_temperature(wth, wtab, w, t) - ti
+                        ew = f * Hw[i, q] * dtw
                         wtot[w] += ew
                         tot[E_WALL] += ew
+                        if has_wg:
+                            wgap[w] += f * Hwg[i, q] * dtw
             if conv >= 0:
                 tot[E_CONV] += f * hconv[i] * (tf[i] - ti)
             if rad >= 0:
@@ -293,6 +300,8 @@ def _implicit_step(P, C, W, TB, prm, m, dt, t, has_ind):
     conv = thi[TI_CONV]
     rad = thi[TI_RAD]
     n = T.shape[0]
+    Hwg, wgap = P.Hwg, W.wgap
+    has_wg = Hwg.shape[0] == n
     b = np.zeros(m)   # Q(T^n), W
     dg = np.empty(m)  # C/dt + K, W/K
     for i in range(m):
@@ -386,9 +395,12 @@ def _implicit_step(P, C, W, TB, prm, m, dt, t, has_ind):
             h = Hw[i, q]
             w = wnb[i, q]
             if h > 0.0 and wth[w, WT_COND] == 1.0:
-                ew = h * (wall_temperature(wth, wtab, w, t) - T[i]) * dt
+                dtw = wall_temperature(wth, wtab, w, t) - T[i]
+                ew = h * dtw * dt
                 wtot[w] += ew
                 tot[E_WALL] += ew
+                if has_wg:
+                    wgap[w] += Hwg[i, q] * dtw * dt
     if conv >= 0:
         ec = 0.0
         for i in range(m):

@@ -27,7 +27,7 @@ def no_heat_tables(st):
     thi[TI_HEAT] = 0
     st.thi, st.thf, st.tmat, st.gas = thi, np.zeros(NTF), np.zeros((1, R.N_TPROP)), np.zeros(R.N_GAS)
     st.ereal, st.keff = np.zeros((1, 1)), np.zeros((1, 1))
-    st.wth, st.wtab, st.wtot = np.zeros((nw, 4)), np.zeros((nw, 1, 2)), np.zeros(nw)
+    st.wth, st.wtab, st.wtot, st.wgap = np.zeros((nw, 4)), np.zeros((nw, 1, 2)), np.zeros(nw), np.zeros(nw)
     st.srcbox, st.tot = np.zeros((0, 7)), np.zeros(NTOT)
 
 
@@ -116,7 +116,7 @@ class ThermalModel:
         st.enable(heat=True, contact_age=self.needs_age, friction_heat=bool(thi[TI_FRIC] >= 0),
                   group_sources=bool(np.any(qsrc != 0)), indirect=bool(thi[TI_INDIRECT] >= 0),
                   radiation=bool(thi[TI_RAD] >= 0))
-        st.wth, st.wtab, st.wtot = wth, wtab, np.zeros(nw)
+        st.wth, st.wtab, st.wtot, st.wgap = wth, wtab, np.zeros(nw), np.zeros(nw)
         st.thi, st.thf, st.tmat, st.gas, st.ereal, st.keff = thi, thf, self.tmat, self.gas, self.ereal, self.keff
         st.srcbox, st.tot = np.array(boxes, float).reshape(-1, 7), np.zeros(NTOT)
         st.por[:] = self.gas[R.POROSITY_GLOBAL]
@@ -201,11 +201,12 @@ class ThermalModel:
         warnings = []
         # conductances stored per slot (the fused Euler path does not store them)
         fused = self.thi[TI_FUSED]
-        saved = (self.tot.copy(), self.wtot.copy(), st.heat_rate.copy(), st.force.copy(), st.torque.copy())
+        saved = (self.tot.copy(), self.wtot.copy(), st.wgap.copy(), st.heat_rate.copy(), st.force.copy(),
+                 st.torque.copy())
         self.thi[TI_FUSED] = 0
         compute_forces()
         self.thi[TI_FUSED] = fused
-        self.tot[:], self.wtot[:], st.heat_rate[:], st.force[:], st.torque[:] = saved
+        self.tot[:], self.wtot[:], st.wgap[:], st.heat_rate[:], st.force[:], st.torque[:] = saved
         lim = self.network_limit()
         rep["network_step_limit"] = lim
         if self.cfg["integrator"] == "euler" and dt > lim:
