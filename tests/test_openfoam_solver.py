@@ -387,6 +387,65 @@ def test_b_porosity_jumps(tmp_path, solver, profile, regime):
     assert np.abs(grad_ratio - 1).max() < 2 * tol_u, grad_ratio
 
 
+# --------------------------------------------------------------------------- (f) wall heat
+
+def _patch_values(path: Path, patch: str) -> np.ndarray:
+    """The boundary values of ``patch`` in an ASCII volScalarField file."""
+    import re
+    text = path.read_text()
+    block = text[text.index(patch, text.index("boundaryField")):]
+    block = block[:block.index("}")]
+    m = re.search(r"value\s+nonuniform\s+List<scalar>\s*(\d+)\s*\(([^)]*)\)", block)
+    if m:
+        return np.array(m.group(2).split(), float)
+    m = re.search(r"value\s+uniform\s+([-+0-9.eE]+)", block)
+    return np.array([float(m.group(1))])
+
+
+def test_f_wall_heat_flux_field(tmp_path, solver):
+    """Gas at rest (void fraction 0.5) between two walls at 400 K and 300 K 60 mm apart: steady
+    conduction. The wallHeatFlux field written with the time folder is eps k dT/L on every face
+    of both walls, into the gas at the hot one and out of it at the cold one (issue 14: the gas
+    path of a wall's heat), and zero on the other patches."""
+    n_steps, dt = 60, 5.0      # 300 s: 18 times the slowest decay time L^2/(pi^2 alpha) = 16.8 s
+    case, C, V = make_case(tmp_path, "fluidized_bed_heating", n_steps=n_steps, dt=dt, name="walls",
+                           g=(0, 0, 0))
+    n = len(V)
+    uf = case / "0" / "U"
+    uf.write_text(uf.read_text().replace("uniform (0 0 2.0)", "uniform (0 0 0)"))
+    tf = case / "0" / "T"
+    hot_cold = " ".join(["400"] * 60 + ["300"] * 60)   # xWalls: the x = 0 faces (2 x 30), then x = L
+    text = tf.read_text().replace(
+        "xWalls\n    {\n        type zeroGradient;\n    }",
+        f"xWalls\n    {{\n        type fixedValue;\n        value nonuniform List<scalar> 120({hot_cold});\n    }}")
+    # no heat through the inlet either: a 1-D conduction problem across x
+    text = text.replace("inlet\n    {\n        type fixedValue;\n        value uniform 373.15;\n    }",
+                        "inlet\n    {\n        type zeroGradient;\n    }")
+    assert "120(" in text and "373.15;\n    }\n    outlet" not in text
+    tf.write_text(text)
+    eps = np.full(n, 0.5)
+    fc.write_eps(case, eps)
+
+    def inputs(s, fl):
+        x = zero_inputs(n)
+        x["eps"] = eps
+        return x
+
+    fl = run_coupled(case, solver, n_steps, inputs)[-1]
+    k, L = 0.0262, 0.06
+    q = _patch_values(case / f"{n_steps * dt:g}" / "wallHeatFlux", "xWalls")
+    assert q.shape == (120,)
+    assert q[:60] == pytest.approx(np.full(60, 0.5 * k * 100.0 / L), rel=1e-4)
+    assert q[60:] == pytest.approx(np.full(60, -0.5 * k * 100.0 / L), rel=1e-4)
+    for patch in ("inlet", "outlet", "yWalls"):
+        assert np.all(_patch_values(case / f"{n_steps * dt:g}" / "wallHeatFlux", patch) == 0.0)
+    # the gas's temperature is the linear profile between the walls
+    x = C[:, 0]
+    assert fl["T"] == pytest.approx(400.0 - 100.0 * x / L, rel=1e-5)
+    log = (case / "log.thermoDemFoam").read_text()
+    assert "Wall heat into the gas, patch xWalls" in log
+
+
 # --------------------------------------------------------------------------- (c) transports
 
 def _bed_inputs(C, n):

@@ -35,6 +35,7 @@ Description
 #include "pimpleControl.H"
 #include "fvOptions.H"
 #include "dragFaces.H"
+#include "wallFvPatch.H"
 #include "couplingIO.H"
 
 #include <csignal>
