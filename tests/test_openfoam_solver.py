@@ -333,7 +333,7 @@ JUMP_PROFILES = {
 
 
 @pytest.mark.parametrize("profile", sorted(JUMP_PROFILES))
-@pytest.mark.parametrize("regime", ["drag", "inertia"])
+@pytest.mark.parametrize("regime", ["drag", "inertia", "drag, model B"])
 def test_b_porosity_jumps(tmp_path, solver, profile, regime):
     """A bed of 2 mm beads held still, Ksl from Ergun per layer, whose void fraction jumps at
     its top and its floor: the gas solver adds no loss at the jumps (dragFaces.H). The exact
@@ -343,16 +343,27 @@ def test_b_porosity_jumps(tmp_path, solver, profile, regime):
     regime "drag": u_s 0.05 m/s, CFD step 1 ms (the drag's relaxation K dt = 0.57); "inertia":
     u_s 0.5 m/s, 0.1 ms (K dt = 0.12, Re_p 67), where the momentum of the bed's interstitial
     jets, rho u_s^2 (1/eps - 1) = 0.45 Pa = 0.2 % of the drop, enters and leaves at the bed's
-    ends: the tolerances there. Before the face treatment: -4.7 / -5.2 % and -3.6 / -3.3 % of the
-    drop lost, the top bed cell's gas at 0.54 / 0.62 of u_s/eps."""
+    ends: the tolerances there; "drag, model B": the first with Zhou et al.'s model B (epsP = 1,
+    the DEM's Ksl carrying 1/eps). Before the face treatment: -4.7 / -5.2 % and -3.6 / -3.3 % of
+    the drop lost, the top bed cell's gas at 0.54 / 0.62 of u_s/eps."""
     u_sup, dt, n_steps, tol_dp, tol_u = {"drag": (0.05, 1e-3, 100, 0.002, 0.015),
-                                         "inertia": (0.5, 1e-4, 300, 0.005, 0.05)}[regime]
+                                         "inertia": (0.5, 1e-4, 300, 0.005, 0.05),
+                                         "drag, model B": (0.05, 1e-3, 100, 0.002, 0.015)}[regime]
+    model_b = regime.endswith("model B")
     case, C, V = make_case(tmp_path, "ergun", n_steps=n_steps, dt=dt)
+    if model_b:   # epsP = 1; the DEM's Ksl carries the 1/eps of model B: the same bed
+        cp = case / "constant" / "couplingProperties"
+        import re
+        text = cp.read_text()
+        assert re.search(r"modelType\s+A;", text)
+        cp.write_text(re.sub(r"modelType\s+A;", "modelType B;", text))
     n = len(V)
     levels, lay = layers(C)
     d = 2e-3
     e_l = np.array([JUMP_PROFILES[profile].get(i, 1.0) for i in range(len(levels))])
     k_l = np.where(e_l < 1, ergun_ksl(e_l, d, u_sup), 0.0)
+    if model_b:
+        k_l = k_l / e_l
     eps, ksl = np.ones(n), np.zeros(n)
     for i, idx in enumerate(lay):
         eps[idx], ksl[idx] = e_l[i], k_l[i]
@@ -369,7 +380,7 @@ def test_b_porosity_jumps(tmp_path, solver, profile, regime):
     mean = lambda a: np.array([a[idx].mean() for idx in lay])  # noqa: E731
     p, uz, gz = mean(fl["p"]), mean(fl["U"][:, 2]), mean(fl["gradp"][:, 2])
     dz = levels[1] - levels[0]
-    G = k_l * u_sup / e_l ** 2                      # the drag's pressure gradient per layer (Pa/m)
+    G = k_l * u_sup / e_l ** (1 if model_b else 2)  # the drag's pressure gradient per layer (Pa/m)
     w = np.full(len(lay), dz)
     w[0] = w[-1] = 0.5 * dz                         # cell centre of the bottom layer .. of the top one
     exact = (G * w).sum()
