@@ -11,6 +11,8 @@ needed (scripts/build_openfoam_solver.sh, cached), starts thermoDemFoam, runs th
 loop (coupling.interface) and writes
 
 * ``history.csv``, ``particles.pvd`` + ``vtk/``, ``final.npz`` (DEM, dem.output);
+* ``wall_heat.csv`` (with heat and DEM walls: the particles' heat from each wall by path,
+  dem.thermal.wall_heat; the gas's is thermoDemFoam's ``wallHeatFlux`` field);
 * ``coupling.csv`` (gas and particle energies, heat rate, pressure drop, bed height);
 * ``checkpoint.npz`` (DEM state at the end, or at the failure) and a restart point at
   every OpenFOAM write, at the end of the run and on SIGINT/SIGTERM:
@@ -402,9 +404,14 @@ def run_case(case_dir, out=None, *, transport=None, end_time=None, restart=False
     out_every = max(1, int(round(out_int / dt)))
     write_every = int(round(case.control["writeInterval"])) if case.control["writeControl"] == "timeStep" else 0
     keep = t_start if restart else None
-    hist = vtk = diag = None
+    hist = vtk = diag = walls = None
     if R.root:
         hist = History(str(out / "history.csv"), sim.history_columns(), keep)
+        if sim.thermal is not None and sim.scene.walls:
+            from dem.thermal.wall_heat import WallHeatFile, wall_area
+            lo, hi = sim.scene.domain["min"], sim.scene.domain["max"]
+            walls = WallHeatFile(str(out / "wall_heat.csv"), sim.scene.walls,
+                                 [wall_area(w, lo, hi) for w in sim.scene.walls], keep)
         vtk = VTKSeries(str(out)) if sim.scene.output["vtk"] else None
         diag = Diagnostics(out / "coupling.csv", mesh, case.gas, keep)
         outdir.claim(out / "checkpoints")
@@ -420,6 +427,10 @@ def run_case(case_dir, out=None, *, transport=None, end_time=None, restart=False
 
     def output(fluid, frame, t, step):
         _output(hist, vtk, diag, sim, iface, fluid, frame, t, step, t_wall0, timer)
+        totals = sim.wall_heat_totals()   # collective over the DEM ranks
+        if walls is not None:
+            with timer("output"):
+                walls.add(t, totals)
 
     def restart_point(step, t, fluid):
         with timer("output"):

@@ -249,3 +249,39 @@ porosity = 0.4
     assert w3[("floor", "total")][:, 1] == pytest.approx(w1[("floor", "total")][:, 1], rel=1e-14)
     gap1, gap3 = w1[("floor", "gas_gap")], w3[("floor", "gas_gap")]
     assert gap3[-1, 1] == pytest.approx(gap1[-1, 1] - gap1[6, 1], rel=1e-12)  # counted from t = 30 s
+
+
+def test_coupled_run_writes_the_particles_wall_heat(tmp_path, solver):
+    """A coupled run (`coupling run`) with a heated distributor: wall_heat.csv holds the particles'
+    heat from it by path, equal to history.csv's E_wall_distributor, and a run stopped at step 5
+    and continued (--restart) writes the same file as one run of 10 steps."""
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    from stability.coupled import write_case
+    d = 2e-3
+    ov = 2e-5
+    x = np.array([[0.003 + 0.004 * i, 0.003 + 0.004 * j, d / 2 - ov] for i in range(3) for j in range(3)])
+    case = write_case(tmp_path / "case", L=0.012, H=0.03, nxy=3, nz=6, positions=x, dt_dem=1e-5, interval=10,
+                      n_steps=10, u_in=0.5, mechanics=False, walls_top=False)
+    dem_toml = case / "dem.toml"
+    text = dem_toml.read_text()
+    old = 'name = "distributor"\npoint = [0.0, 0.0, 0.0]\nnormal = [0.0, 0.0, 1.0]\nmaterial = "glass"\n'
+    assert old in text
+    dem_toml.write_text(text.replace(old, old + 'thermal = { condition = "fixed_temperature", temperature = 400.0 }\n'))
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+
+    def run(out, *args):
+        r = subprocess.run([sys.executable, "-m", "coupling.run", "run", str(case), "--out", str(out), *args],
+                           capture_output=True, text=True, env=env, cwd=str(ROOT))
+        assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-2000:]
+    run(tmp_path / "one")
+    w = read(tmp_path / "one" / "wall_heat.csv")
+    tot = w[("distributor", "total")]
+    assert tot[-1, 1] > 0  # the distributor heats the beads
+    assert w[("distributor", "contact")][:, 1] + w[("distributor", "gas_gap")][:, 1] == \
+        pytest.approx(tot[:, 1], rel=1e-12, abs=1e-300)
+    h = np.atleast_1d(np.genfromtxt(tmp_path / "one" / "history.csv", delimiter=",", names=True))
+    assert tot[-1, 0] == pytest.approx(float(h["time"][-1]))
+    assert tot[-1, 1] == pytest.approx(float(h["E_wall_distributor"][-1]), rel=1e-10)
+    run(tmp_path / "two", "--end-time", "0.0005")
+    run(tmp_path / "two", "--restart")
+    assert (tmp_path / "one" / "wall_heat.csv").read_text() == (tmp_path / "two" / "wall_heat.csv").read_text()
