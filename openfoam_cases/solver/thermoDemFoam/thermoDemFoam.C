@@ -88,11 +88,7 @@ Foam::List<Foam::scalarField> outgoingColumns
     // step alone, so that a restart sends exactly what the interrupted run sent
     const volVectorField gradp
     (
-        rho*dragFaces::pressureGradient
-        (
-            p, dragFaces::resistance(Ksl/rho, eps, epsP), Ksl/rho*Us/epsP,
-            phiI, nu, g
-        )
+        rho*dragFaces::pressureGradient(p, Ksl, rho, eps, epsP, Us, phiI, nu, g)
     );
 
     // Velocity for the DEM: the cell (momentum) velocity, or, with fluxVelocity,
