@@ -408,10 +408,8 @@ def run_case(case_dir, out=None, *, transport=None, end_time=None, restart=False
     if R.root:
         hist = History(str(out / "history.csv"), sim.history_columns(), keep)
         if sim.thermal is not None and sim.scene.walls:
-            from dem.thermal.wall_heat import WallHeatFile, wall_area
-            lo, hi = sim.scene.domain["min"], sim.scene.domain["max"]
-            walls = WallHeatFile(str(out / "wall_heat.csv"), sim.scene.walls,
-                                 [wall_area(w, lo, hi) for w in sim.scene.walls], keep)
+            from dem.thermal.wall_heat import WallHeatFile
+            walls = WallHeatFile(str(out / "wall_heat.csv"), sim.scene, keep)
         vtk = VTKSeries(str(out)) if sim.scene.output["vtk"] else None
         diag = Diagnostics(out / "coupling.csv", mesh, case.gas, keep)
         outdir.claim(out / "checkpoints")

@@ -241,12 +241,10 @@ class WallHeatWriter(Operation):
         self.file = None
 
     def start(self, run):
-        from .thermal.wall_heat import WallHeatFile, wall_area
+        from .thermal.wall_heat import WallHeatFile
         sim = run.sim
         if sim.is_root:
-            lo, hi = sim.scene.domain["min"], sim.scene.domain["max"]
-            walls = sim.scene.walls
-            self.file = WallHeatFile(self.path, walls, [wall_area(w, lo, hi) for w in walls], self.keep_until)
+            self.file = WallHeatFile(self.path, sim.scene, self.keep_until)
         if self.write_initial:
             self.act(run, PAUSE)
 

@@ -98,10 +98,12 @@ class WallHeatFile:
     """wall_heat.csv, rewritten atomically at each output (dem.output.write_text). A continued
     run keeps the rows up to its restart time and takes its interval means from them."""
 
-    def __init__(self, path, walls, areas, keep_until=None):
+    def __init__(self, path, scene, keep_until=None):
+        """The file of ``scene``'s walls (their areas within its domain box)."""
         self.path = path
-        self.names = [w["name"] for w in walls]
-        self.areas = [float(a) for a in areas]
+        lo, hi = scene.domain["min"], scene.domain["max"]
+        self.names = [w["name"] for w in scene.walls]
+        self.areas = [wall_area(w, lo, hi) for w in scene.walls]
         self.lines = []
         self.last = None  # (time, energies[n_walls, 3]) of the previous row
         if keep_until is not None and os.path.exists(path):
