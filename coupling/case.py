@@ -106,6 +106,7 @@ class CouplingConfig:
     torque: str = "none"
     lift: str = "none"
     virtual_mass: bool = False
+    walls: list = field(default_factory=list)   # [[walls]] ties of DEM walls to gas patches (coupling.energy)
 
 
 _KEYS = {
@@ -152,9 +153,10 @@ def load_config(path: Path) -> CouplingConfig:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:
         raise CaseConfigError(path, f"not valid TOML: {e}") from None
-    extra = sorted(set(data) - {"coupling"})
+    extra = sorted(set(data) - {"coupling", "walls"})
     if extra:
-        raise CaseConfigError(path, f"unknown table(s) {extra}; only [coupling] is allowed")
+        raise CaseConfigError(path, f"unknown table(s) {extra}; allowed: [coupling] and [[walls]] (a DEM wall "
+                                    f"tied to a gas patch)")
     c = data.get("coupling")
     if not isinstance(c, dict):
         raise CaseConfigError(path, "missing [coupling] table")
@@ -185,6 +187,9 @@ def load_config(path: Path) -> CouplingConfig:
         setattr(cfg, key, val)
     if cfg.output_interval == 0.0:
         raise CaseConfigError(path, "must be > 0", "coupling.output_interval")
+    if "walls" in data:
+        from .energy import parse_ties
+        cfg.walls = parse_ties(path, data["walls"])
     return cfg
 
 
@@ -286,7 +291,10 @@ def load_case(case_dir, *, build_sim: bool = True) -> CoupledCase:
             sim = dem.Simulation(scene)  # memory checked before allocating
         except SceneError as e:
             raise CaseConfigError(dem_file, str(e).split(": ", 1)[-1]) from None
-    return CoupledCase(case_dir, cfg, dem_file, cfg_file, gas, mt, ctl, sim)
+    case = CoupledCase(case_dir, cfg, dem_file, cfg_file, gas, mt, ctl, sim)
+    from .energy import check_tie_names
+    check_tie_names(case)
+    return case
 
 
 END_TIME_RTOL = 1e-9

@@ -10,7 +10,7 @@ Two transports with the same frame layout (see docs/coupling_protocol.md):
 Frame = 56 byte little-endian header + payload::
 
     char[8]  magic b"TDEMXCHG"
-    uint32   protocol version (1)
+    uint32   protocol version (2)
     uint32   kind   (1: DEM -> CFD, 2: CFD -> DEM)
     int64    step
     int64    n_cells
@@ -18,6 +18,9 @@ Frame = 56 byte little-endian header + payload::
     float64  time [s]
     uint64   flags      (bit 0 FINAL: the sender stops after this step)
     float64  payload[n_fields][n_cells]   (column-major: one column after another)
+    int64    n_scalars
+    float64  scalars[n_scalars]  (CFD -> DEM: the gas's energy ledger of the step, see
+                                  coupling/energy.py; DEM -> CFD: none)
 
 The DEM sends (kind 1) ``eps, Ksl, Us(3), Simp, Sexp`` and receives (kind 2)
 ``U(3), T, gradp(3), p``. Only numpy and the standard library are used.
@@ -59,7 +62,7 @@ __all__ = [
 ]
 
 MAGIC = b"TDEMXCHG"
-PROTOCOL_VERSION = 1
+PROTOCOL_VERSION = 2
 KIND_TO_CFD = 1
 KIND_TO_DEM = 2
 FLAG_FINAL = 1
@@ -103,7 +106,8 @@ def _n_columns(layout) -> int:
 
 def encode_frame(kind: int, step: int, fields: Mapping[str, np.ndarray], *,
                  time_value: float = 0.0, flags: int = 0, n_cells: int | None = None) -> bytes:
-    """Pack ``fields`` into one frame (header + float64 payload, little-endian)."""
+    """Pack ``fields`` into one frame (header + float64 payload + scalars, little-endian);
+    the scalars are ``fields["scalars"]`` (none when absent)."""
     layout = _LAYOUT[kind]
     missing = [name for name, _ in layout if name not in fields]
     if missing:
@@ -123,7 +127,8 @@ def encode_frame(kind: int, step: int, fields: Mapping[str, np.ndarray], *,
         payload[k] = c
     head = HEADER.pack(MAGIC, PROTOCOL_VERSION, kind, int(step), n, len(cols),
                        float(time_value), int(flags))
-    return head + payload.tobytes()
+    sc = np.ascontiguousarray(np.asarray(fields.get("scalars", ()), dtype="<f8").ravel())
+    return head + payload.tobytes() + struct.pack("<q", sc.size) + sc.tobytes()
 
 
 def decode_header(buf: bytes) -> dict:
@@ -146,9 +151,12 @@ def decode_frame(buf: bytes) -> tuple[dict, dict[str, np.ndarray]]:
     n, nf = h["n_cells"], h["n_fields"]
     if nf != _n_columns(layout):
         raise ValueError(f"frame has {nf} columns, kind {h['kind']} needs {_n_columns(layout)}")
-    if len(buf) != HEADER_SIZE + 8 * n * nf:
-        raise ValueError(f"frame size {len(buf)} does not match header ({n} cells x {nf} columns)")
-    data = np.frombuffer(buf, dtype="<f8", offset=HEADER_SIZE).reshape(nf, n)
+    n_pay = HEADER_SIZE + 8 * n * nf
+    ns = struct.unpack_from("<q", buf, n_pay)[0] if len(buf) >= n_pay + 8 else -1
+    if ns < 0 or len(buf) != n_pay + 8 + 8 * ns:
+        raise ValueError(f"frame size {len(buf)} does not match header ({n} cells x {nf} columns"
+                         + (f", {ns} scalars)" if ns >= 0 else ", then the scalar count)"))
+    data = np.frombuffer(buf, dtype="<f8", offset=HEADER_SIZE, count=n * nf).reshape(nf, n)
     out: dict[str, np.ndarray] = {}
     k = 0
     for name, ncomp in layout:
@@ -157,6 +165,7 @@ def decode_frame(buf: bytes) -> tuple[dict, dict[str, np.ndarray]]:
         else:
             out[name] = np.ascontiguousarray(data[k:k + ncomp].T, dtype=np.float64)
         k += ncomp
+    out["scalars"] = np.frombuffer(buf, dtype="<f8", offset=n_pay + 8, count=ns).astype(np.float64)
     return h, out
 
 

@@ -191,15 +191,33 @@ class Diagnostics:
                "E_conv_particles", "dp", "bed_height", "v_max", "n_outside", "eps_raw_min",
                "eps_clipped_cells", "wall"]
 
-    def __init__(self, path, mesh, gas, keep_until=None):
+    def __init__(self, path, mesh, gas, keep_until=None, ledger=None):
         from dem.output import History
-        self.hist = History(str(path), self.COLUMNS, keep_until)
+        from .energy import BALANCE_COLUMNS
+        self.ledger = ledger
+        self.hist = History(str(path), self.COLUMNS + (BALANCE_COLUMNS if ledger is not None else []), keep_until)
         self.mesh = mesh
         self.gas = gas
         z = np.round(mesh.cell_centres[:, 2], 12)
         self.zlev = np.unique(z)
         self.bottom = np.flatnonzero(z == self.zlev[0])
         self.top = np.flatnonzero(z == self.zlev[-1])
+
+    @staticmethod
+    def particle_records(sim):
+        """[E_particles, E_conv, E_walls, E_sources] (J) of the particles, summed over the ranks
+        (collective): their thermal energy sum(C T) and what they received since the DEM's start
+        by convection, through the walls, and by radiation, generation and sources."""
+        from dem.thermal.heat import E_CONV, E_GEN, E_RAD, E_SRC, E_WALL
+        a = np.zeros(4)
+        if sim.thermal is not None:
+            st, tot = sim.state, sim.thermal.tot
+            n = st.n_owned
+            a[:] = (float((st.temperature[:n] / st.inv_heat_capacity[:n]).sum()), tot[E_CONV], tot[E_WALL],
+                    tot[E_RAD] + tot[E_GEN] + tot[E_SRC])
+        if sim.par is not None:
+            a = np.asarray(sim.par.allsum(a), float)
+        return a
 
     @staticmethod
     def row_of(diag, t, step, sim, iface, fluid, frame, wall):
@@ -221,10 +239,11 @@ class Diagnostics:
             vmax = sim.par.allmax(loc[5])
             loc = sim.par.allsum(loc)
             loc[5] = vmax
+        precs = Diagnostics.particle_records(sim)
         if diag is not None:
-            diag.row(t, step, sim, iface, fluid, frame, wall, loc)
+            diag.row(t, step, sim, iface, fluid, frame, wall, loc, precs)
 
-    def row(self, t, step, sim, iface, fluid, frame, wall, sums):
+    def row(self, t, step, sim, iface, fluid, frame, wall, sums, precs=None):
         V = self.mesh.cell_volumes
         g = self.gas
         eps = frame["eps"]
@@ -242,10 +261,13 @@ class Diagnostics:
         p = fluid["p"]
         dp = float(p[self.bottom].mean() - p[self.top].mean())
         zb = float(sums[3] / sums[4]) if sums[4] else 0.0
-        self.hist.add(dict(time=t, step=step, T_particles=Tp, T_gas=Tg, E_particles=Ep, E_gas=Eg,
-                           Q_to_gas=q, E_conv_particles=Ec, dp=dp, bed_height=zb, v_max=float(sums[5]),
-                           n_outside=int(sums[6]), eps_raw_min=iface.clip["eps_raw_min"],
-                           eps_clipped_cells=iface.clip["cells"], wall=wall))
+        row = dict(time=t, step=step, T_particles=Tp, T_gas=Tg, E_particles=Ep, E_gas=Eg,
+                   Q_to_gas=q, E_conv_particles=Ec, dp=dp, bed_height=zb, v_max=float(sums[5]),
+                   n_outside=int(sums[6]), eps_raw_min=iface.clip["eps_raw_min"],
+                   eps_clipped_cells=iface.clip["cells"], wall=wall)
+        if self.ledger is not None:
+            row.update(self.ledger.row(fluid["scalars"], precs))
+        self.hist.add(row)
 
 
 def plot(out: Path, title: str) -> Path | None:
@@ -335,6 +357,8 @@ def run_case(case_dir, out=None, *, transport=None, end_time=None, restart=False
     R.on_root(prepare_output, case, out, restart=restart, overwrite=overwrite)
     R.on_root(remove_stale_temporaries, str(out))  # left by a kill -9 of an earlier run (ours only)
     mesh = read_polymesh(str(out))
+    from .energy import EnergyLedger, tie_walls
+    ledger = EnergyLedger(mesh, tie_walls(case, mesh))   # tied walls checked on the gas mesh
     iface = CouplingInterface.for_case(case, mesh)
     dt = case.dt_cfd
     k = cfg.coupling_interval
@@ -358,6 +382,7 @@ def run_case(case_dir, out=None, *, transport=None, end_time=None, restart=False
         i0, t_start, cstate = _restart(out, sim, iface, dt, log if R.root else _silent, R, mesh.n_cells)
         iface.reset_hints()
         iface.restore_state(cstate["iface"])  # the relaxation continues from what the gas last got
+        ledger.restore(cstate["ledger"])      # the balance continues from its start (if recorded)
     end = case.end_time if end_time is None else float(end_time)
     n_steps = int(round((end - t_start) / dt))
     if n_steps < 1:
@@ -411,7 +436,7 @@ def run_case(case_dir, out=None, *, transport=None, end_time=None, restart=False
             from dem.thermal.wall_heat import WallHeatFile
             walls = WallHeatFile(str(out / "wall_heat.csv"), sim.scene, keep)
         vtk = VTKSeries(str(out)) if sim.scene.output["vtk"] else None
-        diag = Diagnostics(out / "coupling.csv", mesh, case.gas, keep)
+        diag = Diagnostics(out / "coupling.csv", mesh, case.gas, keep, ledger)
         outdir.claim(out / "checkpoints")
         (out / "checkpoints").mkdir(exist_ok=True)
     cont = _continue_command(case_dir, out, end_time, transport, R.size)
@@ -428,16 +453,17 @@ def run_case(case_dir, out=None, *, transport=None, end_time=None, restart=False
         totals = sim.wall_heat_totals()   # collective over the DEM ranks
         if walls is not None:
             with timer("output"):
-                walls.add(t, totals)
+                walls.add(t, totals, gas=ledger.gas_wall_energy(len(sim.scene.walls)))
 
     def restart_point(step, t, fluid):
         with timer("output"):
-            _write_restart_point(R, sim, iface, out, step, t, fluid)
+            _write_restart_point(R, sim, iface, out, step, t, fluid, ledger)
 
     loop = CoupledLoop(link, iface, RunWatch(mesh, cfg, log if R.root else _silent), output, restart_point,
                        n_steps=n_steps, i0=i0, t_start=t_start, dt=dt, k=k, out_every=out_every,
                        write_every=write_every, restart=restart, cstate=cstate,
-                       log=log if R.root else _silent)
+                       log=log if R.root else _silent, ledger=ledger,
+                       particle_energy=lambda: Diagnostics.particle_records(sim))
     status = "running"
     try:
         loop.run()
@@ -496,7 +522,7 @@ class CoupledLoop:
        FINAL frame)."""
 
     def __init__(self, link, iface, watch, output, restart_point, *, n_steps, i0, t_start, dt, k,
-                 out_every, write_every, restart, cstate, log):
+                 out_every, write_every, restart, cstate, log, ledger=None, particle_energy=None):
         from dem.operations import Every
         self.link, self.iface, self.watch = link, iface, watch
         self.output, self.restart_point = output, restart_point
@@ -504,6 +530,7 @@ class CoupledLoop:
         self.outputs = Every(out_every)            # in coupling steps of this run
         self.restart_points = Every(write_every)   # in coupling steps since t = 0 (OpenFOAM's writes)
         self.restart, self.cstate, self.log = restart, cstate, log
+        self.ledger, self.particle_energy = ledger, particle_energy   # the energy balance (coupling.energy)
         self.step, self.t = i0, t_start
         self.stop_sig = 0   # SIGINT/SIGTERM of this process (rank 0 decides for every DEM rank)
         self.peer_sig = 0   # the signal that stopped the gas solver (other ranks: either signal)
@@ -512,6 +539,10 @@ class CoupledLoop:
         from dem.operations import PAUSE
         link, iface, dt = self.link, self.iface, self.dt
         fluid = link.first(self.i0, self.t_start, self.cstate)
+        ledger = self.ledger
+        if ledger is not None:
+            ledger.check(fluid["scalars"], self.i0)
+            ledger.begin(fluid["scalars"], self.particle_energy())   # collective
         for s in range(1, self.n_steps + 1):
             self.step = step = self.i0 + s
             self.stop_sig = self.stop_sig or link.own_stop()
@@ -526,6 +557,9 @@ class CoupledLoop:
             if s < self.n_steps:   # (also on a stop step: every DEM rank does it, collectively)
                 iface.map_particles()   # overlaps with the gas solve
             fluid, final, self.peer_sig = link.receive(step, t, iface.eps_change, self.stop_sig)
+            if ledger is not None:
+                ledger.check(fluid["scalars"], step)
+                ledger.add(fluid["scalars"], dt)
             self.watch.after_receive(fluid, t)
             # peer_sig implies a FINAL frame; on the other ranks it also carries rank 0's stop
             done = last or final or bool(self.peer_sig)
@@ -694,7 +728,7 @@ def _first_frame(ex, i0, t_start, mesh, cfg, cstate):
         return fluid
     saved = cstate["fluid"]
     cstate["frame_difference"] = max(float(np.max(np.abs(np.asarray(fluid[k]) - saved[k]), initial=0.0))
-                                     for k in saved)
+                                     for k in FLUID_FIELDS)
     return dict(fluid, **saved)
 
 
@@ -894,7 +928,7 @@ def _restart_point_files(out: Path, step: int) -> tuple[Path, Path]:
     return d / f"checkpoint_{step:08d}.npz", d / f"coupling_{step:08d}.npz"
 
 
-def _coupling_state(iface, step, t, fluid):
+def _coupling_state(iface, step, t, fluid, ledger=None):
     """Arrays of checkpoints/coupling_<step>.npz: the exchange-field state of the
     interface (eps, Ksl as last sent: the time-smoothing relaxes from them) and the gas
     frame of this step (U, T, grad p, p), which the next DEM interval uses."""
@@ -904,17 +938,20 @@ def _coupling_state(iface, step, t, fluid):
         d[f"iface_{key}"] = a
     for key in FLUID_FIELDS:
         d[f"fluid_{key}"] = np.ascontiguousarray(fluid[key], dtype=np.float64)
+    d["fluid_scalars"] = np.ascontiguousarray(fluid.get("scalars", ()), dtype=np.float64)
+    if ledger is not None:
+        d.update(ledger.state())
     return d
 
 
-def _write_restart_point(R, sim, iface, out, step, t, fluid):
+def _write_restart_point(R, sim, iface, out, step, t, fluid, ledger=None):
     """A restart point at this step (collective): the coupling state first, then the DEM
     checkpoint, each written atomically; ``--restart`` only takes a step whose DEM
     checkpoint exists, so a kill between the two writes leaves the previous point."""
     ck, cs = _restart_point_files(out, step)
     if R.root:
         from dem.output import save_npz
-        save_npz(str(cs), durable=True, **_coupling_state(iface, step, t, fluid))
+        save_npz(str(cs), durable=True, **_coupling_state(iface, step, t, fluid, ledger))
     sim.write_checkpoint(str(ck))
     return ck
 
@@ -950,11 +987,14 @@ def _load_coupling_state(path: Path, step: int, n_cells: int) -> dict:
             raise CouplingRunError(f"{path}: gas field fluid_{key} missing, not float64 of shape {shape} "
                                    f"(the mesh has {n_cells} cells) or not finite")
         fluid[key] = a
+    if "fluid_scalars" in arrays:   # the solver's energy ledger of the step (older states: none)
+        fluid["scalars"] = np.asarray(arrays["fluid_scalars"], np.float64)
     iface = {key[6:]: a for key, a in arrays.items() if key.startswith("iface_")}
     for key in ("eps_sent", "ksl_sent"):
         if key not in iface:
             raise CouplingRunError(f"{path}: iface_{key} missing")
-    return dict(fluid=fluid, iface=iface, time=float(arrays["time"]), path=path)
+    ledger = {key: arrays[key] for key in ("ledger_acc", "ledger_ref") if key in arrays}
+    return dict(fluid=fluid, iface=iface, ledger=ledger, time=float(arrays["time"]), path=path)
 
 
 def _restart(out: Path, sim, iface, dt, log, R, n_cells):
@@ -1048,6 +1088,8 @@ def _case_on_temporary_mesh(case_dir):
     case = load_case(case_dir)
     tmp, mesh = mesh_in_tmp(case.dir)
     try:
+        from .energy import tie_walls
+        tie_walls(case, mesh)
         iface = CouplingInterface.for_case(case, mesh)
         eps0 = iface.initial_void_fraction()
         rep = check_coupled_case(case, mesh, eps0=eps0, clip=dict(iface.clip))

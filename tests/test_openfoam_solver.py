@@ -94,11 +94,18 @@ def test_frame_roundtrip_and_errors(tmp_path):
     f = dict(eps=rng.random(n), Ksl=rng.random(n), Us=rng.random((n, 3)),
              Simp=rng.random(n), Sexp=rng.random(n))
     buf = encode_frame(1, 5, f, time_value=0.25, flags=1)
-    assert len(buf) == 56 + 8 * 7 * n
+    assert len(buf) == 56 + 8 * 7 * n + 8    # header, columns, scalar count (no scalars)
     h, g = decode_frame(buf)
     assert (h["step"], h["n_cells"], h["n_fields"], h["time"], h["flags"]) == (5, n, 7, 0.25, 1)
     for k in f:
         assert np.array_equal(f[k], g[k])
+    assert g["scalars"].size == 0
+    # the scalars after the columns (the gas's energy ledger in CFD -> DEM frames)
+    led = np.array([1.5, -2.25, 3e9])
+    g2 = decode_frame(encode_frame(1, 5, dict(f, scalars=led)))[1]
+    assert np.array_equal(g2["scalars"], led) and np.array_equal(g2["Sexp"], f["Sexp"])
+    with pytest.raises(ValueError, match="does not match header"):
+        decode_frame(encode_frame(1, 5, dict(f, scalars=led))[:-8])
     # the same bytes arrive through both transports
     a = FileExchange(tmp_path / "x", side="cfd", timeout=2)
     b = FileExchange(tmp_path / "x", side="dem", timeout=2, clean=False)

@@ -285,3 +285,148 @@ def test_coupled_run_writes_the_particles_wall_heat(tmp_path, solver):
     run(tmp_path / "two", "--end-time", "0.0005")
     run(tmp_path / "two", "--restart")
     assert (tmp_path / "one" / "wall_heat.csv").read_text() == (tmp_path / "two" / "wall_heat.csv").read_text()
+
+
+# ------------------------------------------------------------------ walls of both phases
+
+def _tied_case(dest, n_steps=10, Tw=400.0):
+    """A frozen bed of 9 beads of 2 mm on the floor of a 12 x 12 x 30 mm box meshed 3 x 3 x 6, hot
+    gas (373.15 K) entering at 0.5 m/s; the DEM wall `left` (x = 0, three beads touch it) at a
+    fixed 400 K is tied to the gas patch `left` (fixedValue 400 K); every other wall adiabatic."""
+    import re
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    from stability.coupled import write_case
+    d, ov = 2e-3, 2e-5
+    x = np.array([[0.003 + 0.004 * i, 0.003 + 0.004 * j, d / 2 - ov] for i in range(3) for j in range(3)])
+    x[:3, 0] = d / 2 - ov
+    case = write_case(Path(dest), L=0.012, H=0.03, nxy=3, nz=6, positions=x, dt_dem=1e-5, interval=10,
+                      n_steps=n_steps, u_in=0.5, mechanics=False, walls_top=False, periodic=False)
+    t = (case / "dem.toml").read_text()
+    old = 'name = "left"\npoint = [0.0, 0.0, 0.0]\nnormal = [1.0, 0.0, 0.0]\nmaterial = "glass"\n'
+    assert old in t
+    (case / "dem.toml").write_text(t.replace(old, old + f'thermal = {{ condition = "fixed_temperature", '
+                                                        f'temperature = {Tw!r} }}\n'))
+    bm = case / "system" / "blockMeshDict"
+    s = bm.read_text()
+    s2 = re.sub(r"xWalls\s*\{[^}]*\}", "left\n{\n    type wall;\n    faces ( (0 4 7 3) );\n}\nright\n{\n"
+                "    type wall;\n    faces ( (1 2 6 5) );\n}", s)
+    assert s2 != s
+    bm.write_text(s2)
+    for f in (case / "0").iterdir():
+        s = f.read_text()
+        m = re.search(r"xWalls\s*\{([^}]*)\}", s)
+        body = m.group(1)
+        left = f"\n        type fixedValue;\n        value uniform {Tw!r};\n    " if f.name == "T" else body
+        f.write_text(s.replace(m.group(0), "left\n    {" + left + "}\n    right\n    {" + body + "}"))
+    with open(case / "coupling.toml", "a") as fh:
+        fh.write('\n[[walls]]\ndem = "left"\npatch = "left"\n')
+    return case
+
+
+def _foam_list(path, patch=None):
+    """Values of an ASCII OpenFOAM scalar field: the internal field, or a patch's value."""
+    import re
+    text = Path(path).read_text()
+    if patch is not None:
+        text = text[re.search(rf"\n\s*{patch}\s*\{{", text).end():]
+        m = re.search(r"value\s+nonuniform List<scalar>\s*(\d+)\s*\(([^)]*)\)", text)
+    else:
+        m = re.search(r"internalField\s+nonuniform List<scalar>\s*(\d+)\s*\(([^)]*)\)", text)
+    v = np.array(m.group(2).split(), float)
+    assert v.size == int(m.group(1))
+    return v
+
+
+def test_tied_wall_heats_both_phases_and_the_energy_balance_closes(tmp_path, solver):
+    """A DEM wall tied to its gas patch (coupling.toml [[walls]]): wall_heat.csv gets the gas's own
+    heat from it (`gas_convection`, the solver's wall conduction: equal to the written
+    wallHeatFlux field, and to eps k (T_w - T_P)/(dx/2) A of the wall cells), and `total` is the
+    particles' paths plus the gas's. coupling.csv's energy balance: the change of particle and
+    gas energy equals the heat from the walls plus the inflow through inlet and outlet plus the
+    two explained parts (the explicit exchange's mismatch and the continuity residual) to
+    round-off; a run stopped and continued writes the same records."""
+    case = _tied_case(tmp_path / "case")
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+
+    def run(out, *args):
+        r = subprocess.run([sys.executable, "-m", "coupling.run", "run", str(case), "--out", str(out), *args],
+                           capture_output=True, text=True, env=env, cwd=str(ROOT))
+        assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-2000:]
+    one = tmp_path / "one"
+    run(one)
+    w = read(one / "wall_heat.csv")
+    assert ("left", "gas_convection") in w and ("right", "gas_convection") not in w   # only the tied wall
+    gas, tot = w[("left", "gas_convection")], w[("left", "total")]
+    parts = w[("left", "contact")][:, 1] + w[("left", "gas_gap")][:, 1] + gas[:, 1]
+    assert parts == pytest.approx(tot[:, 1], rel=1e-12, abs=1e-300)
+    assert w[("left", "contact")][-1, 1] > 0 and gas[-1, 1] > 0   # the hot wall heats beads and gas
+    # the last row's rate is the last CFD step's (one step per output): the solver's field
+    last = one / "0.001"
+    q = _foam_list(last / "wallHeatFlux", "left")
+    A = 0.004 * 0.005     # the 18 faces of the patch
+    assert gas[-1, 2] == pytest.approx(float(q.sum()) * A, rel=1e-9)
+    # ... which is the conduction across the half cell next to the wall, eps k (T_w - T_P)/(dx/2)
+    from coupling.mesh import read_polymesh
+    mesh = read_polymesh(str(one))
+    T, eps = _foam_list(last / "T"), _foam_list(last / "eps")
+    cells = np.flatnonzero(mesh.cell_centres[:, 0] < 0.004)
+    assert cells.size == 18
+    from coupling.case import gas_properties
+    k = gas_properties(one).k
+    expect = float((eps[cells] * k * (400.0 - T[cells]) / 0.002).sum() * A)
+    assert gas[-1, 2] == pytest.approx(expect, rel=1e-6)
+    # the energy balance of coupling.csv
+    c = np.atleast_1d(np.genfromtxt(one / "coupling.csv", delimiter=",", names=True))
+    through = np.abs(c["E_open"]) + np.abs(c["E_walls_gas"]) + np.abs(c["E_walls_particles"])
+    assert np.all(np.abs(c["balance_residual"]) <= 1e-9 * through + 1e-15)
+    assert c["balance_error"] == pytest.approx(c["E_exchange_mismatch"] + c["E_continuity"], abs=1e-12)
+    assert c["E_walls_gas"][-1] == pytest.approx(gas[-1, 1], rel=1e-12)
+    assert c["E_walls_particles"][-1] == pytest.approx(w[("left", "contact")][-1, 1] + w[("left", "gas_gap")][-1, 1],
+                                                       rel=1e-12)
+    assert c["E_gas_solver"] == pytest.approx(c["E_gas"], rel=1e-12)
+    assert c["E_open"][-1] > 0    # the hot inflow brings heat
+    # stopped at step 5 and continued: the same records
+    two = tmp_path / "two"
+    run(two, "--end-time", "0.0005")
+    run(two, "--restart")
+    assert (one / "wall_heat.csv").read_text() == (two / "wall_heat.csv").read_text()
+    c2 = np.atleast_1d(np.genfromtxt(two / "coupling.csv", delimiter=",", names=True))
+    for name in ("E_walls_gas", "E_open", "balance_error", "E_exchange_mismatch", "E_gas_solver"):
+        assert np.array_equal(c[name], c2[name]), name
+
+
+def test_tied_wall_check_names_both(tmp_path):
+    """`coupling check` refuses a tie that cannot be one wall, naming the file, the key and both
+    sides: a patch that does not exist, one of another type, one elsewhere, another temperature."""
+    case = _tied_case(tmp_path / "case")
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    cfg = (case / "coupling.toml").read_text()
+
+    def check(text):
+        (case / "coupling.toml").write_text(text)
+        r = subprocess.run([sys.executable, "-m", "coupling.run", "check", str(case)],
+                           capture_output=True, text=True, env=env, cwd=str(ROOT))
+        assert "Traceback" not in r.stderr
+        return r.returncode, r.stdout + r.stderr
+    rc, msg = check(cfg.replace('patch = "left"', 'patch = "lft"'))
+    assert rc == 2 and "walls[0].patch: no gas patch 'lft'" in msg and "left, right" in msg
+    rc, msg = check(cfg.replace('patch = "left"', 'patch = "inlet"'))
+    assert rc == 2 and "DEM wall 'left'" in msg and "gas patch 'inlet'" in msg   # not this wall's condition
+    rc, msg = check(cfg.replace('dem = "left"', 'dem = "wall_x"'))
+    assert rc == 2 and "walls[0].dem: no DEM wall 'wall_x'" in msg
+    T = (case / "0" / "T").read_text()
+    (case / "0" / "T").write_text(T.replace("uniform 400.0", "uniform 410.0"))
+    rc, msg = check(cfg)
+    assert rc == 2 and "DEM wall 'left'" in msg and "gas patch 'left'" in msg and "it is 410 K" in msg
+    (case / "0" / "T").write_text(T)
+    # `right` is an adiabatic DEM wall 12 mm away from the patch `left`
+    rc, msg = check(cfg.replace('dem = "left"', 'dem = "right"'))
+    assert rc == 2 and "DEM wall 'right'" in msg
+    # the patch `right` at 400 K too: the same condition, but 12 mm from the DEM wall `left`
+    import re
+    (case / "0" / "T").write_text(re.sub(r"right\s*\{[^}]*\}", "right { type fixedValue; value uniform 400.0; }", T))
+    rc, msg = check(cfg.replace('patch = "left"', 'patch = "right"'))
+    assert rc == 2 and "do not coincide" in msg and "0.012 m from the DEM wall" in msg
+    (case / "0" / "T").write_text(T)
+    rc, msg = check(cfg)
+    assert rc == 0, msg

@@ -7,7 +7,9 @@ wall, reference 001). ``WallHeatFile`` writes them as rows
 
     time, wall, mechanism, energy_J, heat_rate_W, heat_flux_W_m2, area_m2
 
-with mechanism ``contact``, ``gas_gap`` and ``total``; heat_rate_W is the mean over the
+with mechanism ``contact``, ``gas_gap``, for a wall tied to a patch of the gas mesh in a coupled
+run (coupling.energy) ``gas_convection`` (the gas's own heat from the wall: the solver's wall
+conduction), and ``total`` (their sum); heat_rate_W is the mean over the
 interval since the previous row (energy difference over time difference; 0 on the first row),
 heat_flux_W_m2 = heat_rate_W / area_m2, and the sign is that of the heat given to the
 particles (positive: the wall heats the bed). energy_J is written to 17 digits, so that a
@@ -20,7 +22,7 @@ import os
 
 import numpy as np
 
-MECHANISMS = ("contact", "gas_gap", "total")
+MECHANISMS = ("contact", "gas_gap", "gas_convection", "total")
 COLUMNS = ("time", "wall", "mechanism", "energy_J", "heat_rate_W", "heat_flux_W_m2", "area_m2")
 
 
@@ -126,11 +128,15 @@ class WallHeatFile:
                     e[k, j] = te[1] if te is not None and te[0] == t else math.nan
             self.last = (t, e)
 
-    def add(self, t, totals):
-        """totals: [n_walls, 2] of (all paths, gas gap) in J since the start."""
+    def add(self, t, totals, gas=None):
+        """totals: [n_walls, 2] of the particles' (all paths, gas gap) in J since the start;
+        gas: [n_walls] the gas's own heat from each tied wall in J (NaN: not tied; None: no
+        tied walls)."""
         from ..output import write_text
         tot = np.asarray(totals, float)
-        e = np.c_[tot[:, 0] - tot[:, 1], tot[:, 1], tot[:, 0]]
+        g = np.full(len(tot), math.nan) if gas is None else np.asarray(gas, float)
+        tied = np.isfinite(g)
+        e = np.c_[tot[:, 0] - tot[:, 1], tot[:, 1], g, tot[:, 0] + np.where(tied, g, 0.0)]
         # the time as written (12 digits) and the energies exactly (17): a continued run reads
         # them back and takes the same interval means as an uninterrupted one
         t = float(f"{t:.12g}")
@@ -141,6 +147,8 @@ class WallHeatFile:
         for k, name in enumerate(self.names):
             a = self.areas[k]
             for j, mech in enumerate(MECHANISMS):
+                if mech == "gas_convection" and not tied[k]:
+                    continue
                 q = rate[k, j] / a if a > 0 else math.nan
                 self.lines.append(f"{t:.12g},{name},{mech},{float(e[k, j])!r},{rate[k, j]:.12g},{q:.12g},{a:.12g}\n")
         self.last = (t, e)

@@ -20,6 +20,8 @@ Description
     One CFD time step per coupling step. Protocol (docs/coupling_protocol.md):
       start : send step i0 (initial U, T, grad p, p)
       loop  : receive step n (eps, Ksl, Us, Simp, Sexp) -> solve -> send step n
+    Each frame to the DEM ends with the step's energy ledger (energyBalance.H):
+    the heat through each boundary patch, the gas's energy, the particles' heat.
     Transport selected in system/couplingDict (file | socket | none).
 
     Stop signals (coupled runs): SIGINT or SIGTERM finish the current step,
@@ -37,6 +39,7 @@ Description
 #include "dragFaces.H"
 #include "wallFvPatch.H"
 #include "couplingIO.H"
+#include "energyBalance.H"
 
 #include <csignal>
 
@@ -150,6 +153,23 @@ int main(int argc, char *argv[])
     }
     const bool fluxVelocity = (sendVelocity == "flux");
 
+    // the gas's energy ledger of the last step (energyBalance.H), sent with each frame;
+    // at the start only its energy is meaningful (no step solved yet)
+    List<scalar> energyLedger(energyBalance::size(mesh), 0.0);
+    {
+        tmp<volScalarField> tnut;
+        if (turbulentFlow)
+        {
+            tnut = turbulence->nut();
+        }
+        energyLedger = energyBalance::ledger
+        (
+            T, eps, phi,
+            energyBalance::diffusivity(eps, alphaGas, tnut.valid() ? &tnut() : nullptr, Prt.value())(),
+            rho, cp, Sexp, Simp, nullptr
+        );
+    }
+
     // ------------------------------------------------------------- step i0
     if (coupling.active())
     {
@@ -159,6 +179,7 @@ int main(int argc, char *argv[])
             runTime.timeIndex(),
             runTime.value(),
             outgoingColumns(U, T, p, rho, phi, eps, epsP, Ksl, Us, phiI, nu, g, fluxVelocity),
+            energyLedger,
             0
         );
     }
@@ -290,6 +311,7 @@ int main(int argc, char *argv[])
                 step,
                 runTime.value(),
                 outgoingColumns(U, T, p, rho, phi, eps, epsP, Ksl, Us, phiI, nu, g, fluxVelocity),
+                energyLedger,
                 (lastStep ? demCoupling::flagFinal : 0)
               | (label(stopSig & 0xff) << demCoupling::signalShift)
             );

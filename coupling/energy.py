@@ -1,0 +1,333 @@
+"""Walls of both phases and the coupled run's energy ledger (issue 14).
+
+**Tied walls.** A DEM wall and a boundary patch of the gas mesh are one wall when
+coupling.toml ties them::
+
+    [[walls]]
+    dem = "tube"          # a [[walls]] name of dem.toml
+    patch = "tube"        # a patch of the gas mesh, of type wall
+    # tolerance = 1e-4    # m: largest distance of the patch's points from the DEM wall
+    #                     # (default: a tenth of the smallest particle diameter)
+
+The pair must coincide: every point of the patch lies on the DEM wall's surface within the
+tolerance, and the two areas agree within ``AREA_RTOL`` plus what a polygonal patch of a
+cylinder loses to its chords; and its thermal condition must be one: a fixed temperature on
+both sides (fixedValue of the same value in 0/T; a temperature table: uniformFixedValue), or
+adiabatic on both (zeroGradient). Otherwise the check names both. A fixed-heat-flux wall is
+not tied yet (the split of q_w A between contacts and gas is to come). A tied wall's heat is written
+per path in wall_heat.csv: the particles' ``contact`` and ``gas_gap`` (DEM), the gas's own
+``gas_convection`` (the solver's wall conduction, below) and their ``total``.
+
+**The gas's ledger.** Each frame of the solver ends with the step's energy ledger
+(openfoam_cases/solver/thermoDemFoam/energyBalance.H): per boundary patch the heat into the
+gas by conduction (the laplacian's wall flux, rho cp eps_f (alpha + alpha_t) dT/dn) and by
+advection (-rho cp phi_b T_b), then the gas's energy rho cp sum(eps T V), the continuity
+residual the non-conservative energy equation adds back, and the particles' heat
+sum((Sexp - Simp T) V). The rates are those of the step's end (implicit Euler), so rate x dt
+is exactly what the step's discrete balance used. :class:`EnergyLedger` integrates them over
+the run and writes coupling.csv's balance:
+
+    balance_error = (E_particles - E_particles(0)) + (E_gas - E_gas(0))
+                    - (E_walls_particles + E_walls_gas + E_open + E_sources_particles)
+
+which is made of two known parts and a residual:
+
+* ``E_exchange_mismatch``: the particles' convective heat (integrated in the DEM's steps with
+  the gas temperature of the interval's start) plus the gas's heat from the particles
+  (the sources of the solver's steps); the explicit exchange does not make them opposite
+  exactly;
+* ``E_continuity``: the gas's continuity residual times its temperature (solver tolerance);
+* ``balance_residual`` = balance_error - E_exchange_mismatch - E_continuity: what the
+  bookkeeping does not explain (the linear solvers' tolerance and round-off).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+AREA_RTOL = 0.03          # tied pair: |A_patch / A_wall - 1| allowed beyond the chord loss
+TIE_KEYS = ("dem", "patch", "tolerance")
+
+
+# --------------------------------------------------------------------------- tied walls
+
+def parse_ties(path, raw) -> list[dict]:
+    """coupling.toml [[walls]] -> [{dem, patch, tolerance}]; CaseConfigError naming the key."""
+    from .case import CaseConfigError
+    if not isinstance(raw, list) or not all(isinstance(t, dict) for t in raw):
+        raise CaseConfigError(path, "must be an array of tables [[walls]] with dem = \"<DEM wall name>\" and "
+                                    "patch = \"<gas patch name>\"", "walls")
+    ties = []
+    for k, t in enumerate(raw):
+        key = f"walls[{k}]"
+        extra = sorted(set(t) - set(TIE_KEYS))
+        if extra:
+            raise CaseConfigError(path, f"unknown key(s) {extra}; valid keys: {', '.join(TIE_KEYS)}", key)
+        for name in ("dem", "patch"):
+            if not isinstance(t.get(name), str) or not t[name]:
+                raise CaseConfigError(path, f"missing or not a name (a string), got {t.get(name)!r}; "
+                                            f"{'dem: a [[walls]] name of dem.toml' if name == 'dem' else 'patch: a boundary patch of the gas mesh'}",
+                                      f"{key}.{name}")
+        tol = t.get("tolerance")
+        if tol is not None and (isinstance(tol, bool) or not isinstance(tol, (int, float))
+                                or not math.isfinite(tol) or tol <= 0):
+            raise CaseConfigError(path, f"must be a length > 0 in m, got {tol!r}", f"{key}.tolerance")
+        for other in ties:
+            for name in ("dem", "patch"):
+                if other[name] == t[name]:
+                    raise CaseConfigError(path, f"{name} {t[name]!r} is tied twice (a wall is tied to one "
+                                                f"patch, a patch to one wall)", f"{key}.{name}")
+        ties.append(dict(dem=t["dem"], patch=t["patch"], tolerance=None if tol is None else float(tol)))
+    return ties
+
+
+def check_tie_names(case) -> None:
+    """Before anything is written: each tied DEM wall exists in dem.toml and each patch in the
+    gas case (constant/polyMesh/boundary or system/blockMeshDict)."""
+    from . import foam_case as fc
+    from .case import CaseConfigError
+    ties = case.config.walls
+    if not ties:
+        return
+    names = [w["name"] for w in case.sim.scene.walls] if case.sim is not None else None
+    patches = fc.patch_names(case.dir)
+    for k, t in enumerate(ties):
+        if names is not None and t["dem"] not in names:
+            raise CaseConfigError(case.config_file, f"no DEM wall {t['dem']!r} in {case.dem_file.name}; its walls: "
+                                                    f"{', '.join(names) or 'none'}", f"walls[{k}].dem")
+        if t["patch"] not in patches:
+            raise CaseConfigError(case.config_file, f"no gas patch {t['patch']!r}; the mesh's patches: "
+                                                    f"{', '.join(patches)}", f"walls[{k}].patch")
+        if case.sim is not None:
+            _check_condition(case, k, t, case.sim.scene.walls[names.index(t["dem"])])
+
+
+def _gas_condition(case, patch):
+    """The boundary condition of 0/T on ``patch`` (exact name first, then regex keys)."""
+    import re
+    from . import foam_case as fc
+    bf = fc.parse_foam_dict(case.dir / "0" / "T").get("boundaryField", {})
+    if patch in bf:
+        return bf[patch]
+    for key, spec in bf.items():
+        if re.fullmatch(key.strip('"'), patch):
+            return spec
+    return {}
+
+
+def _check_condition(case, k, t, w):
+    """A tied wall is one wall: the gas patch's temperature condition (0/T) must be the DEM
+    wall's (the same fixed temperature, or adiabatic on both sides)."""
+    from .case import CaseConfigError
+    spec = w.get("thermal") or {"condition": "adiabatic"}
+    cond = spec.get("condition", "adiabatic")
+    gas = _gas_condition(case, t["patch"])
+    gtype = str(gas.get("type", "?"))
+    both = (f"DEM wall {t['dem']!r} ({case.dem_file.name}: {cond}) and gas patch {t['patch']!r} "
+            f"(0/T: {gtype})")
+    key = f"walls[{k}]"
+    if cond == "fixed_heat_flux":
+        raise CaseConfigError(case.config_file, f"{both}: a fixed-heat-flux wall cannot be tied yet (the split of "
+                                                f"q_w A between the particles' contacts and the gas is not built); "
+                                                f"untie it, or give the wall a fixed temperature", key)
+    if cond == "adiabatic":
+        ok = gtype == "zeroGradient" or (gtype == "fixedGradient" and _uniform(gas.get("gradient")) == 0.0)
+        if not ok:
+            raise CaseConfigError(case.config_file, f"{both}: one wall needs one condition: an adiabatic DEM wall "
+                                                    f"needs zeroGradient on the gas patch", key)
+        return
+    if "table" in spec:
+        if gtype != "uniformFixedValue":
+            raise CaseConfigError(case.config_file, f"{both}: a DEM wall temperature table needs the same table on "
+                                                    f"the gas patch (type uniformFixedValue)", key)
+        return
+    Tw = float(spec.get("temperature", math.nan))
+    Tg = _uniform(gas.get("value")) if gtype == "fixedValue" else None
+    if Tg is None or not math.isclose(Tg, Tw, rel_tol=1e-9, abs_tol=0.0):
+        raise CaseConfigError(case.config_file, f"{both}: one wall needs one condition: the gas patch must be "
+                                                f"fixedValue uniform {Tw:g} (the DEM wall's temperature)"
+                                                + (f", it is {Tg:g} K" if Tg is not None else ""), key)
+
+
+def _uniform(text):
+    """The number of 'uniform X' (None if not of that form)."""
+    parts = str(text or "").split()
+    if len(parts) == 2 and parts[0] == "uniform":
+        try:
+            return float(parts[1])
+        except ValueError:
+            return None
+    return None
+
+
+def _surface_distance(w, x):
+    """Distance of points x (n, 3) from the surface of scene wall w (a bounded plane: from its
+    rectangle; a cylinder of finite length: from its lateral surface between its ends)."""
+    p = np.asarray(w["point"], float)
+    r = x - p
+    if w["type"] == "plane":
+        n = np.asarray(w["normal"], float)
+        d = np.abs(r @ n)
+        ext = w.get("extent")
+        if ext is not None:
+            u = np.asarray(w["u_axis"], float)
+            v = np.cross(n, u)
+            over = np.maximum(np.abs(r @ u) - ext[0], 0.0) ** 2 + np.maximum(np.abs(r @ v) - ext[1], 0.0) ** 2
+            d = np.sqrt(d * d + over)
+        return d
+    a = np.asarray(w["axis"], float)
+    s = r @ a
+    rho = np.linalg.norm(r - s[:, None] * a, axis=1)
+    d = np.abs(rho - float(w["radius"]))
+    if math.isfinite(w["length"]):
+        d = np.sqrt(d * d + np.maximum(np.abs(s) - 0.5 * w["length"], 0.0) ** 2)
+    return d
+
+
+def _patch(mesh, name):
+    for k, p in enumerate(p for p in mesh.boundary if p.get("type") != "processor"):
+        if p["name"] == name:
+            return k, p
+    return None, None
+
+
+def tie_walls(case, mesh) -> dict[int, int]:
+    """Check the tied pairs on the gas mesh; returns {DEM wall index: patch index (in the
+    boundary's order, the ledger's)}. CaseConfigError naming both when a pair does not
+    coincide."""
+    from dem.thermal.wall_heat import wall_area
+    from .case import CaseConfigError
+    ties = case.config.walls
+    if not ties:
+        return {}
+    sc = case.sim.scene
+    names = [w["name"] for w in sc.walls]
+    dmin = 2.0 * float(np.min(sc.radius))
+    out = {}
+    for k, t in enumerate(ties):
+        key = f"walls[{k}]"
+        wi = names.index(t["dem"])
+        w = sc.walls[wi]
+        pi, p = _patch(mesh, t["patch"])
+        if p is None:
+            raise CaseConfigError(case.config_file, f"no gas patch {t['patch']!r} in the mesh", f"{key}.patch")
+        if p.get("type") != "wall":
+            raise CaseConfigError(case.config_file, f"gas patch {t['patch']!r} is of type {p.get('type')!r}; a tied "
+                                                    f"patch must be of type wall (constant/polyMesh/boundary, "
+                                                    f"blockMeshDict)", f"{key}.patch")
+        f0, nf = int(p["startFace"]), int(p["nFaces"])
+        pts = np.unique(np.concatenate([mesh.face_points[mesh.face_offsets[f]:mesh.face_offsets[f + 1]]
+                                        for f in range(f0, f0 + nf)])) if nf else np.zeros(0, int)
+        x = mesh.points[pts]
+        tol = t["tolerance"] if t["tolerance"] is not None else 0.1 * dmin
+        both = f"DEM wall {t['dem']!r} ({case.dem_file.name}) and gas patch {t['patch']!r}"
+        if nf == 0:
+            raise CaseConfigError(case.config_file, f"{both}: the patch has no faces", key)
+        d = _surface_distance(w, x)
+        j = int(np.argmax(d))
+        if d[j] > tol:
+            raise CaseConfigError(case.config_file, f"{both} do not coincide: the patch's point "
+                                                    f"{np.array2string(x[j], precision=6)} is {d[j]:.3g} m from the "
+                                                    f"DEM wall (tolerance {tol:.3g} m); move one of them or set "
+                                                    f"{key}.tolerance", key)
+        a_wall = wall_area(w, sc.domain["min"], sc.domain["max"])
+        a_patch = float(np.linalg.norm(mesh.face_areas[f0:f0 + nf], axis=1).sum())
+        chord = 0.0
+        if w["type"] == "cylinder":   # the patch's polygon lies inside the circle through its points
+            chord = 1.0 - a_patch / max(a_wall, 1e-300)
+            chord = min(max(chord, 0.0), 0.05)
+        if a_wall <= 0 or abs(a_patch / a_wall - 1.0) > AREA_RTOL + chord:
+            raise CaseConfigError(case.config_file, f"{both} do not coincide: the patch's area is {a_patch:.6g} m^2, "
+                                                    f"the DEM wall's {a_wall:.6g} m^2 within the DEM domain "
+                                                    f"(allowed: {100 * AREA_RTOL:g} %); the patch must cover the "
+                                                    f"wall the particles touch", key)
+        out[wi] = pi
+    return out
+
+
+# --------------------------------------------------------------------------- ledger
+
+class EnergyLedger:
+    """The run's energy bookkeeping (the same on every DEM rank; rank 0 writes): the
+    solver's ledger integrated over the coupling steps, and the references of the balance."""
+
+    def __init__(self, mesh, ties: dict[int, int]):
+        pats = [p for p in mesh.boundary if p.get("type") != "processor"]
+        self.patch_names = [p["name"] for p in pats]
+        self.wall = np.array([p.get("type") == "wall" for p in pats], bool)
+        self.n_patches = len(pats)
+        self.size = 2 * self.n_patches + 3
+        self.ties = dict(ties)
+        self.acc = np.zeros(self.size)        # J: the rates' integrals (the energy slot unused)
+        self.ref = None                       # [E_gas(0), E_particles(0), particle records at 0 ...]
+
+    # ledger entries
+    def _cond(self):
+        return slice(0, 2 * self.n_patches, 2)
+
+    def _adv(self):
+        return slice(1, 2 * self.n_patches, 2)
+
+    def check(self, scalars, step):
+        """The ledger of a received frame must have this mesh's size and be finite."""
+        from .exchange import CouplingError
+        s = np.asarray(scalars)
+        if s.size != self.size:
+            raise CouplingError(f"the frame's energy ledger has {s.size} entries; this mesh's "
+                                f"{self.n_patches} patches need {self.size} (a solver built from other sources?)",
+                                peer="CFD solver", step=step)
+        if not np.all(np.isfinite(s)):
+            raise CouplingError("the frame's energy ledger is not finite (the gas energy equation diverged: "
+                                "see log.thermoDemFoam)", peer="CFD solver", step=step)
+
+    def begin(self, scalars, particles):
+        """References at the run's start (or at a restart whose state has no ledger)."""
+        if self.ref is None:
+            self.ref = np.r_[float(scalars[2 * self.n_patches]), np.asarray(particles, float)]
+
+    def add(self, scalars, dt):
+        """Integrate the step's rates (W) over the CFD step dt."""
+        s = np.asarray(scalars, float)
+        e = 2 * self.n_patches
+        self.acc[:e] += dt * s[:e]
+        self.acc[e + 1:] += dt * s[e + 1:]
+
+    def gas_wall_energy(self, n_walls):
+        """[n_walls] J: each tied DEM wall's gas path since the start (NaN for untied walls)."""
+        g = np.full(n_walls, math.nan)
+        cond = self.acc[self._cond()]
+        for wi, pi in self.ties.items():
+            g[wi] = cond[pi]
+        return g
+
+    def state(self) -> dict:
+        return dict(ledger_acc=self.acc.copy(), ledger_ref=np.zeros(0) if self.ref is None else self.ref.copy())
+
+    def restore(self, d: dict):
+        a, r = d.get("ledger_acc"), d.get("ledger_ref")
+        if a is not None and np.asarray(a).shape == (self.size,) and r is not None and np.asarray(r).size:
+            self.acc = np.asarray(a, float).copy()
+            self.ref = np.asarray(r, float).copy()
+
+    def row(self, scalars, particles) -> dict:
+        """coupling.csv's balance columns. ``particles`` = [E_particles, E_conv, E_walls,
+        E_sources] of the particles (J, the DEM's records since its start)."""
+        e = 2 * self.n_patches
+        s = np.asarray(scalars, float)
+        ref = self.ref if self.ref is not None else np.r_[s[e], np.asarray(particles, float)]
+        P = np.asarray(particles, float) - ref[1:]
+        dEg = float(s[e] - ref[0])
+        cond, adv = self.acc[self._cond()], self.acc[self._adv()]
+        walls_gas = float(cond[self.wall].sum())
+        open_ = float(cond[~self.wall].sum() + adv.sum())
+        bal = P[0] + dEg - (P[2] + walls_gas + open_ + P[3])
+        mism = P[1] + float(self.acc[e + 2])
+        cont = float(self.acc[e + 1])
+        return dict(E_gas_solver=float(s[e]), E_walls_particles=float(P[2]), E_walls_gas=walls_gas,
+                    E_open=open_, E_sources_particles=float(P[3]), balance_error=bal,
+                    E_exchange_mismatch=mism, E_continuity=cont, balance_residual=bal - mism - cont)
+
+
+BALANCE_COLUMNS = ["E_gas_solver", "E_walls_particles", "E_walls_gas", "E_open", "E_sources_particles",
+                   "balance_error", "E_exchange_mismatch", "E_continuity", "balance_residual"]
