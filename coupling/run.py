@@ -429,12 +429,14 @@ def run_case(case_dir, out=None, *, transport=None, end_time=None, restart=False
     out_every = max(1, int(round(out_int / dt)))
     write_every = int(round(case.control["writeInterval"])) if case.control["writeControl"] == "timeStep" else 0
     keep = t_start if restart else None
-    hist = vtk = diag = walls = None
+    hist = vtk = diag = walls = walls_by_angle = None
     if R.root:
         hist = History(str(out / "history.csv"), sim.history_columns(), keep)
         if sim.thermal is not None and sim.scene.walls:
-            from dem.thermal.wall_heat import WallHeatFile
+            from dem.thermal.wall_heat import WallAngleFile, WallHeatFile
             walls = WallHeatFile(str(out / "wall_heat.csv"), sim.scene, keep)
+            if WallAngleFile.wanted(sim.scene):
+                walls_by_angle = WallAngleFile(str(out / "wall_heat_angle.csv"), sim.scene, keep)
         vtk = VTKSeries(str(out)) if sim.scene.output["vtk"] else None
         diag = Diagnostics(out / "coupling.csv", mesh, case.gas, keep, ledger)
         outdir.claim(out / "checkpoints")
@@ -451,9 +453,13 @@ def run_case(case_dir, out=None, *, transport=None, end_time=None, restart=False
     def output(fluid, frame, t, step):
         _output(hist, vtk, diag, sim, iface, fluid, frame, t, step, t_wall0, timer)
         totals = sim.wall_heat_totals()   # collective over the DEM ranks
-        if walls is not None:
-            with timer("output"):
+        from dem.thermal.wall_heat import WallAngleFile, cylinder_flux_by_angle
+        by_angle = cylinder_flux_by_angle(sim) if WallAngleFile.wanted(sim.scene) else None   # collective
+        with timer("output"):
+            if walls is not None:
                 walls.add(t, totals, gas=ledger.gas_wall_energy(len(sim.scene.walls)))
+            if walls_by_angle is not None:
+                walls_by_angle.add(t, by_angle)
 
     def restart_point(step, t, fluid):
         with timer("output"):

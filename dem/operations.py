@@ -236,23 +236,32 @@ class WallHeatWriter(Operation):
 
     def __init__(self, out_dir, n, write_initial, keep_until=None):
         self.path = os.path.join(out_dir, "wall_heat.csv")
+        self.angle_path = os.path.join(out_dir, "wall_heat_angle.csv")
         self.write_initial, self.keep_until = write_initial, keep_until
         self.trigger = Every(n) | AtEnd(unless_every=n) | OnStop(unless_every=n)
-        self.file = None
+        self.file = self.angles = None
+        self.by_angle = False
 
     def start(self, run):
-        from .thermal.wall_heat import WallHeatFile
+        from .thermal.wall_heat import WallAngleFile, WallHeatFile
         sim = run.sim
+        self.by_angle = WallAngleFile.wanted(sim.scene)   # thermal cylinder walls: wall_heat_angle.csv
         if sim.is_root:
             self.file = WallHeatFile(self.path, sim.scene, self.keep_until)
+            if self.by_angle:
+                self.angles = WallAngleFile(self.angle_path, sim.scene, self.keep_until)
         if self.write_initial:
             self.act(run, PAUSE)
 
     def act(self, run, event):
+        from .thermal.wall_heat import cylinder_flux_by_angle
         sim = run.sim
         totals = sim.wall_heat_totals()
+        by_angle = cylinder_flux_by_angle(sim) if self.by_angle else None   # collective
         if self.file is not None:
             sim.root_write(lambda: self.file.add(sim.time, totals))
+        if self.angles is not None:
+            sim.root_write(lambda: self.angles.add(sim.time, by_angle))
 
 
 class VTKWriter(Operation):

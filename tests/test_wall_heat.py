@@ -430,3 +430,44 @@ def test_tied_wall_check_names_both(tmp_path):
     (case / "0" / "T").write_text(T)
     rc, msg = check(cfg)
     assert rc == 0, msg
+
+
+def test_local_flux_around_a_heated_tube(tmp_path):
+    """wall_heat_angle.csv: two particles resting on a horizontal tube at a fixed temperature,
+    at 5 deg (top) and 100 deg from the top, frozen: their local flux lands in the sectors of
+    their angles, and each sector's flux times its area is the particle's exact rate
+    H (T_w - T(t)) of the exponential solution, split between contact and gas gap as the
+    conductances are (wall_heat.csv's shares)."""
+    Rc, ov = 4e-3, 2e-5
+    ang = np.radians([5.0, 100.0])
+    rr = Rc + R - ov
+    pos = [[rr * math.sin(a), 0.0, rr * math.cos(a)] for a in ang]   # angle from the top (+z), towards +x
+    # axis +y: the angle turns from the top (+z) towards +x (right-hand rule about the axis)
+    walls = [{"type": "cylinder", "name": "tube", "point": [0, 0, 0], "axis": [0, 1, 0], "radius": Rc,
+              "inside": False, "length": 0.004, "material": "p",
+              "thermal": {"condition": "fixed_temperature", "temperature": 400.0}}]
+    sc = scene([{"material": "p", "positions": pos, "radius": R, "temperature": 300.0}],
+               {"direct": "batchelor_obrien", "indirect": "voronoi_a", "integrator": "exponential",
+                "porosity": "global", "time_step": 0.5}, walls, end=20.0, output=5.0)
+    sc["simulation"]["gravity"] = [0, 0, -9.81]
+    sim = Simulation.from_dict(sc)
+    C = 1 / sim.state.inv_heat_capacity[0]
+    sim.run(out_dir=str(tmp_path / "out"), progress=False)
+    H, Hg = sim.state.Hw[:2, 0].copy(), sim.state.Hwg[:2, 0].copy()
+    assert np.all(H > 0) and H[0] == pytest.approx(H[1], rel=1e-9)   # the same contact on both
+    with open(tmp_path / "out" / "wall_heat_angle.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    times = sorted({float(r["time"]) for r in rows})
+    assert times == pytest.approx([0.0, 5.0, 10.0, 15.0, 20.0])
+    area = 2 * math.pi * Rc * 0.004 / 24
+    for t in times[1:]:
+        sel = [r for r in rows if float(r["time"]) == t]
+        assert len(sel) == 24
+        qc = np.array([float(r["contact_W_m2"]) for r in sel])
+        qg = np.array([float(r["gas_gap_W_m2"]) for r in sel])
+        hot = np.flatnonzero(qc + qg)
+        assert hot.tolist() == [0, 6]     # 0-15 deg and 90-105 deg, measured from the top
+        Tt = 400.0 - 100.0 * math.exp(-t * H[0] / C)
+        exact = H[0] * (400.0 - Tt)
+        assert (qc[hot] + qg[hot]) * area == pytest.approx([exact, exact], rel=1e-9)
+        assert qg[hot] * area == pytest.approx(Hg[:2] * (400.0 - Tt), rel=1e-9)
