@@ -13,8 +13,8 @@ The pair must coincide: every point of the patch lies on the DEM wall's surface 
 tolerance, and the two areas agree within ``AREA_RTOL`` plus what a polygonal patch of a
 cylinder loses to its chords; and its thermal condition must be one: a fixed temperature on
 both sides (fixedValue of the same value in 0/T; a temperature table: uniformFixedValue), or
-adiabatic on both (zeroGradient). Otherwise the check names both. A fixed-heat-flux wall is
-not tied yet (the split of q_w A between contacts and gas is to come). A tied wall's heat is written
+adiabatic on both (zeroGradient), or a fixed heat flux (fixedGradient on the gas patch, whose
+gradient the solver sets: :class:`FluxSplit`). Otherwise the check names both. A tied wall's heat is written
 per path in wall_heat.csv: the particles' ``contact`` and ``gas_gap`` (DEM), the gas's own
 ``gas_convection`` (the solver's wall conduction, below) and their ``total``.
 
@@ -128,9 +128,12 @@ def _check_condition(case, k, t, w):
             f"(0/T: {gtype})")
     key = f"walls[{k}]"
     if cond == "fixed_heat_flux":
-        raise CaseConfigError(case.config_file, f"{both}: a fixed-heat-flux wall cannot be tied yet (the split of "
-                                                f"q_w A between the particles' contacts and the gas is not built); "
-                                                f"untie it, or give the wall a fixed temperature", key)
+        if gtype != "fixedGradient":
+            raise CaseConfigError(case.config_file, f"{both}: a tied fixed-heat-flux wall needs type fixedGradient "
+                                                    f"(gradient uniform 0) on the gas patch: the solver sets each "
+                                                    f"face's gradient so that the gas takes the part of q_w the "
+                                                    f"particles' contacts do not", key)
+        return
     if cond == "adiabatic":
         ok = gtype == "zeroGradient" or (gtype == "fixedGradient" and _uniform(gas.get("gradient")) == 0.0)
         if not ok:
@@ -331,3 +334,114 @@ class EnergyLedger:
 
 BALANCE_COLUMNS = ["E_gas_solver", "E_walls_particles", "E_walls_gas", "E_open", "E_sources_particles",
                    "balance_error", "E_exchange_mismatch", "E_continuity", "balance_residual"]
+
+
+# --------------------------------------------------------------------------- fixed-flux split
+
+class FluxSplit:
+    """Reference 001's split of a tied fixed-heat-flux wall: the particles' contacts take
+    A_c q_w (the DEM kernel gives it them), the gas takes the rest of each face's q_w A_f, so
+    the wall delivers q_w A whatever the bed does.
+
+    Each coupling step sends, per tied fixed-flux wall, one frame column: the particles' heat
+    (W) through the wall faces of each cell over the coming interval. It is the contacts'
+    A_c q_w at the interval's start, each on the patch face nearest its contact point (the
+    face's owner cell), plus what the particles took in the intervals already done beyond what
+    was sent for them (the DEM's exact wall records), spread like the estimate (or over the
+    patch by area when no particle touches it). Summed over the run, what was sent is the
+    particles' energy through the wall up to the last interval plus that interval's estimate,
+    so the wall's total (gas + particles) is q_w A t up to the estimate error of the last
+    interval (zero for a bed at rest). The solver spreads each cell's value over the cell's
+    faces on the patch by area and sets the face's gradient so that the gas receives
+    q_w - Q_p,f / A_f there: negative where the contacts take more than the face's q_w A_f
+    (the gas then gives heat to that face), so the total stays exact."""
+
+    def __init__(self, case, mesh, ties: dict[int, int]):
+        from scipy.spatial import cKDTree
+        sc = case.sim.scene
+        self.walls = []   # (DEM wall index, patch index, patch name, q_w)
+        for wi, pi in sorted(ties.items(), key=lambda kv: kv[1]):
+            th = sc.walls[wi].get("thermal") or {}
+            if th.get("condition") == "fixed_heat_flux":
+                self.walls.append((wi, pi, [p for p in mesh.boundary if p.get("type") != "processor"][pi]["name"],
+                                   float(th.get("heat_flux", 0.0))))
+        self.n_cells = mesh.n_cells
+        self.faces = []   # per wall: (owner cells of the patch faces, their areas, kd-tree of centres)
+        pats = [p for p in mesh.boundary if p.get("type") != "processor"]
+        for wi, pi, name, q in self.walls:
+            f0, nf = int(pats[pi]["startFace"]), int(pats[pi]["nFaces"])
+            cells = mesh.owner[f0:f0 + nf]
+            area = np.linalg.norm(mesh.face_areas[f0:f0 + nf], axis=1)
+            self.faces.append((cells, area, cKDTree(mesh.face_centres[f0:f0 + nf])))
+        self.sent = np.zeros(len(self.walls))   # J: cumulative energy sent as the particles' share
+
+    def __bool__(self):
+        return bool(self.walls)
+
+    def couplingdict_entries(self) -> dict:
+        return dict(patches=[w[2] for w in self.walls], fluxes=[w[3] for w in self.walls])
+
+    def state(self) -> dict:
+        return dict(split_sent=self.sent.copy())
+
+    def restore(self, d: dict, sim):
+        a = d.get("split_sent")
+        if a is not None and np.asarray(a).shape == self.sent.shape:
+            self.sent = np.asarray(a, float).copy()
+        else:   # an older state: count the outstanding mismatch from the restart
+            tot = sim.wall_heat_totals()
+            self.sent = np.array([tot[wi, 0] for wi, *_ in self.walls]) if tot is not None else self.sent
+
+    def _estimate(self, sim, k):
+        """[n_cells] W: the contacts' A_c q_w on wall k now, by owner cell of the nearest face."""
+        wi, pi, name, q = self.walls[k]
+        cells, area, tree = self.faces[k]
+        st = sim.state
+        n = st.n_owned
+        est = np.zeros(self.n_cells)
+        if n and sim.thermal is not None:
+            wnb, wnn = st.wnb[:n], st.wnn[:n]
+            slot = (wnb == wi) & (np.arange(wnb.shape[1])[None, :] < wnn[:, None])
+            rows, cols = np.nonzero(slot)
+            if rows.size:
+                Q = st.Hw[rows, cols] * q     # Hw holds the contact area at a fixed-flux wall
+                live = Q != 0.0
+                rows, Q = rows[live], Q[live]
+                if rows.size:
+                    x = st.position[rows]
+                    _, f = tree.query(_contact_points(sim.scene.walls[wi], x))
+                    est = np.bincount(cells[f], weights=Q, minlength=self.n_cells).astype(float)
+        return est
+
+    def columns(self, sim, dt):
+        """[n_cells, n_walls] W of the coming interval (collective over the DEM ranks)."""
+        m = len(self.walls)
+        out = np.zeros((self.n_cells, m))
+        if not m:
+            return out
+        tot = sim.wall_heat_totals()                      # collective
+        est = np.stack([self._estimate(sim, k) for k in range(m)], axis=1)
+        if sim.par is not None:
+            est = np.asarray(sim.par.allsum(est.ravel()), float).reshape(self.n_cells, m)
+        for k, (wi, *_rest) in enumerate(self.walls):
+            cells, area, _ = self.faces[k]
+            owed = float(tot[wi, 0]) - self.sent[k]       # taken beyond what was sent, J
+            s = est[:, k].sum()
+            shape = est[:, k] / s if s > 0 else np.bincount(cells, weights=area, minlength=self.n_cells) / area.sum()
+            out[:, k] = est[:, k] + shape * (owed / dt)
+            self.sent[k] += out[:, k].sum() * dt
+        return out
+
+
+def _contact_points(w, x):
+    """The points of scene wall w nearest the particle centres x (n, 3)."""
+    p = np.asarray(w["point"], float)
+    r = x - p
+    if w["type"] == "plane":
+        n = np.asarray(w["normal"], float)
+        return x - (r @ n)[:, None] * n
+    a = np.asarray(w["axis"], float)
+    s = r @ a
+    radial = r - s[:, None] * a
+    rho = np.maximum(np.linalg.norm(radial, axis=1), 1e-300)
+    return p + s[:, None] * a + radial * (float(w["radius"]) / rho)[:, None]

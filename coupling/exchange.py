@@ -22,7 +22,8 @@ Frame = 56 byte little-endian header + payload::
     float64  scalars[n_scalars]  (CFD -> DEM: the gas's energy ledger of the step, see
                                   coupling/energy.py; DEM -> CFD: none)
 
-The DEM sends (kind 1) ``eps, Ksl, Us(3), Simp, Sexp`` and receives (kind 2)
+The DEM sends (kind 1) ``eps, Ksl, Us(3), Simp, Sexp`` (+ one column per tied fixed-flux wall,
+``wall_columns``: the particles' heat through its faces of each cell, W) and receives (kind 2)
 ``U(3), T, gradp(3), p``. Only numpy and the standard library are used.
 
 Typical DEM loop::
@@ -115,6 +116,7 @@ def encode_frame(kind: int, step: int, fields: Mapping[str, np.ndarray], *,
                          f"{[n for n, _ in layout]}")
     cols = []
     n = n_cells
+    extra = fields.get("wall_columns") if kind == KIND_TO_CFD else None   # tied fixed-flux walls
     for name, ncomp in layout:
         a = np.asarray(fields[name], dtype=np.float64)
         want = (a.shape[0] if n is None and a.ndim else n,) + ((ncomp,) if ncomp > 1 else ())
@@ -122,6 +124,11 @@ def encode_frame(kind: int, step: int, fields: Mapping[str, np.ndarray], *,
             raise ValueError(f"field {name!r} must have shape {want}, got {a.shape}")
         n = want[0]
         cols.extend([a] if ncomp == 1 else [a[:, k] for k in range(ncomp)])
+    if extra is not None:
+        a = np.asarray(extra, dtype=np.float64)
+        if a.ndim != 2 or a.shape[0] != n:
+            raise ValueError(f"wall_columns must have shape ({n}, walls), got {a.shape}")
+        cols.extend(a[:, k] for k in range(a.shape[1]))
     payload = np.empty((len(cols), n), dtype="<f8")
     for k, c in enumerate(cols):
         payload[k] = c
@@ -149,8 +156,10 @@ def decode_frame(buf: bytes) -> tuple[dict, dict[str, np.ndarray]]:
     if layout is None:
         raise ValueError(f"unknown frame kind {h['kind']}")
     n, nf = h["n_cells"], h["n_fields"]
-    if nf != _n_columns(layout):
-        raise ValueError(f"frame has {nf} columns, kind {h['kind']} needs {_n_columns(layout)}")
+    n_extra = nf - _n_columns(layout)
+    if n_extra < 0 or (n_extra and h["kind"] != KIND_TO_CFD):
+        raise ValueError(f"frame has {nf} columns, kind {h['kind']} needs {_n_columns(layout)}"
+                         + (" (+ one per tied fixed-flux wall)" if h["kind"] == KIND_TO_CFD else ""))
     n_pay = HEADER_SIZE + 8 * n * nf
     ns = struct.unpack_from("<q", buf, n_pay)[0] if len(buf) >= n_pay + 8 else -1
     if ns < 0 or len(buf) != n_pay + 8 + 8 * ns:
@@ -165,6 +174,8 @@ def decode_frame(buf: bytes) -> tuple[dict, dict[str, np.ndarray]]:
         else:
             out[name] = np.ascontiguousarray(data[k:k + ncomp].T, dtype=np.float64)
         k += ncomp
+    if n_extra:
+        out["wall_columns"] = np.ascontiguousarray(data[k:].T, dtype=np.float64)
     out["scalars"] = np.frombuffer(buf, dtype="<f8", offset=n_pay + 8, count=ns).astype(np.float64)
     return h, out
 

@@ -279,11 +279,12 @@ def write_coupling_dict(case, transport: str = "file", *, timeout: float = 60,
                         poll_interval: float = 0.002, keep_files: bool = False,
                         port: int | None = None, path: str | None = None,
                         host: str = "127.0.0.1", role: str = "client",
-                        send_velocity: str = "cell") -> Path:
+                        send_velocity: str = "cell", fixed_flux: dict | None = None) -> Path:
     """Write ``system/couplingDict`` (transport file | socket | none).
 
     ``send_velocity``: "cell" (momentum velocity, default) or "flux" (reconstructed from
-    the face fluxes, exact mass flow)."""
+    the face fluxes, exact mass flow). ``fixed_flux``: {patches: [...], fluxes: [...]} of the
+    tied fixed-heat-flux walls (coupling.energy.FluxSplit), one frame column each."""
     if send_velocity not in ("cell", "flux"):
         raise ValueError("send_velocity must be cell or flux")
     if transport not in ("file", "socket", "none"):
@@ -299,7 +300,11 @@ def write_coupling_dict(case, transport: str = "file", *, timeout: float = 60,
         f"transport       {transport};\n"
         f"timeout         {timeout};\n"
         f"connectTimeout  {connect_timeout if connect_timeout is not None else timeout};\n"
-        f"sendVelocity    {send_velocity};\n\n"
+        f"sendVelocity    {send_velocity};\n"
+        + (f"fixedFluxPatches ({' '.join(fixed_flux['patches'])});\n"
+           f"fixedFluxValues  ({' '.join(repr(float(q)) for q in fixed_flux['fluxes'])});\n"
+           if fixed_flux and fixed_flux.get("patches") else "")
+        + "\n"
         "file\n{\n"
         f'    directory   "{directory}";\n'
         f"    pollInterval {poll_interval};\n"
@@ -656,7 +661,8 @@ def _check_uniform_values(case) -> None:
                 raise CaseError(p, f"{key}: 'uniform {raw}' is not a number") from None
             if not all(math.isfinite(x) for x in vals):
                 raise CaseError(p, f"{key}: 'uniform {raw}' is not a finite number")
-            if positive and any(x <= 0 for x in vals):
+            not_a_temperature = key.rsplit(".", 1)[-1] in ("gradient", "refGradient", "valueFraction")
+            if positive and not not_a_temperature and any(x <= 0 for x in vals):
                 raise CaseError(p, f"{key}: 'uniform {raw}': a temperature must be > 0 K")
 
 

@@ -357,8 +357,10 @@ def run_case(case_dir, out=None, *, transport=None, end_time=None, restart=False
     R.on_root(prepare_output, case, out, restart=restart, overwrite=overwrite)
     R.on_root(remove_stale_temporaries, str(out))  # left by a kill -9 of an earlier run (ours only)
     mesh = read_polymesh(str(out))
-    from .energy import EnergyLedger, tie_walls
-    ledger = EnergyLedger(mesh, tie_walls(case, mesh))   # tied walls checked on the gas mesh
+    from .energy import EnergyLedger, FluxSplit, tie_walls
+    ties = tie_walls(case, mesh)          # tied walls checked on the gas mesh
+    ledger = EnergyLedger(mesh, ties)
+    split = FluxSplit(case, mesh, ties)   # tied fixed-flux walls: the particles' share per cell
     iface = CouplingInterface.for_case(case, mesh)
     dt = case.dt_cfd
     k = cfg.coupling_interval
@@ -383,6 +385,7 @@ def run_case(case_dir, out=None, *, transport=None, end_time=None, restart=False
         iface.reset_hints()
         iface.restore_state(cstate["iface"])  # the relaxation continues from what the gas last got
         ledger.restore(cstate["ledger"])      # the balance continues from its start (if recorded)
+        split.restore(cstate["ledger"], sim)
     end = case.end_time if end_time is None else float(end_time)
     n_steps = int(round((end - t_start) / dt))
     if n_steps < 1:
@@ -407,9 +410,10 @@ def run_case(case_dir, out=None, *, transport=None, end_time=None, restart=False
         if cfg.transport == "socket":
             ex = SocketExchange(port=0, timeout=cfg.timeout, n_cells=mesh.n_cells)
             fc.write_coupling_dict(out, "socket", port=ex.port, timeout=cfg.timeout,
-                                   send_velocity=cfg.send_velocity)
+                                   send_velocity=cfg.send_velocity, fixed_flux=split.couplingdict_entries())
         else:
-            fc.write_coupling_dict(out, "file", timeout=cfg.timeout, send_velocity=cfg.send_velocity)
+            fc.write_coupling_dict(out, "file", timeout=cfg.timeout, send_velocity=cfg.send_velocity,
+                                   fixed_flux=split.couplingdict_entries())
             ex = FileExchange(out / "coupling", timeout=cfg.timeout, n_cells=mesh.n_cells)
         if cfg.gas_processes > 1:
             if restart and (out / "processor0").exists():
@@ -463,12 +467,12 @@ def run_case(case_dir, out=None, *, transport=None, end_time=None, restart=False
 
     def restart_point(step, t, fluid):
         with timer("output"):
-            _write_restart_point(R, sim, iface, out, step, t, fluid, ledger)
+            _write_restart_point(R, sim, iface, out, step, t, fluid, ledger, split)
 
     loop = CoupledLoop(link, iface, RunWatch(mesh, cfg, log if R.root else _silent), output, restart_point,
                        n_steps=n_steps, i0=i0, t_start=t_start, dt=dt, k=k, out_every=out_every,
                        write_every=write_every, restart=restart, cstate=cstate,
-                       log=log if R.root else _silent, ledger=ledger,
+                       log=log if R.root else _silent, ledger=ledger, split=split,
                        particle_energy=lambda: Diagnostics.particle_records(sim))
     status = "running"
     try:
@@ -528,7 +532,7 @@ class CoupledLoop:
        FINAL frame)."""
 
     def __init__(self, link, iface, watch, output, restart_point, *, n_steps, i0, t_start, dt, k,
-                 out_every, write_every, restart, cstate, log, ledger=None, particle_energy=None):
+                 out_every, write_every, restart, cstate, log, ledger=None, particle_energy=None, split=None):
         from dem.operations import Every
         self.link, self.iface, self.watch = link, iface, watch
         self.output, self.restart_point = output, restart_point
@@ -537,6 +541,7 @@ class CoupledLoop:
         self.restart_points = Every(write_every)   # in coupling steps since t = 0 (OpenFOAM's writes)
         self.restart, self.cstate, self.log = restart, cstate, log
         self.ledger, self.particle_energy = ledger, particle_energy   # the energy balance (coupling.energy)
+        self.split = split   # tied fixed-flux walls (coupling.energy.FluxSplit)
         self.step, self.t = i0, t_start
         self.stop_sig = 0   # SIGINT/SIGTERM of this process (rank 0 decides for every DEM rank)
         self.peer_sig = 0   # the signal that stopped the gas solver (other ranks: either signal)
@@ -554,6 +559,8 @@ class CoupledLoop:
             self.stop_sig = self.stop_sig or link.own_stop()
             last = s == self.n_steps or bool(self.stop_sig)   # a stop request ends this coupling step
             frame = iface.prepare(fluid, dt)
+            if self.split:
+                frame["wall_columns"] = self.split.columns(iface.sim, dt)   # collective
             self.watch.after_prepare(iface, self.t)
             if s == 1 and not self.restart:
                 self.output(fluid, frame, self.t, step - 1)
@@ -934,7 +941,7 @@ def _restart_point_files(out: Path, step: int) -> tuple[Path, Path]:
     return d / f"checkpoint_{step:08d}.npz", d / f"coupling_{step:08d}.npz"
 
 
-def _coupling_state(iface, step, t, fluid, ledger=None):
+def _coupling_state(iface, step, t, fluid, ledger=None, split=None):
     """Arrays of checkpoints/coupling_<step>.npz: the exchange-field state of the
     interface (eps, Ksl as last sent: the time-smoothing relaxes from them) and the gas
     frame of this step (U, T, grad p, p), which the next DEM interval uses."""
@@ -947,17 +954,19 @@ def _coupling_state(iface, step, t, fluid, ledger=None):
     d["fluid_scalars"] = np.ascontiguousarray(fluid.get("scalars", ()), dtype=np.float64)
     if ledger is not None:
         d.update(ledger.state())
+    if split:
+        d.update(split.state())
     return d
 
 
-def _write_restart_point(R, sim, iface, out, step, t, fluid, ledger=None):
+def _write_restart_point(R, sim, iface, out, step, t, fluid, ledger=None, split=None):
     """A restart point at this step (collective): the coupling state first, then the DEM
     checkpoint, each written atomically; ``--restart`` only takes a step whose DEM
     checkpoint exists, so a kill between the two writes leaves the previous point."""
     ck, cs = _restart_point_files(out, step)
     if R.root:
         from dem.output import save_npz
-        save_npz(str(cs), durable=True, **_coupling_state(iface, step, t, fluid, ledger))
+        save_npz(str(cs), durable=True, **_coupling_state(iface, step, t, fluid, ledger, split))
     sim.write_checkpoint(str(ck))
     return ck
 
@@ -999,7 +1008,7 @@ def _load_coupling_state(path: Path, step: int, n_cells: int) -> dict:
     for key in ("eps_sent", "ksl_sent"):
         if key not in iface:
             raise CouplingRunError(f"{path}: iface_{key} missing")
-    ledger = {key: arrays[key] for key in ("ledger_acc", "ledger_ref") if key in arrays}
+    ledger = {key: arrays[key] for key in ("ledger_acc", "ledger_ref", "split_sent") if key in arrays}
     return dict(fluid=fluid, iface=iface, ledger=ledger, time=float(arrays["time"]), path=path)
 
 

@@ -289,7 +289,7 @@ def test_coupled_run_writes_the_particles_wall_heat(tmp_path, solver):
 
 # ------------------------------------------------------------------ walls of both phases
 
-def _tied_case(dest, n_steps=10, Tw=400.0):
+def _tied_case(dest, n_steps=10, Tw=400.0, q_w=None):
     """A frozen bed of 9 beads of 2 mm on the floor of a 12 x 12 x 30 mm box meshed 3 x 3 x 6, hot
     gas (373.15 K) entering at 0.5 m/s; the DEM wall `left` (x = 0, three beads touch it) at a
     fixed 400 K is tied to the gas patch `left` (fixedValue 400 K); every other wall adiabatic."""
@@ -304,8 +304,9 @@ def _tied_case(dest, n_steps=10, Tw=400.0):
     t = (case / "dem.toml").read_text()
     old = 'name = "left"\npoint = [0.0, 0.0, 0.0]\nnormal = [1.0, 0.0, 0.0]\nmaterial = "glass"\n'
     assert old in t
-    (case / "dem.toml").write_text(t.replace(old, old + f'thermal = {{ condition = "fixed_temperature", '
-                                                        f'temperature = {Tw!r} }}\n'))
+    cond = (f'thermal = {{ condition = "fixed_temperature", temperature = {Tw!r} }}\n' if q_w is None else
+            f'thermal = {{ condition = "fixed_heat_flux", heat_flux = {q_w!r} }}\n')
+    (case / "dem.toml").write_text(t.replace(old, old + cond))
     bm = case / "system" / "blockMeshDict"
     s = bm.read_text()
     s2 = re.sub(r"xWalls\s*\{[^}]*\}", "left\n{\n    type wall;\n    faces ( (0 4 7 3) );\n}\nright\n{\n"
@@ -316,7 +317,10 @@ def _tied_case(dest, n_steps=10, Tw=400.0):
         s = f.read_text()
         m = re.search(r"xWalls\s*\{([^}]*)\}", s)
         body = m.group(1)
-        left = f"\n        type fixedValue;\n        value uniform {Tw!r};\n    " if f.name == "T" else body
+        left = body
+        if f.name == "T":
+            left = (f"\n        type fixedValue;\n        value uniform {Tw!r};\n    " if q_w is None else
+                    "\n        type fixedGradient;\n        gradient uniform 0;\n    ")
         f.write_text(s.replace(m.group(0), "left\n    {" + left + "}\n    right\n    {" + body + "}"))
     with open(case / "coupling.toml", "a") as fh:
         fh.write('\n[[walls]]\ndem = "left"\npatch = "left"\n')
@@ -471,3 +475,42 @@ def test_local_flux_around_a_heated_tube(tmp_path):
         exact = H[0] * (400.0 - Tt)
         assert (qc[hot] + qg[hot]) * area == pytest.approx([exact, exact], rel=1e-9)
         assert qg[hot] * area == pytest.approx(Hg[:2] * (400.0 - Tt), rel=1e-9)
+
+
+def test_tied_fixed_flux_wall_delivers_q_w_A(tmp_path, solver):
+    """A tied fixed-heat-flux wall (5 kW/m^2) partly covered by three beads (one in each of the
+    three bottom faces of the patch): the particles' contacts take A_c q_w (reference 001), the
+    gas takes the rest of each face's q_w A_f, so wall_heat.csv's total is q_w A t to round-off;
+    on the faces with a bead the solver's wallHeatFlux is q_w minus the bead's A_c q_w over the
+    face, on the others q_w; a run stopped and continued writes the same records."""
+    q_w = 5000.0
+    case = _tied_case(tmp_path / "case", q_w=q_w)
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+
+    def run(out, *args):
+        r = subprocess.run([sys.executable, "-m", "coupling.run", "run", str(case), "--out", str(out), *args],
+                           capture_output=True, text=True, env=env, cwd=str(ROOT))
+        assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-2000:]
+    one = tmp_path / "one"
+    run(one)
+    w = read(one / "wall_heat.csv")
+    A = 0.012 * 0.03
+    tot, con, gas = w[("left", "total")], w[("left", "contact")], w[("left", "gas_convection")]
+    assert tot[:, 1] == pytest.approx(q_w * A * tot[:, 0], rel=1e-12, abs=1e-18)
+    assert con[-1, 1] > 0 and gas[-1, 1] > 0
+    # per face: the bottom row (z < 5 mm) holds one bead per face, A_c q_w each
+    from coupling.mesh import read_polymesh
+    mesh = read_polymesh(str(one))
+    patch = next(p for p in mesh.boundary if p["name"] == "left")
+    f0, nf = patch["startFace"], patch["nFaces"]
+    zc = mesh.face_centres[f0:f0 + nf, 2]
+    q = _foam_list(one / "0.001" / "wallHeatFlux", "left")
+    Af = 0.004 * 0.005
+    bead = con[-1, 2] / 3          # A_c q_w of one bead (W), the last step's rate
+    assert bead > 0
+    assert q[zc < 0.005] == pytest.approx(np.full(3, q_w - bead / Af), rel=1e-9)
+    assert q[zc > 0.005] == pytest.approx(np.full(15, q_w), rel=1e-12)
+    two = tmp_path / "two"
+    run(two, "--end-time", "0.0005")
+    run(two, "--restart")
+    assert (one / "wall_heat.csv").read_text() == (two / "wall_heat.csv").read_text()

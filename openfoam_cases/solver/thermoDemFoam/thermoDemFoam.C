@@ -38,6 +38,7 @@ Description
 #include "fvOptions.H"
 #include "dragFaces.H"
 #include "wallFvPatch.H"
+#include "fixedGradientFvPatchFields.H"
 #include "couplingIO.H"
 #include "energyBalance.H"
 
@@ -197,7 +198,17 @@ int main(int argc, char *argv[])
         if (coupling.active())
         {
             List<scalarField> in;
-            peerFlags = coupling.receive(step, in, 7);
+            peerFlags = coupling.receive(step, in, 7 + fixedFluxNames.size());
+            forAll(fixedFluxParticles, j)
+            {
+                fixedFluxParticles[j] = in[7 + j];
+                if (!std::isfinite(gSum(mag(fixedFluxParticles[j]))))
+                {
+                    FatalErrorInFunction
+                        << "non-finite particle heat of the fixed-flux wall " << fixedFluxNames[j]
+                        << " [peer: DEM, coupling step " << step << ']' << exit(FatalError);
+                }
+            }
 
             scalarField& epsI = eps.primitiveFieldRef();
             scalarField& KslI = Ksl.primitiveFieldRef();
