@@ -336,100 +336,120 @@ BALANCE_COLUMNS = ["E_gas_solver", "E_walls_particles", "E_walls_gas", "E_open",
                    "balance_error", "E_exchange_mismatch", "E_continuity", "balance_residual"]
 
 
-# --------------------------------------------------------------------------- fixed-flux split
+# --------------------------------------------------------------------------- particle paths per face
 
 class FluxSplit:
-    """Reference 001's split of a tied fixed-heat-flux wall: the particles' contacts take
-    A_c q_w (the DEM kernel gives it them), the gas takes the rest of each face's q_w A_f, so
-    the wall delivers q_w A whatever the bed does.
+    """The particles' heat through each tied wall, per cell of the gas mesh, sent with each
+    frame: two columns per tied wall (contact, gas gap; W through the wall faces of each cell
+    over the coming interval). The solver writes them as per-face fields of the patch
+    (wallHeatFluxContact, wallHeatFluxGasGap: a cell's value over its faces on the patch, by
+    area), and at a fixed-heat-flux wall it gives the gas the rest of q_w (reference 001's
+    split: the contacts take A_c q_w, the gas the rest of each face's q_w A_f), so the wall
+    delivers q_w A whatever the bed does.
 
-    Each coupling step sends, per tied fixed-flux wall, one frame column: the particles' heat
-    (W) through the wall faces of each cell over the coming interval. It is the contacts'
-    A_c q_w at the interval's start, each on the patch face nearest its contact point (the
-    face's owner cell), plus what the particles took in the intervals already done beyond what
-    was sent for them (the DEM's exact wall records), spread like the estimate (or over the
-    patch by area when no particle touches it). Summed over the run, what was sent is the
-    particles' energy through the wall up to the last interval plus that interval's estimate,
-    so the wall's total (gas + particles) is q_w A t up to the estimate error of the last
-    interval (zero for a bed at rest). The solver spreads each cell's value over the cell's
-    faces on the patch by area and sets the face's gradient so that the gas receives
-    q_w - Q_p,f / A_f there: negative where the contacts take more than the face's q_w A_f
-    (the gas then gives heat to that face), so the total stays exact."""
+    A column is the contacts' heat at the interval's start (each particle's wall conductance
+    Hw, its gap part Hwg, times T_w - T_i; A_c q_w at a fixed-flux wall), each on the patch face
+    nearest its contact point (the face's owner cell), plus what the particles took by that
+    path in the intervals already done beyond what was sent for them (the DEM's exact wall
+    records), spread like the estimate (or over the patch by area when no particle touches it).
+    Summed over the run, what was sent is the particles' energy up to the last interval plus
+    that interval's estimate: the fields integrate to the DEM's records, and a fixed-flux wall's
+    total (gas + particles) is q_w A t, up to the estimate error of the last interval (zero for
+    a bed at rest). Where the contacts take more than a face's q_w A_f the gas's flux there is
+    negative (it gives the face heat), so the total stays exact."""
 
     def __init__(self, case, mesh, ties: dict[int, int]):
         from scipy.spatial import cKDTree
         sc = case.sim.scene
-        self.walls = []   # (DEM wall index, patch index, patch name, q_w)
+        pats = [p for p in mesh.boundary if p.get("type") != "processor"]
+        self.walls = []   # (DEM wall index, patch index, patch name, fixed flux?, q_w)
+        self.faces = []   # per wall: (owner cells of the patch faces, their areas, kd-tree of centres)
+        self.heat = case.sim.thermal is not None
         for wi, pi in sorted(ties.items(), key=lambda kv: kv[1]):
             th = sc.walls[wi].get("thermal") or {}
-            if th.get("condition") == "fixed_heat_flux":
-                self.walls.append((wi, pi, [p for p in mesh.boundary if p.get("type") != "processor"][pi]["name"],
-                                   float(th.get("heat_flux", 0.0))))
-        self.n_cells = mesh.n_cells
-        self.faces = []   # per wall: (owner cells of the patch faces, their areas, kd-tree of centres)
-        pats = [p for p in mesh.boundary if p.get("type") != "processor"]
-        for wi, pi, name, q in self.walls:
+            ff = th.get("condition") == "fixed_heat_flux"
+            self.walls.append((wi, pi, pats[pi]["name"], ff, float(th.get("heat_flux", 0.0)) if ff else 0.0))
             f0, nf = int(pats[pi]["startFace"]), int(pats[pi]["nFaces"])
-            cells = mesh.owner[f0:f0 + nf]
-            area = np.linalg.norm(mesh.face_areas[f0:f0 + nf], axis=1)
-            self.faces.append((cells, area, cKDTree(mesh.face_centres[f0:f0 + nf])))
-        self.sent = np.zeros(len(self.walls))   # J: cumulative energy sent as the particles' share
+            self.faces.append((mesh.owner[f0:f0 + nf], np.linalg.norm(mesh.face_areas[f0:f0 + nf], axis=1),
+                               cKDTree(mesh.face_centres[f0:f0 + nf])))
+        self.n_cells = mesh.n_cells
+        self.sent = np.zeros((len(self.walls), 2))   # J: cumulative energy sent per (contact, gap)
 
     def __bool__(self):
         return bool(self.walls)
 
     def couplingdict_entries(self) -> dict:
-        return dict(patches=[w[2] for w in self.walls], fluxes=[w[3] for w in self.walls])
+        return dict(patches=[w[2] for w in self.walls], fixed_flux=[w[3] for w in self.walls],
+                    fluxes=[w[4] for w in self.walls])
 
     def state(self) -> dict:
         return dict(split_sent=self.sent.copy())
 
+    def _records(self, sim):
+        """[n_walls, 2] J: the particles' (contact, gas gap) heat through each tied wall."""
+        tot = sim.wall_heat_totals()   # collective; [n_walls, 2] of (all, gap) or None
+        r = np.zeros((len(self.walls), 2))
+        if tot is not None:
+            for k, (wi, *_rest) in enumerate(self.walls):
+                r[k] = (tot[wi, 0] - tot[wi, 1], tot[wi, 1])
+        return r
+
     def restore(self, d: dict, sim):
         a = d.get("split_sent")
+        rec = self._records(sim)   # collective
         if a is not None and np.asarray(a).shape == self.sent.shape:
             self.sent = np.asarray(a, float).copy()
-        else:   # an older state: count the outstanding mismatch from the restart
-            tot = sim.wall_heat_totals()
-            self.sent = np.array([tot[wi, 0] for wi, *_ in self.walls]) if tot is not None else self.sent
+        else:   # an older state: count the outstanding difference from the restart
+            self.sent = rec
 
     def _estimate(self, sim, k):
-        """[n_cells] W: the contacts' A_c q_w on wall k now, by owner cell of the nearest face."""
-        wi, pi, name, q = self.walls[k]
+        """[n_cells, 2] W: the contacts' heat on tied wall k now, by owner cell of the nearest face."""
+        from dem.thermal.heat import WT_COND, wall_temperature
+        wi, pi, name, ff, q = self.walls[k]
         cells, area, tree = self.faces[k]
         st = sim.state
         n = st.n_owned
-        est = np.zeros(self.n_cells)
-        if n and sim.thermal is not None:
-            wnb, wnn = st.wnb[:n], st.wnn[:n]
-            slot = (wnb == wi) & (np.arange(wnb.shape[1])[None, :] < wnn[:, None])
-            rows, cols = np.nonzero(slot)
-            if rows.size:
-                Q = st.Hw[rows, cols] * q     # Hw holds the contact area at a fixed-flux wall
-                live = Q != 0.0
-                rows, Q = rows[live], Q[live]
-                if rows.size:
-                    x = st.position[rows]
-                    _, f = tree.query(_contact_points(sim.scene.walls[wi], x))
-                    est = np.bincount(cells[f], weights=Q, minlength=self.n_cells).astype(float)
+        est = np.zeros((self.n_cells, 2))
+        if not (n and self.heat) or int(st.wth[wi, WT_COND]) == 0:
+            return est
+        wnb, wnn = st.wnb[:n], st.wnn[:n]
+        slot = (wnb == wi) & (np.arange(wnb.shape[1])[None, :] < wnn[:, None])
+        rows, cols = np.nonzero(slot)
+        if not rows.size:
+            return est
+        H = st.Hw[rows, cols]
+        if ff:                  # Hw holds the contact area at a fixed-flux wall
+            qc, qg = H * q, np.zeros_like(H)
+        else:
+            Hg = st.Hwg[rows, cols] if st.Hwg.shape[0] >= n else np.zeros_like(H)
+            dT = wall_temperature(st.wth, st.wtab, wi, sim.time) - st.temperature[rows]
+            qc, qg = (H - Hg) * dT, Hg * dT
+        _, f = tree.query(_contact_points(sim.scene.walls[wi], st.position[rows]))
+        est[:, 0] = np.bincount(cells[f], weights=qc, minlength=self.n_cells)
+        est[:, 1] = np.bincount(cells[f], weights=qg, minlength=self.n_cells)
         return est
 
     def columns(self, sim, dt):
-        """[n_cells, n_walls] W of the coming interval (collective over the DEM ranks)."""
+        """[n_cells, 2 n_walls] W of the coming interval: (contact, gas gap) per tied wall
+        (collective over the DEM ranks)."""
         m = len(self.walls)
-        out = np.zeros((self.n_cells, m))
+        out = np.zeros((self.n_cells, 2 * m))
         if not m:
             return out
-        tot = sim.wall_heat_totals()                      # collective
-        est = np.stack([self._estimate(sim, k) for k in range(m)], axis=1)
+        rec = self._records(sim)
+        est = np.concatenate([self._estimate(sim, k) for k in range(m)], axis=1)
         if sim.par is not None:
-            est = np.asarray(sim.par.allsum(est.ravel()), float).reshape(self.n_cells, m)
-        for k, (wi, *_rest) in enumerate(self.walls):
+            est = np.asarray(sim.par.allsum(est.ravel()), float).reshape(self.n_cells, 2 * m)
+        for k in range(m):
             cells, area, _ = self.faces[k]
-            owed = float(tot[wi, 0]) - self.sent[k]       # taken beyond what was sent, J
-            s = est[:, k].sum()
-            shape = est[:, k] / s if s > 0 else np.bincount(cells, weights=area, minlength=self.n_cells) / area.sum()
-            out[:, k] = est[:, k] + shape * (owed / dt)
-            self.sent[k] += out[:, k].sum() * dt
+            by_area = np.bincount(cells, weights=area, minlength=self.n_cells) / area.sum()
+            for p in range(2):
+                e = est[:, 2 * k + p]
+                owed = rec[k, p] - self.sent[k, p]        # taken beyond what was sent, J
+                tot = e.sum()
+                shape = e / tot if tot != 0.0 and np.all(e * tot >= 0.0) else by_area
+                out[:, 2 * k + p] = e + shape * (owed / dt)
+                self.sent[k, p] += out[:, 2 * k + p].sum() * dt
         return out
 
 

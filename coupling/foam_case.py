@@ -279,12 +279,13 @@ def write_coupling_dict(case, transport: str = "file", *, timeout: float = 60,
                         poll_interval: float = 0.002, keep_files: bool = False,
                         port: int | None = None, path: str | None = None,
                         host: str = "127.0.0.1", role: str = "client",
-                        send_velocity: str = "cell", fixed_flux: dict | None = None) -> Path:
+                        send_velocity: str = "cell", tied: dict | None = None) -> Path:
     """Write ``system/couplingDict`` (transport file | socket | none).
 
     ``send_velocity``: "cell" (momentum velocity, default) or "flux" (reconstructed from
-    the face fluxes, exact mass flow). ``fixed_flux``: {patches: [...], fluxes: [...]} of the
-    tied fixed-heat-flux walls (coupling.energy.FluxSplit), one frame column each."""
+    the face fluxes, exact mass flow). ``tied``: {patches, fixed_flux, fluxes} of the walls
+    tied to DEM walls (coupling.energy.FluxSplit): two frame columns each (the particles'
+    contact and gas-gap heat per cell), and a fixed-flux one gives the gas the rest of q_w."""
     if send_velocity not in ("cell", "flux"):
         raise ValueError("send_velocity must be cell or flux")
     if transport not in ("file", "socket", "none"):
@@ -301,9 +302,10 @@ def write_coupling_dict(case, transport: str = "file", *, timeout: float = 60,
         f"timeout         {timeout};\n"
         f"connectTimeout  {connect_timeout if connect_timeout is not None else timeout};\n"
         f"sendVelocity    {send_velocity};\n"
-        + (f"fixedFluxPatches ({' '.join(fixed_flux['patches'])});\n"
-           f"fixedFluxValues  ({' '.join(repr(float(q)) for q in fixed_flux['fluxes'])});\n"
-           if fixed_flux and fixed_flux.get("patches") else "")
+        + (f"tiedPatches     ({' '.join(tied['patches'])});\n"
+           f"tiedFixedFlux   ({' '.join(str(int(bool(x))) for x in tied['fixed_flux'])});\n"
+           f"tiedHeatFlux    ({' '.join(repr(float(q)) for q in tied['fluxes'])});\n"
+           if tied and tied.get("patches") else "")
         + "\n"
         "file\n{\n"
         f'    directory   "{directory}";\n'

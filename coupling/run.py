@@ -360,7 +360,7 @@ def run_case(case_dir, out=None, *, transport=None, end_time=None, restart=False
     from .energy import EnergyLedger, FluxSplit, tie_walls
     ties = tie_walls(case, mesh)          # tied walls checked on the gas mesh
     ledger = EnergyLedger(mesh, ties)
-    split = FluxSplit(case, mesh, ties)   # tied fixed-flux walls: the particles' share per cell
+    split = FluxSplit(case, mesh, ties)   # tied walls: the particles' paths per cell (fixed flux: the split)
     iface = CouplingInterface.for_case(case, mesh)
     dt = case.dt_cfd
     k = cfg.coupling_interval
@@ -410,10 +410,10 @@ def run_case(case_dir, out=None, *, transport=None, end_time=None, restart=False
         if cfg.transport == "socket":
             ex = SocketExchange(port=0, timeout=cfg.timeout, n_cells=mesh.n_cells)
             fc.write_coupling_dict(out, "socket", port=ex.port, timeout=cfg.timeout,
-                                   send_velocity=cfg.send_velocity, fixed_flux=split.couplingdict_entries())
+                                   send_velocity=cfg.send_velocity, tied=split.couplingdict_entries())
         else:
             fc.write_coupling_dict(out, "file", timeout=cfg.timeout, send_velocity=cfg.send_velocity,
-                                   fixed_flux=split.couplingdict_entries())
+                                   tied=split.couplingdict_entries())
             ex = FileExchange(out / "coupling", timeout=cfg.timeout, n_cells=mesh.n_cells)
         if cfg.gas_processes > 1:
             if restart and (out / "processor0").exists():
@@ -541,7 +541,7 @@ class CoupledLoop:
         self.restart_points = Every(write_every)   # in coupling steps since t = 0 (OpenFOAM's writes)
         self.restart, self.cstate, self.log = restart, cstate, log
         self.ledger, self.particle_energy = ledger, particle_energy   # the energy balance (coupling.energy)
-        self.split = split   # tied fixed-flux walls (coupling.energy.FluxSplit)
+        self.split = split   # tied walls: the particles' paths per cell (coupling.energy.FluxSplit)
         self.step, self.t = i0, t_start
         self.stop_sig = 0   # SIGINT/SIGTERM of this process (rank 0 decides for every DEM rank)
         self.peer_sig = 0   # the signal that stopped the gas solver (other ranks: either signal)

@@ -333,6 +333,9 @@ def _foam_list(path, patch=None):
     text = Path(path).read_text()
     if patch is not None:
         text = text[re.search(rf"\n\s*{patch}\s*\{{", text).end():]
+        u = re.match(r"[^}]*?value\s+uniform\s+([^;\s]+)\s*;", text)
+        if u:
+            return np.full(18, float(u.group(1)))     # the tied patch `left` of these tests: 18 faces
         m = re.search(r"value\s+nonuniform List<scalar>\s*(\d+)\s*\(([^)]*)\)", text)
     else:
         m = re.search(r"internalField\s+nonuniform List<scalar>\s*(\d+)\s*\(([^)]*)\)", text)
@@ -379,6 +382,16 @@ def test_tied_wall_heats_both_phases_and_the_energy_balance_closes(tmp_path, sol
     k = gas_properties(one).k
     expect = float((eps[cells] * k * (400.0 - T[cells]) / 0.002).sum() * A)
     assert gas[-1, 2] == pytest.approx(expect, rel=1e-6)
+    # the particles' paths per face: the beads' faces only (the bottom row), integrating to the
+    # DEM's records (the last step's rate, its estimate at the step's start: within 1e-6), and
+    # the total the sum of the three paths
+    zc = mesh.face_centres[[f for p in mesh.boundary if p["name"] == "left"
+                            for f in range(p["startFace"], p["startFace"] + p["nFaces"])], 2]
+    qc, qg = _foam_list(last / "wallHeatFluxContact", "left"), _foam_list(last / "wallHeatFluxGasGap", "left")
+    assert np.all(qc[zc < 0.005] > 0) and np.all(qc[zc > 0.005] == 0)
+    assert float(qc.sum()) * A == pytest.approx(w[("left", "contact")][-1, 2], rel=1e-6)
+    assert float(qg.sum()) * A == pytest.approx(w[("left", "gas_gap")][-1, 2], rel=1e-6, abs=1e-12)
+    assert _foam_list(last / "wallHeatFluxTotal", "left") == pytest.approx(q + qc + qg, rel=1e-12)
     # the energy balance of coupling.csv
     c = np.atleast_1d(np.genfromtxt(one / "coupling.csv", delimiter=",", names=True))
     through = np.abs(c["E_open"]) + np.abs(c["E_walls_gas"]) + np.abs(c["E_walls_particles"])
@@ -510,6 +523,9 @@ def test_tied_fixed_flux_wall_delivers_q_w_A(tmp_path, solver):
     assert bead > 0
     assert q[zc < 0.005] == pytest.approx(np.full(3, q_w - bead / Af), rel=1e-9)
     assert q[zc > 0.005] == pytest.approx(np.full(15, q_w), rel=1e-12)
+    qc = _foam_list(one / "0.001" / "wallHeatFluxContact", "left")
+    assert qc[zc < 0.005] == pytest.approx(np.full(3, bead / Af), rel=1e-9)
+    assert _foam_list(one / "0.001" / "wallHeatFluxTotal", "left") == pytest.approx(np.full(18, q_w), rel=1e-12)
     two = tmp_path / "two"
     run(two, "--end-time", "0.0005")
     run(two, "--restart")

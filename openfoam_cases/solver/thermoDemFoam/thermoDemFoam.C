@@ -38,7 +38,7 @@ Description
 #include "fvOptions.H"
 #include "dragFaces.H"
 #include "wallFvPatch.H"
-#include "fixedGradientFvPatchFields.H"
+#include "tiedWalls.H"
 #include "couplingIO.H"
 #include "energyBalance.H"
 
@@ -198,16 +198,12 @@ int main(int argc, char *argv[])
         if (coupling.active())
         {
             List<scalarField> in;
-            peerFlags = coupling.receive(step, in, 7 + fixedFluxNames.size());
-            forAll(fixedFluxParticles, j)
+            peerFlags = coupling.receive(step, in, 7 + tied.nColumns());
+            if (!tied.read(in))
             {
-                fixedFluxParticles[j] = in[7 + j];
-                if (!std::isfinite(gSum(mag(fixedFluxParticles[j]))))
-                {
-                    FatalErrorInFunction
-                        << "non-finite particle heat of the fixed-flux wall " << fixedFluxNames[j]
-                        << " [peer: DEM, coupling step " << step << ']' << exit(FatalError);
-                }
+                FatalErrorInFunction
+                    << "non-finite particle heat of a tied wall"
+                    << " [peer: DEM, coupling step " << step << ']' << exit(FatalError);
             }
 
             scalarField& epsI = eps.primitiveFieldRef();
