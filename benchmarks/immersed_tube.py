@@ -48,7 +48,7 @@ G = 9.81
 # Voidage at minimum fluidization of the correlations: Wen & Yu (1966) approximate Ergun with
 # 1/(phi eps_mf^3) = 14, which for spheres (phi = 1) is eps_mf = 14^(-1/3) = 0.415.
 EPS_MF = 0.415
-SETTLED = 0.05            # running average "settled": stays within 5 % of the final value
+SETTLED = (0.05, 0.02)    # running average "settled": stays within 5 % (2 %) of the final value
 
 
 # ----------------------------------------------------------------------------- correlations
@@ -66,10 +66,10 @@ def zabrodsky_hmax(rho_p, k_g, d_p):
     (0.0262 W/(m K)): 231 W/(m2 K).
 
     Published scatter: NOT confirmed here. The original papers were not accessible; the
-    coefficient and exponents agree with the form quoted in the secondary literature (Kunii &
-    Levenspiel 1991; Botterill 1975) and in an independent implementation (Thanheiser et al.,
-    Energies 15 (2022) 1316, their zabrodsky.m), but the scatter band of the data around it
-    could not be read, so none is claimed."""
+    coefficient and exponents are the commonly quoted ones and agree with an independent
+    implementation (Thanheiser et al., Energies 15 (2022) 1316, zabrodsky.m of
+    github.com/sthanhe/HeatTransfer), but the scatter of the data around the correlation could
+    not be read, so no band is claimed."""
     return 35.8 * rho_p ** 0.2 * k_g ** 0.6 * d_p ** -0.36
 
 
@@ -96,13 +96,14 @@ def molerus_1995(rho_p, rho_g, cp_p, cp_g, k_g, mu_g, d_p, U, U_mf, eps_mf, g=G)
     cp_p is the heat capacity of the particles, cp_g of the gas; d_p enters only through U_mf
     (the correlation's length is l_l); it is used here for the Archimedes number returned.
 
-    NOT confirmed against the original paper (not accessible here): the form above is the one
-    reproduced in the secondary literature as far as could be checked. Two independent MATLAB
-    implementations (Thanheiser, FluBed.m of github.com/sthanhe/engMan and molerus.m of
-    sthanhe/TubeBankHeatTransfer) agree on every constant (0.125, 33.3, 0.28, 0.165, 0.05) but use
-    ((U - U_mf)/U_mf)^(1/3), the inverse of r^(1/3), in the 33.3 term (at U = 2 U_mf, r = 1, the
-    two are identical; the immersed_tube case runs at r = 0.99); the second of them also writes
-    the 0.28 term differently (k_g/(2 cp_p mu) squared, no leading 1), which looks like a slip.
+    NOT confirmed against the original paper (not accessible here): the form above is written
+    from its citations in the secondary literature as remembered, and checked only against two
+    independent MATLAB implementations (Thanheiser: FluBed.m of github.com/sthanhe/engMan and
+    molerus.m of github.com/sthanhe/TubeBankHeatTransfer). They agree on every constant (0.125,
+    33.3, 0.28, 0.165, 0.05) but use ((U - U_mf)/U_mf)^(1/3), the inverse of r^(1/3), in the 33.3
+    term (at U = 2 U_mf, r = 1, the two readings are identical; the immersed_tube case runs at
+    r = 0.99); the second of them also writes the 0.28 term differently (k_g/(2 cp_p mu) squared,
+    no leading 1), which looks like a slip.
     Published scatter: not confirmed either (no band is claimed). Needs U > U_mf.
 
     Returns a dict: h (total), h_pc, h_gc [W/(m2 K)], Nu_pc, Nu_gc, l_l [m], Ar (with d_p)."""
@@ -162,7 +163,9 @@ def case_properties(out):
     lo, hi = np.array(dem["domain"]["min"], float), np.array(dem["domain"]["max"], float)
     p = dict(rho_p=float(mat["density"]), cp_p=float(mat["heat_capacity"]), rho_g=float(gas["density"]),
              cp_g=float(gas["heat_capacity"]), k_g=float(gas["conductivity"]), mu_g=float(gas["viscosity"]),
-             d_p=d_p, U=U, T_tube=float(tube["thermal"]["temperature"]),
+             d_p=d_p, U=U, T_tube=float(tube["thermal"]["temperature"]), tube_r=float(tube["radius"]),
+             tube_xz=(float(tube["point"][0]), float(tube["point"][2])),
+             dem_dt=float(dem["simulation"]["time_step"]),
              section=float((hi[0] - lo[0]) * (hi[1] - lo[1])))
     p["U_mf"] = wen_yu_1966_umf(d_p, p["rho_p"], p["rho_g"], p["mu_g"], G)
     return p
@@ -229,7 +232,7 @@ def running_average(t0, t1, h):
     return np.cumsum(h * dt) / np.cumsum(dt)
 
 
-def settled_window(tau, run, tol=SETTLED):
+def settled_window(tau, run, tol):
     """Shortest averaging window tau[k] after which the running average stays within tol of
     its final value (tau: the window length at each point of ``run``)."""
     bad = np.flatnonzero(np.abs(run - run[-1]) > tol * abs(run[-1]))
@@ -322,12 +325,12 @@ def analyse(out, discard=0.3, wall="tube"):
         Tb = np.interp(at[s], cp["time"], cp["T_particles"])[:, None]
         angles = dict(angle=a, **{k: np.nanmean(v[s] / (p["T_tube"] - Tb), axis=0) for k, v in fl.items()})
     return dict(props=p, area=area, discard=discard, t_end=float(t[-1]), t0=t0, t1=t1, h=h, mean=mean,
-                gas_source=gas_src, running=run, tau=tau, settled=settled_window(tau, run),
+                gas_source=gas_src, running=run, tau=tau, settled={x: settled_window(tau, run, x) for x in SETTLED},
                 stderr=batch_error(dt, h["particles"][keep]), T_bed=T_bed, keep=keep,
                 T_bed_mean=float(np.mean(T_bed[keep])), weight=weight, dp_mean=float(dp.mean()),
                 dp_std=float(dp.std()), bubble_hz=float(f[1:][np.argmax(spec[1:])]) if dp.size > 4 else float("nan"),
                 height_mean=float(cp["bed_height"][sb].mean()), height_std=float(cp["bed_height"][sb].std()),
-                coupling=cp, corr=corr, cost=cost, angles=angles)
+                coupling=cp, corr=corr, cost=cost, angles=angles, folder=out)
 
 
 def report(r):
@@ -348,8 +351,9 @@ def report(r):
         lines.append(f"    gas convection                  {m['gas_convection']:8.1f}   (from the {r['gas_source']})")
         lines.append(f"  h all paths                       {m['all']:8.1f}")
     lines += [
-        f"  running average within {100 * SETTLED:g} % of the final value after a window of "
-        f"{r['settled']:.3g} s (of {r['tau'][-1]:.3g} s)",
+        "  running average within " + ", ".join(f"{100 * x:g} % of the final value after a window of "
+                                                f"{r['settled'][x]:.3g} s" for x in SETTLED)
+        + f" (of {r['tau'][-1]:.3g} s)",
         f"  Zabrodsky h_max                   {c['zabrodsky']:8.1f}   (ratio particles / Zabrodsky "
         f"{m['particles'] / c['zabrodsky']:.2f})",
         f"  Molerus 1995 at U: total {mo['h']:.1f} = particle-convective {mo['h_pc']:.1f} + gas-convective "
@@ -379,7 +383,9 @@ def plot(r, path):
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    fig, ax = plt.subplots(2, 2, figsize=(12, 8))
+    fig = plt.figure(figsize=(16, 8))
+    gs = fig.add_gridspec(2, 3, width_ratios=(1.0, 1.0, 0.6))
+    ax = np.array([[fig.add_subplot(gs[i, j]) for j in range(2)] for i in range(2)])
     tm = 0.5 * (r["t0"] + r["t1"])
     a = ax[0, 0]
     for key, lab in (("contact", "contact"), ("gas_gap", "gas gap"), ("gas_convection", "gas convection"),
@@ -392,12 +398,12 @@ def plot(r, path):
     a.axhline(c["molerus"]["h_pc"], color="r", ls=":", label=f"Molerus particle-conv. {c['molerus']['h_pc']:.0f}")
     a.axvline(r["discard"], color="gray", lw=0.8)
     a.set_ylabel("h = Q / (A (T_tube - T_bed)) [W/(m2 K)]")
-    a.legend(fontsize=7)
+    a.legend(fontsize=7, loc="lower right", ncol=2)
     a = ax[0, 1]
     a.plot(r["tau"], r["running"], label="running average (particles)")
-    f = r["running"][-1]
-    a.axhspan(f * (1 - SETTLED), f * (1 + SETTLED), color="0.85", label=f"final +- {100 * SETTLED:g} %")
-    a.axvline(r["settled"], color="gray", ls="--", label=f"settled after {r['settled']:.2g} s")
+    f, tol = r["running"][-1], SETTLED[0]
+    a.axhspan(f * (1 - tol), f * (1 + tol), color="0.85", label=f"final +- {100 * tol:g} %")
+    a.axvline(r["settled"][tol], color="gray", ls="--", label=f"within it after {r['settled'][tol]:.2g} s")
     a.set_xlabel("averaging window [s]")
     a.set_ylabel("h [W/(m2 K)]")
     a.legend(fontsize=7)
@@ -424,18 +430,43 @@ def plot(r, path):
     a.legend(fontsize=7)
     for a in (ax[0, 0], ax[1, 0]) + ((ax[1, 1],) if r["angles"] is None else ()):
         a.set_xlabel("t [s]")
+    _snapshot(fig.add_subplot(gs[:, 2]), r)
     for a in ax.ravel():
         a.grid(alpha=0.3)
     fig.suptitle(f"immersed tube: averaged over {r['discard']:g}-{r['t_end']:.3g} s")
     fig.tight_layout()
-    from dem.outdir import claim_file
+    from dem.outdir import PNG_SOFTWARE, claim_file
     from dem.output import atomic_write
     claim_file(str(path), "--plot")     # never replaces a user's file; listed in a run folder's manifest
-    try:
-        atomic_write(str(path), lambda tmp: fig.savefig(tmp, dpi=110, format="png"))
+    try:                                # the Software chunk marks the PNG as ours (replaced next time)
+        atomic_write(str(path), lambda tmp: fig.savefig(tmp, dpi=110, format="png",
+                                                        metadata={"Software": PNG_SOFTWARE}))
     finally:
         plt.close(fig)
     return path
+
+
+def _snapshot(a, r):
+    """The particles of the last VTK output, (x, z), coloured by temperature, and the tube."""
+    files = glob.glob(str(Path(r["folder"]) / "vtk" / "particles_*.vtu"))
+    if not files:
+        a.axis("off")
+        return
+    import meshio
+    last = max(files, key=lambda f: int(re.findall(r"(\d+)\.vtu$", f)[0]))
+    m = meshio.read(last)
+    x, T = m.points, m.point_data["temperature"]
+    sc = a.scatter(1e3 * x[:, 0], 1e3 * x[:, 2], c=T, s=2.0, cmap="coolwarm", vmin=T.min(), vmax=T.max())
+    p = r["props"]
+    from matplotlib.patches import Circle
+    a.add_patch(Circle(tuple(1e3 * np.array(p["tube_xz"])), 1e3 * p["tube_r"], color="k", fill=False))
+    a.set_aspect("equal")
+    a.set_xlabel("x [mm]")
+    a.set_ylabel("z [mm]")
+    a.set_ylim(0, 60)
+    step = int(re.findall(r"(\d+)\.vtu$", last)[0])
+    a.set_title(f"particles at t = {step * p['dem_dt']:.3g} s", fontsize=9)
+    a.figure.colorbar(sc, ax=a, label="T [K]", shrink=0.6)
 
 
 def main(argv=None):

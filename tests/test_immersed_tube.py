@@ -149,7 +149,10 @@ def test_analysis_on_known_rates(tmp_path, gas):
     assert r["dp_mean"] == pytest.approx(440.0, abs=2.0)
     assert abs(r["bubble_hz"] - 5.0) <= 1.0 / 1.0     # one bin of the 1 s window
     # h rises slowly (T_bed rises): the running average settles within 5 % at once
-    assert r["settled"] == pytest.approx(0.008)
+    assert r["settled"][0.05] == pytest.approx(0.008)
+    run = np.cumsum(1.0 / dT) / np.arange(1, len(dT) + 1)       # equal intervals
+    last_out = np.flatnonzero(np.abs(run / run[-1] - 1.0) > 0.02)[-1]
+    assert r["settled"][0.02] == pytest.approx(0.008 * (last_out + 2))
     assert r["T_bed_mean"] == pytest.approx(300.0 + 2.0 * mids.mean(), rel=1e-12)
     text = IT.report(r)
     assert "Zabrodsky" in text and "Molerus" in text
@@ -165,6 +168,13 @@ def test_analysis_angles_and_plot(tmp_path):
     assert list(r["angles"]["angle"]) == [0.0, 90.0, 180.0, 270.0]
     png = IT.plot(r, tmp_path / "fig.png")
     assert png.stat().st_size > 10_000
+    IT.plot(r, png)                                     # our own figure is replaced
+    user = tmp_path / "user.png"
+    user.write_bytes(b"not ours")
+    from dem.outdir import OutputFolderError
+    with pytest.raises(OutputFolderError):              # a user's file is not
+        IT.plot(r, user)
+    assert user.read_bytes() == b"not ours"
 
 
 def test_settled_window():
@@ -222,3 +232,40 @@ def test_mesh_locates_particles_and_conserves_void_fraction(tmp_path):
     eps, pw = VF.void_fraction(mesh, pts[:300], r[:300], "smoothed", return_weights=True, warn=False)
     solid = ((1.0 - eps) * mesh.cell_volumes).sum()
     assert solid == pytest.approx(300 * 4 / 3 * math.pi * 0.0005 ** 3, rel=1e-12)
+
+
+def _cli(*args, cwd):
+    import os
+    import subprocess
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    return subprocess.run([sys.executable, "-m", *map(str, args)], cwd=cwd, env=env, capture_output=True,
+                          text=True, timeout=900)
+
+
+def test_case_checks_without_warning(tmp_path):
+    """coupling check: no WARNING, no PROBLEM; the step and cell rules the README quotes."""
+    r = _cli("coupling.run", "check", CASE, cwd=tmp_path)
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "WARNING" not in r.stdout and "PROBLEM" not in r.stdout, r.stdout
+    assert "verdict: OK" in r.stdout
+    v = {ln.split()[0]: float(ln.split()[1]) for ln in r.stdout.splitlines()
+         if len(ln.split()) == 2 and re.fullmatch(r"[-+0-9.eE]+", ln.split()[1])}
+    assert v["particles"] == 5500 and v["cells"] == 640
+    assert v["dt_over_hertz"] < 0.1 and v["particle_courant"] < 0.1
+    assert v["averaging_over_diameter"] >= 3.0
+
+
+def test_short_coupled_run(tmp_path, solver):
+    """20 coupling steps of the case through the command line: every particle located in the
+    O-grid mesh at every output, the tube's rows in wall_heat.csv with its lateral area
+    2 pi R L, and the gas heated by the 340 K tube patch at every CFD step."""
+    out = tmp_path / "out"
+    r = _cli("coupling.run", "run", CASE, "--out", out, "--end-time", "0.0032", cwd=tmp_path)
+    assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
+    cp = IT.read_csv(out / "coupling.csv")
+    assert cp["time"][-1] == pytest.approx(0.0032) and np.all(cp["n_outside"] == 0)
+    energy, area = IT.wall_energy(out / "wall_heat.csv", "tube")
+    assert area == pytest.approx(2 * math.pi * 0.005 * 0.004, rel=1e-12)
+    assert {"contact", "gas_gap", "total"} <= set(energy)
+    t, q = IT.gas_heat_from_log(out)
+    assert len(t) == 20 and np.all(q > 0)
