@@ -267,6 +267,58 @@ def read_angles(path, wall="tube"):
 
 # ----------------------------------------------------------------------------- the analysis
 
+def _gas_rates(out, wall, t0, t1):
+    """The gas's heat from the tube patch, mean of the CFD-step values of the solver's log
+    within each output interval (NaN where the log has none); None without log lines."""
+    log = gas_heat_from_log(out, wall)
+    if log is None:
+        return None
+    lt, lq = log
+    q = np.full(len(t1), np.nan)
+    for k in range(len(t1)):
+        s = (lt > t0[k] + 1e-12) & (lt <= t1[k] + 1e-12)
+        if np.any(s):
+            q[k] = lq[s].mean()
+    return q
+
+
+def _bed(cp, p, discard):
+    """Pressure drop against the bed weight, its dominant frequency, mean particle height."""
+    mass = cp["E_particles"] / (p["cp_p"] * cp["T_particles"])      # E = sum m c T, one c
+    sb = cp["time"] >= discard - 1e-9
+    dp = cp["dp"][sb]
+    f = np.fft.rfftfreq(dp.size, np.diff(cp["time"][sb]).mean()) if dp.size > 4 else None
+    spec = np.abs(np.fft.rfft(dp - dp.mean())) if dp.size > 4 else None
+    return dict(weight=float(mass[-1] * G / p["section"]), dp_mean=float(dp.mean()), dp_std=float(dp.std()),
+                bubble_hz=float(f[1:][np.argmax(spec[1:])]) if f is not None else float("nan"),
+                height_mean=float(cp["bed_height"][sb].mean()), height_std=float(cp["bed_height"][sb].std()))
+
+
+def _correlations(p):
+    args = (p["rho_p"], p["rho_g"], p["cp_p"], p["cp_g"], p["k_g"], p["mu_g"], p["d_p"])
+    return dict(zabrodsky=zabrodsky_hmax(p["rho_p"], p["k_g"], p["d_p"]),
+                molerus=molerus_1995(*args, p["U"], p["U_mf"], EPS_MF),
+                molerus_max=molerus_1995_max(*args, p["U_mf"], EPS_MF))
+
+
+def _cost(out):
+    if not (out / "timings.json").exists():
+        return {}
+    tj = json.loads((out / "timings.json").read_text())
+    return dict(particles=tj["particles"], particle_steps_per_s=tj["particle_steps_per_s"], loop_s=tj["loop"],
+                wall_s=tj["wall_total"], dem_share=tj["phases"]["dem"] / tj["loop"])
+
+
+def _angles(out, wall, cp, p, discard):
+    ang = read_angles(out / "wall_heat_angle.csv", wall)
+    if ang is None:
+        return None
+    a, at, fl = ang
+    s = at >= discard - 1e-9
+    dT = p["T_tube"] - np.interp(at[s], cp["time"], cp["T_particles"])[:, None]
+    return dict(angle=a, **{k: np.nanmean(v[s] / dT, axis=0) for k, v in fl.items()})
+
+
 def analyse(out, discard=0.3, wall="tube"):
     """Every number of the report (a dict); see the module docstring."""
     out = Path(out)
@@ -275,62 +327,33 @@ def analyse(out, discard=0.3, wall="tube"):
     cp = read_csv(out / "coupling.csv")
     paths = {m: energy[m] for m in ("contact", "gas_gap", "gas_convection") if m in energy}
     t = energy["total"][0] if "total" in energy else next(iter(paths.values()))[0]
-    gas_src = "wall_heat.csv" if "gas_convection" in paths else None
     t0, t1 = t[:-1], t[1:]
     rates = {m: interval_rates(*paths[m]) for m in paths}
-    if gas_src is None:
-        log = gas_heat_from_log(out, wall)
-        if log is not None:     # mean of the CFD-step values within each output interval
-            lt, lq = log
-            q = np.full(len(t1), np.nan)
-            for k in range(len(t1)):
-                s = (lt > t0[k] + 1e-12) & (lt <= t1[k] + 1e-12)
-                if np.any(s):
-                    q[k] = lq[s].mean()
-            rates["gas_convection"] = q
-            gas_src = "solver log"
-    T_bed = np.interp(0.5 * (t0 + t1), cp["time"], cp["T_particles"])
-    dT = p["T_tube"] - T_bed
-    h = {m: rates[m] / (area * dT) for m in rates}
+    gas_src = "wall_heat.csv" if "gas_convection" in rates else None
+    if gas_src is None and (q := _gas_rates(out, wall, t0, t1)) is not None:
+        rates["gas_convection"], gas_src = q, "solver log"
+    T_bed = np.interp(0.5 * (t0 + t1), cp["time"], cp["T_particles"])     # at each interval's middle
+    h = {m: rates[m] / (area * (p["T_tube"] - T_bed)) for m in rates}
     h["particles"] = sum(h[m] for m in ("contact", "gas_gap") if m in h)
-    h["all"] = h["particles"] + h.get("gas_convection", 0.0)
-    keep = (t0 >= discard - 1e-9) & np.all([np.isfinite(v) for v in h.values()], axis=0)
+    if "gas_convection" in h:
+        h["all"] = h["particles"] + h["gas_convection"]
+    keep = t0 >= discard - 1e-9
     if np.count_nonzero(keep) < 2:
         raise SystemExit(f"{out}: output reaches t = {t[-1]:g} s; nothing to average after --discard {discard} s")
-    dt = (t1 - t0)[keep]
-    mean = {m: float(np.sum(v[keep] * dt) / np.sum(dt)) for m, v in h.items()}
+    dt = t1 - t0
+    mean, covered = {}, {}
+    for m, v in h.items():      # a path missing in some intervals (a log lost to a restart) is
+        k = keep & np.isfinite(v)    # averaged over the intervals it has; covered says how long
+        mean[m] = float(np.sum(v[k] * dt[k]) / np.sum(dt[k])) if np.any(k) else float("nan")
+        covered[m] = float(np.sum(dt[k]))
     run = running_average(t0[keep], t1[keep], h["particles"][keep])
     tau = t1[keep] - t0[keep][0]
-    # bed: pressure drop against the weight, mean particle height, bubble frequency
-    mass = cp["E_particles"] / (p["cp_p"] * cp["T_particles"])
-    weight = float(mass[-1] * G / p["section"])
-    sb = cp["time"] >= discard - 1e-9
-    dp = cp["dp"][sb]
-    f, spec = np.fft.rfftfreq(dp.size, np.diff(cp["time"][sb]).mean()), np.abs(np.fft.rfft(dp - dp.mean()))
-    corr = dict(zabrodsky=zabrodsky_hmax(p["rho_p"], p["k_g"], p["d_p"]),
-                molerus=molerus_1995(p["rho_p"], p["rho_g"], p["cp_p"], p["cp_g"], p["k_g"], p["mu_g"], p["d_p"],
-                                     p["U"], p["U_mf"], EPS_MF),
-                molerus_max=molerus_1995_max(p["rho_p"], p["rho_g"], p["cp_p"], p["cp_g"], p["k_g"], p["mu_g"],
-                                             p["d_p"], p["U_mf"], EPS_MF))
-    cost = {}
-    if (out / "timings.json").exists():
-        tj = json.loads((out / "timings.json").read_text())
-        cost = dict(particles=tj["particles"], particle_steps_per_s=tj["particle_steps_per_s"],
-                    loop_s=tj["loop"], wall_s=tj["wall_total"], dem_share=tj["phases"]["dem"] / tj["loop"])
-    ang = read_angles(out / "wall_heat_angle.csv", wall)
-    angles = None
-    if ang is not None:
-        a, at, fl = ang
-        s = at >= discard - 1e-9
-        Tb = np.interp(at[s], cp["time"], cp["T_particles"])[:, None]
-        angles = dict(angle=a, **{k: np.nanmean(v[s] / (p["T_tube"] - Tb), axis=0) for k, v in fl.items()})
     return dict(props=p, area=area, discard=discard, t_end=float(t[-1]), t0=t0, t1=t1, h=h, mean=mean,
-                gas_source=gas_src, running=run, tau=tau, settled={x: settled_window(tau, run, x) for x in SETTLED},
-                stderr=batch_error(dt, h["particles"][keep]), T_bed=T_bed, keep=keep,
-                T_bed_mean=float(np.mean(T_bed[keep])), weight=weight, dp_mean=float(dp.mean()),
-                dp_std=float(dp.std()), bubble_hz=float(f[1:][np.argmax(spec[1:])]) if dp.size > 4 else float("nan"),
-                height_mean=float(cp["bed_height"][sb].mean()), height_std=float(cp["bed_height"][sb].std()),
-                coupling=cp, corr=corr, cost=cost, angles=angles, folder=out)
+                covered=covered, gas_source=gas_src, running=run, tau=tau,
+                settled={x: settled_window(tau, run, x) for x in SETTLED},
+                stderr=batch_error(dt[keep], h["particles"][keep]), T_bed=T_bed,
+                T_bed_mean=float(np.mean(T_bed[keep])), coupling=cp, corr=_correlations(p), cost=_cost(out),
+                angles=_angles(out, wall, cp, p, discard), folder=out, **_bed(cp, p, discard))
 
 
 def report(r):
@@ -348,7 +371,10 @@ def report(r):
         f"    gas gap                         {m.get('gas_gap', float('nan')):8.1f}",
     ]
     if "gas_convection" in m:
-        lines.append(f"    gas convection                  {m['gas_convection']:8.1f}   (from the {r['gas_source']})")
+        span_gas = r["covered"]["gas_convection"]
+        lines.append(f"    gas convection                  {m['gas_convection']:8.1f}   (from the {r['gas_source']}"
+                     + (f", over {span_gas:.3g} s only" if span_gas < 0.999 * r["covered"]["particles"] else "")
+                     + ")")
         lines.append(f"  h all paths                       {m['all']:8.1f}")
     lines += [
         "  running average within " + ", ".join(f"{100 * x:g} % of the final value after a window of "

@@ -87,7 +87,7 @@ def test_molerus_max_is_the_maximum():
 
 # ----------------------------------------------------------------------------- analysis
 
-def _synthetic_run(tmp, gas="log", angles=False):
+def _synthetic_run(tmp, gas="log", angles=False, log_from=0.0):
     """A run folder with known answers: the case's dem.toml and 0/U; tube heat rates constant
     (contact 0.2 W, gas gap 0.6 W; gas 0.1 W, from wall_heat.csv or the solver log), bed
     temperature 300 + 2 t K, dp = 440 + 100 sin(2 pi 5 t) Pa, 7.2 g of beads."""
@@ -114,7 +114,7 @@ def _synthetic_run(tmp, gas="log", angles=False):
                                          0.02])))
     (out / "coupling.csv").write_text("\n".join(lines) + "\n")
     if gas == "log":
-        steps = [float(x) for x in np.round(np.arange(0.00016, 1.3 + 1e-9, 0.00016), 10)]
+        steps = [float(x) for x in np.round(np.arange(0.00016, 1.3 + 1e-9, 0.00016), 10) if x > log_from]
         (out / "log.thermoDemFoam").write_text("".join(
             f"Time = {tk!r}  coupling step {k + 1}\nWall heat into the gas, patch xWalls: 0 W\n"
             f"Wall heat into the gas, patch tube: 0.1 W\n" for k, tk in enumerate(steps)))
@@ -156,6 +156,21 @@ def test_analysis_on_known_rates(tmp_path, gas):
     assert r["T_bed_mean"] == pytest.approx(300.0 + 2.0 * mids.mean(), rel=1e-12)
     text = IT.report(r)
     assert "Zabrodsky" in text and "Molerus" in text
+
+
+def test_gas_path_missing_in_part_of_the_window(tmp_path):
+    """A solver log that starts late (e.g. replaced at a restart) shortens only the gas path's
+    average; the particle paths keep the whole window."""
+    out, A = _synthetic_run(tmp_path, log_from=0.8)
+    r = IT.analyse(out, discard=0.3)
+    t = np.round(np.arange(0, 1.3 + 1e-9, 0.008), 10)
+    t0 = t[:-1]
+    dT = 340.0 - (300.0 + 2.0 * (t0 + 0.004))
+    assert r["mean"]["particles"] == pytest.approx(np.mean(0.8 / (A * dT[t0 >= 0.3])), rel=1e-9)
+    late = t0 >= 0.8 - 1e-9                      # intervals (0.8, ...] hold log lines
+    assert r["mean"]["gas_convection"] == pytest.approx(np.mean(0.1 / (A * dT[late])), rel=1e-9)
+    assert r["covered"]["gas_convection"] == pytest.approx(0.008 * np.count_nonzero(late), rel=1e-9)
+    assert "only" in IT.report(r)
 
 
 def test_analysis_angles_and_plot(tmp_path):
