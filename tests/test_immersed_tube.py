@@ -273,7 +273,10 @@ def test_case_checks_without_warning(tmp_path):
 def test_short_coupled_run(tmp_path, solver):
     """20 coupling steps of the case through the command line: every particle located in the
     O-grid mesh at every output, the tube's rows in wall_heat.csv with its lateral area
-    2 pi R L, and the gas heated by the 340 K tube patch at every CFD step."""
+    2 pi R L, and the gas heated by the 340 K tube patch at every CFD step; the tube is tied to
+    its gas patch, so wall_heat.csv's gas path is the solver's (its log's per-step totals
+    integrate to it), wall_heat_angle.csv has the 24 sectors at every output, and
+    coupling.csv's energy balance closes to round-off."""
     out = tmp_path / "out"
     r = _cli("coupling.run", "run", CASE, "--out", out, "--end-time", "0.0032", cwd=tmp_path)
     assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
@@ -281,6 +284,17 @@ def test_short_coupled_run(tmp_path, solver):
     assert cp["time"][-1] == pytest.approx(0.0032) and np.all(cp["n_outside"] == 0)
     energy, area = IT.wall_energy(out / "wall_heat.csv", "tube")
     assert area == pytest.approx(2 * math.pi * 0.005 * 0.004, rel=1e-12)
-    assert {"contact", "gas_gap", "total"} <= set(energy)
+    assert {"contact", "gas_gap", "gas_convection", "total"} <= set(energy)
     t, q = IT.gas_heat_from_log(out)
     assert len(t) == 20 and np.all(q > 0)
+    # the log prints 6 significant digits; the CFD step is 1.6e-4 s
+    assert energy["gas_convection"][1][-1] == pytest.approx(q.sum() * 1.6e-4, rel=1e-5)
+    parts = sum(energy[m][1] for m in ("contact", "gas_gap", "gas_convection"))
+    assert parts == pytest.approx(energy["total"][1], rel=1e-12, abs=1e-300)
+    # round-off: of the energy sums (about 1e3 J here) and of the boundary integrals
+    through = np.abs(cp["E_open"]) + np.abs(cp["E_walls_gas"]) + np.abs(cp["E_walls_particles"])
+    scale = np.abs(cp["E_particles"]) + np.abs(cp["E_gas_solver"])
+    assert np.all(np.abs(cp["balance_residual"]) <= 1e-14 * scale + 1e-9 * through)
+    ang = IT.read_csv(out / "wall_heat_angle.csv")
+    assert len(ang["time"]) == 24 * len(cp["time"])
+    assert np.all(np.diff(np.unique(ang["angle_deg"])) == pytest.approx(15.0))

@@ -394,8 +394,10 @@ def test_tied_wall_heats_both_phases_and_the_energy_balance_closes(tmp_path, sol
     assert _foam_list(last / "wallHeatFluxTotal", "left") == pytest.approx(q + qc + qg, rel=1e-12)
     # the energy balance of coupling.csv
     c = np.atleast_1d(np.genfromtxt(one / "coupling.csv", delimiter=",", names=True))
+    # round-off: of the energy sums (24 J of beads, 1.5 J of gas) and of the boundary integrals
     through = np.abs(c["E_open"]) + np.abs(c["E_walls_gas"]) + np.abs(c["E_walls_particles"])
-    assert np.all(np.abs(c["balance_residual"]) <= 1e-9 * through + 1e-15)
+    scale = np.abs(c["E_particles"]) + np.abs(c["E_gas_solver"])
+    assert np.all(np.abs(c["balance_residual"]) <= 1e-14 * scale + 1e-9 * through)
     assert c["balance_error"] == pytest.approx(c["E_exchange_mismatch"] + c["E_continuity"], abs=1e-12)
     assert c["E_walls_gas"][-1] == pytest.approx(gas[-1, 1], rel=1e-12)
     assert c["E_walls_particles"][-1] == pytest.approx(w[("left", "contact")][-1, 1] + w[("left", "gas_gap")][-1, 1],
