@@ -397,10 +397,11 @@ def compute_forces(P, C, W, TB, prm, n, t, hon):
                             wtot[wl] += qq * dt
                             wgap[wl] += qq * dt  # no contact: all across the gas gap
                             e_wall += qq
-                    else:
-                        Hw[i, q] = hw
-                        if has_wg:
-                            Hwg[i, q] = hw
+                    # kept in both modes: the heat step reads them (not fused), the records by
+                    # face and angle do (dem.thermal.wall_heat, coupling.energy)
+                    Hw[i, q] = hw
+                    if has_wg:
+                        Hwg[i, q] = hw
                 continue
             ncont += 2
             delta = ri - dist
@@ -460,10 +461,9 @@ def compute_forces(P, C, W, TB, prm, n, t, hon):
                     Q[i] += qq
                     wtot[wl] += qq * dt
                     e_wall += qq
-                else:
-                    Hw[i, q] = hw
-                    if has_wg:
-                        Hwg[i, q] = hwg
+                Hw[i, q] = hw   # both modes (see above)
+                if has_wg:
+                    Hwg[i, q] = hwg
                 if fric >= 0:
                     qf = _contact_heat(fric, tab[T_MU, mi, mw], thf, vtx, vty, vtz, ftx, fty, ftz, fn, vn)
                     qgen[i] += partition(pmodel, mi, mw, tmat) * qf

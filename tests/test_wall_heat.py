@@ -532,3 +532,30 @@ def test_tied_fixed_flux_wall_delivers_q_w_A(tmp_path, solver):
     run(two, "--end-time", "0.0005")
     run(two, "--restart")
     assert (one / "wall_heat.csv").read_text() == (two / "wall_heat.csv").read_text()
+
+
+def test_local_flux_of_a_moving_bed_run(tmp_path):
+    """With mechanics on, the Euler integrator exchanges wall heat inside the force loop (fused);
+    the wall conductances are kept there too, so wall_heat_angle.csv sees a bead resting on top
+    of a heated tube: all its flux in the top sector, and the flux times the sector's area is the
+    rate of wall_heat.csv (its interval mean over 1 ms, while the bead's temperature relaxes
+    over seconds: within 1e-3)."""
+    from dem.thermal.kernel import TI_FUSED
+    Rc, ov = 4e-3, 1e-6
+    walls = [{"type": "cylinder", "name": "tube", "point": [0, 0, 0], "axis": [0, 1, 0], "radius": Rc,
+              "inside": False, "length": 0.004, "material": "p",
+              "thermal": {"condition": "fixed_temperature", "temperature": 400.0}}]
+    sc = scene([{"material": "p", "positions": [[1e-9, 0.0, Rc + R - ov]], "radius": R, "temperature": 300.0}],
+               {"direct": "batchelor_obrien", "indirect": "voronoi_a", "integrator": "euler",
+                "porosity": "global"}, walls, end=0.005, dt=1e-6, output=0.001)
+    sc["simulation"].update(mechanics=True, gravity=[0, 0, -9.81])
+    sim = Simulation.from_dict(sc)
+    assert sim.thermal.thi[TI_FUSED] == 1
+    sim.run(out_dir=str(tmp_path / "out"), progress=False)
+    with open(tmp_path / "out" / "wall_heat_angle.csv", newline="") as f:
+        rows = [r for r in csv.DictReader(f) if float(r["time"]) == pytest.approx(0.005)]
+    q = np.array([float(r["contact_W_m2"]) + float(r["gas_gap_W_m2"]) for r in rows])
+    assert np.flatnonzero(q).tolist() == [0]
+    rate = read(tmp_path / "out" / "wall_heat.csv")[("tube", "total")][-1, 2]
+    assert rate > 0
+    assert q[0] * 2 * math.pi * Rc * 0.004 / 24 == pytest.approx(rate, rel=1e-3)
