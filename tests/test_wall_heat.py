@@ -34,6 +34,14 @@ AIR = dict(conductivity=0.026, density=1.2, viscosity=1.8e-5, heat_capacity=1005
 L = 0.01
 
 
+def _coupling_run(case, out, *args):
+    """`coupling run CASE --out OUT ARGS` through the command line; it must succeed."""
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    r = subprocess.run([sys.executable, "-m", "coupling.run", "run", str(case), "--out", str(out), *args],
+                       capture_output=True, text=True, env=env, cwd=str(ROOT))
+    assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-2000:]
+
+
 def scene(particles, thermal, walls, end, dt=1e-5, output=None):
     sc = {"simulation": {"time_step": dt, "end_time": end, "mechanics": False, "gravity": [0, 0, 0],
                          "output_interval": output or end},
@@ -267,12 +275,9 @@ def test_coupled_run_writes_the_particles_wall_heat(tmp_path, solver):
     old = 'name = "distributor"\npoint = [0.0, 0.0, 0.0]\nnormal = [0.0, 0.0, 1.0]\nmaterial = "glass"\n'
     assert old in text
     dem_toml.write_text(text.replace(old, old + 'thermal = { condition = "fixed_temperature", temperature = 400.0 }\n'))
-    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
 
     def run(out, *args):
-        r = subprocess.run([sys.executable, "-m", "coupling.run", "run", str(case), "--out", str(out), *args],
-                           capture_output=True, text=True, env=env, cwd=str(ROOT))
-        assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-2000:]
+        _coupling_run(case, out, *args)
     run(tmp_path / "one")
     w = read(tmp_path / "one" / "wall_heat.csv")
     tot = w[("distributor", "total")]
@@ -353,12 +358,9 @@ def test_tied_wall_heats_both_phases_and_the_energy_balance_closes(tmp_path, sol
     two explained parts (the explicit exchange's mismatch and the continuity residual) to
     round-off; a run stopped and continued writes the same records."""
     case = _tied_case(tmp_path / "case")
-    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
 
     def run(out, *args):
-        r = subprocess.run([sys.executable, "-m", "coupling.run", "run", str(case), "--out", str(out), *args],
-                           capture_output=True, text=True, env=env, cwd=str(ROOT))
-        assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-2000:]
+        _coupling_run(case, out, *args)
     one = tmp_path / "one"
     run(one)
     w = read(one / "wall_heat.csv")
@@ -500,12 +502,9 @@ def test_tied_fixed_flux_wall_delivers_q_w_A(tmp_path, solver):
     face, on the others q_w; a run stopped and continued writes the same records."""
     q_w = 5000.0
     case = _tied_case(tmp_path / "case", q_w=q_w)
-    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
 
     def run(out, *args):
-        r = subprocess.run([sys.executable, "-m", "coupling.run", "run", str(case), "--out", str(out), *args],
-                           capture_output=True, text=True, env=env, cwd=str(ROOT))
-        assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-2000:]
+        _coupling_run(case, out, *args)
     one = tmp_path / "one"
     run(one)
     w = read(one / "wall_heat.csv")
