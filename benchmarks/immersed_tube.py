@@ -309,17 +309,17 @@ def _cost(out):
                 wall_s=tj["wall_total"], dem_share=tj["phases"]["dem"] / tj["loop"])
 
 
-def _angles(out, wall, cp, p, discard):
+def _angles(out, wall, cp, p, discard, angles_from=None):
     ang = read_angles(out / "wall_heat_angle.csv", wall)
     if ang is None:
         return None
     a, at, fl = ang
-    s = at >= discard - 1e-9
+    s = at >= max(discard, angles_from or 0.0) - 1e-9
     dT = p["T_tube"] - np.interp(at[s], cp["time"], cp["T_particles"])[:, None]
     return dict(angle=a, **{k: np.nanmean(v[s] / dT, axis=0) for k, v in fl.items()})
 
 
-def analyse(out, discard=0.3, wall="tube"):
+def analyse(out, discard=0.3, wall="tube", angles_from=None):
     """Every number of the report (a dict); see the module docstring."""
     out = Path(out)
     p = case_properties(out)
@@ -353,7 +353,7 @@ def analyse(out, discard=0.3, wall="tube"):
                 settled={x: settled_window(tau, run, x) for x in SETTLED},
                 stderr=batch_error(dt[keep], h["particles"][keep]), T_bed=T_bed,
                 T_bed_mean=float(np.mean(T_bed[keep])), coupling=cp, corr=_correlations(p), cost=_cost(out),
-                angles=_angles(out, wall, cp, p, discard), folder=out, **_bed(cp, p, discard))
+                angles=_angles(out, wall, cp, p, discard, angles_from), folder=out, **_bed(cp, p, discard))
 
 
 def report(r):
@@ -503,6 +503,9 @@ def main(argv=None):
     ap.add_argument("--end-time", type=float, help="end time of the run (default: the case's endTime)")
     ap.add_argument("--discard", type=float, default=0.3, help="start-up transient left out [s] (default 0.3)")
     ap.add_argument("--plot", help="figure path (default: FOLDER/immersed_tube.png)")
+    ap.add_argument("--angles-from", type=float, default=None,
+                    help="average the local coefficient by angle from this time on (default: --discard); "
+                         "e.g. the restart of a run whose angle records began there")
     a = ap.parse_args(argv)
     folder = a.out or a.analyse_only
     if a.out:
@@ -513,7 +516,7 @@ def main(argv=None):
         rc = subprocess.call(cmd, env=env)
         if rc != 0:
             return rc
-    r = analyse(folder, a.discard)
+    r = analyse(folder, a.discard, angles_from=a.angles_from)
     print(report(r))
     print("figure:", plot(r, a.plot or Path(folder) / "immersed_tube.png"))
     return 0
