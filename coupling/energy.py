@@ -188,8 +188,13 @@ def _surface_distance(w, x):
     return d
 
 
+def _patches(mesh):
+    """The mesh's patches without processor patches: the order of the solver's ledger."""
+    return [p for p in mesh.boundary if p.get("type") != "processor"]
+
+
 def _patch(mesh, name):
-    for k, p in enumerate(p for p in mesh.boundary if p.get("type") != "processor"):
+    for k, p in enumerate(_patches(mesh)):
         if p["name"] == name:
             return k, p
     return None, None
@@ -256,7 +261,7 @@ class EnergyLedger:
     solver's ledger integrated over the coupling steps, and the references of the balance."""
 
     def __init__(self, mesh, ties: dict[int, int]):
-        pats = [p for p in mesh.boundary if p.get("type") != "processor"]
+        pats = _patches(mesh)
         self.patch_names = [p["name"] for p in pats]
         self.wall = np.array([p.get("type") == "wall" for p in pats], bool)
         self.n_patches = len(pats)
@@ -361,10 +366,9 @@ class FluxSplit:
     def __init__(self, case, mesh, ties: dict[int, int]):
         from scipy.spatial import cKDTree
         sc = case.sim.scene
-        pats = [p for p in mesh.boundary if p.get("type") != "processor"]
+        pats = _patches(mesh)
         self.walls = []   # (DEM wall index, patch index, patch name, fixed flux?, q_w)
         self.faces = []   # per wall: (owner cells of the patch faces, their areas, kd-tree of centres)
-        self.heat = case.sim.thermal is not None
         for wi, pi in sorted(ties.items(), key=lambda kv: kv[1]):
             th = sc.walls[wi].get("thermal") or {}
             ff = th.get("condition") == "fixed_heat_flux"
@@ -403,30 +407,17 @@ class FluxSplit:
             self.sent = rec
 
     def _estimate(self, sim, k):
-        """[n_cells, 2] W: the contacts' heat on tied wall k now, by owner cell of the nearest face."""
-        from dem.thermal.heat import WT_COND, wall_temperature
-        wi, pi, name, ff, q = self.walls[k]
-        cells, area, tree = self.faces[k]
-        st = sim.state
-        n = st.n_owned
+        """[n_cells, 2] W: the contacts' heat on tied wall k now (dem.thermal.wall_heat.
+        particle_wall_heat), by owner cell of the patch face nearest each contact point."""
+        from dem.thermal.wall_heat import particle_wall_heat
+        wi = self.walls[k][0]
+        cells, _, tree = self.faces[k]
         est = np.zeros((self.n_cells, 2))
-        if not (n and self.heat) or int(st.wth[wi, WT_COND]) == 0:
-            return est
-        wnb, wnn = st.wnb[:n], st.wnn[:n]
-        slot = (wnb == wi) & (np.arange(wnb.shape[1])[None, :] < wnn[:, None])
-        rows, cols = np.nonzero(slot)
-        if not rows.size:
-            return est
-        H = st.Hw[rows, cols]
-        if ff:                  # Hw holds the contact area at a fixed-flux wall
-            qc, qg = H * q, np.zeros_like(H)
-        else:
-            Hg = st.Hwg[rows, cols] if st.Hwg.shape[0] >= n else np.zeros_like(H)
-            dT = wall_temperature(st.wth, st.wtab, wi, sim.time) - st.temperature[rows]
-            qc, qg = (H - Hg) * dT, Hg * dT
-        _, f = tree.query(_contact_points(sim.scene.walls[wi], st.position[rows]))
-        est[:, 0] = np.bincount(cells[f], weights=qc, minlength=self.n_cells)
-        est[:, 1] = np.bincount(cells[f], weights=qg, minlength=self.n_cells)
+        rows, qc, qg = particle_wall_heat(sim, wi)
+        if rows.size:
+            _, f = tree.query(_contact_points(sim.scene.walls[wi], sim.state.position[rows]))
+            est[:, 0] = np.bincount(cells[f], weights=qc, minlength=self.n_cells)
+            est[:, 1] = np.bincount(cells[f], weights=qg, minlength=self.n_cells)
         return est
 
     def columns(self, sim, dt):

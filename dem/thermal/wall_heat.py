@@ -175,46 +175,56 @@ def _angle_frame(w, gravity):
     return e0, np.cross(a, e0)
 
 
+def particle_wall_heat(sim, k):
+    """The heat (W) wall ``k`` gives each owned particle it touches or reaches now, by path:
+    (rows, contact, gas_gap). Each wall conductance (dem.schema ``Hw``, its gas-gap part
+    ``Hwg``) times T_w - T_i at a fixed-temperature wall, A_c q_w (all through the contact) at a
+    fixed-flux wall; empty arrays without heat, at an adiabatic wall or with no candidate."""
+    from .heat import WT_COND, WT_Q, wall_temperature
+    st = sim.state
+    n = st.n_owned
+    none = np.zeros(0, np.int64), np.zeros(0), np.zeros(0)
+    if sim.thermal is None or not n:
+        return none
+    cond = int(st.wth[k, WT_COND])
+    if cond == 0:
+        return none
+    wnb, wnn = st.wnb[:n], st.wnn[:n]
+    rows, cols = np.nonzero((wnb == k) & (np.arange(wnb.shape[1])[None, :] < wnn[:, None]))
+    H = st.Hw[rows, cols]
+    if cond == 2:   # fixed flux: Hw holds the contact area
+        return rows, H * st.wth[k, WT_Q], np.zeros_like(H)
+    Hg = st.Hwg[rows, cols] if st.Hwg.shape[0] >= n else np.zeros_like(H)   # Hwg: indirect models only
+    dT = wall_temperature(st.wth, st.wtab, k, sim.time) - st.temperature[rows]
+    return rows, (H - Hg) * dT, Hg * dT
+
+
 def cylinder_flux_by_angle(sim, n_bins=ANGLE_BINS):
     """The local heat flux from each thermal cylinder wall into the particles by angle, at the
-    state's time: each particle's wall conductance (dem.schema ``Hw``, its gas-gap part ``Hwg``)
-    times (T_w - T_i), or A_c q_w at a fixed-flux wall, binned by the angle of the particle's
-    centre around the axis (``_angle_frame``) and divided by the sector's area 2 pi R L / n_bins.
-    Collective over the MPI ranks. Returns {wall index: (angles_deg [n_bins] (sector centres),
-    contact [n_bins], gas_gap [n_bins]) in W/m^2}; empty without heat."""
-    from .heat import WT_COND, WT_Q, wall_temperature
+    state's time: ``particle_wall_heat`` binned by the angle of the particle's centre around the
+    axis (``_angle_frame``) and divided by the sector's area 2 pi R L / n_bins. Collective over
+    the MPI ranks. Returns {wall index: (angles_deg [n_bins] (sector centres), contact [n_bins],
+    gas_gap [n_bins]) in W/m^2}; empty without heat."""
+    from .heat import WT_COND
     st, sc = sim.state, sim.scene
     out = {}
     if sim.thermal is None:
         return out
     lo, hi = sc.domain["min"], sc.domain["max"]
-    n = st.n_owned
     edges = np.linspace(0.0, 360.0, n_bins + 1)
     centres = 0.5 * (edges[:-1] + edges[1:])
-    has_gap = st.Hwg.shape[0] >= n   # declared only with an indirect model (dem.schema)
     for k, w in enumerate(sc.walls):
-        cond = int(st.wth[k, WT_COND])
-        if w["type"] != "cylinder" or cond == 0:
+        if w["type"] != "cylinder" or int(st.wth[k, WT_COND]) == 0:
             continue
         e0, e1 = _angle_frame(w, sc.simulation["gravity"])
         sums = np.zeros(2 * n_bins)
-        if n:
-            wnb, wnn = st.wnb[:n], st.wnn[:n]
-            slot = (wnb == k) & (np.arange(wnb.shape[1])[None, :] < wnn[:, None])
-            rows, cols = np.nonzero(slot)
-            if rows.size:
-                H = st.Hw[rows, cols]
-                Hg = st.Hwg[rows, cols] if has_gap else np.zeros_like(H)
-                if cond == 2:   # fixed flux: Hw holds the contact area, all through the contact
-                    q_c, q_g = H * st.wth[k, WT_Q], np.zeros_like(H)
-                else:
-                    dT = wall_temperature(st.wth, st.wtab, k, sim.time) - st.temperature[rows]
-                    q_c, q_g = (H - Hg) * dT, Hg * dT
-                r = st.position[rows] - np.asarray(w["point"], float)
-                ang = np.degrees(np.arctan2(r @ e1, r @ e0)) % 360.0
-                b = np.minimum((ang / (360.0 / n_bins)).astype(np.int64), n_bins - 1)
-                sums[:n_bins] = np.bincount(b, weights=q_c, minlength=n_bins)
-                sums[n_bins:] = np.bincount(b, weights=q_g, minlength=n_bins)
+        rows, q_c, q_g = particle_wall_heat(sim, k)
+        if rows.size:
+            r = st.position[rows] - np.asarray(w["point"], float)
+            ang = np.degrees(np.arctan2(r @ e1, r @ e0)) % 360.0
+            b = np.minimum((ang / (360.0 / n_bins)).astype(np.int64), n_bins - 1)
+            sums[:n_bins] = np.bincount(b, weights=q_c, minlength=n_bins)
+            sums[n_bins:] = np.bincount(b, weights=q_g, minlength=n_bins)
         if sim.par is not None:
             sums = np.asarray(sim.par.allsum(sums), float)
         area = wall_area(w, lo, hi) / n_bins
