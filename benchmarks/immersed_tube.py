@@ -12,8 +12,10 @@ it). The analysis reads the run folder:
   ("Wall heat into the gas, patch tube: ... W", every CFD step);
 * ``coupling.csv``: the mean particle temperature T_bed (T_particles), the pressure drop and the
   mean particle height;
-* ``wall_heat_angle.csv`` (time, wall, angle_deg, contact_W_m2, gas_gap_W_m2) when present: the
-  local coefficient around the tube.
+* ``wall_heat_angle.csv`` (time, wall, angle_deg, contact_W_m2, gas_gap_W_m2, radiation_W_m2)
+  when present: the local coefficient around the tube.
+A tube that radiates (an emissivity and a radiation model) adds the path ``radiation`` to the
+particles' coefficient.
 
 The tube coefficient of each output interval is h = Q / (A (T_tube - T_bed)) with Q the mean
 heat rate of the interval (from the energies) and T_bed at the interval's middle; the reported
@@ -258,7 +260,10 @@ def read_angles(path, wall="tube"):
     sel = c["wall"] == wall
     ang, tim = np.unique(c["angle_deg"][sel]), np.unique(c["time"][sel])
     flux = {}
-    for key in ("contact_W_m2", "gas_gap_W_m2"):
+    for key in ("contact_W_m2", "gas_gap_W_m2", "radiation_W_m2"):
+        if key not in c:     # a file from before the radiation column
+            flux[key] = np.zeros((len(tim), len(ang)))
+            continue
         a = np.full((len(tim), len(ang)), np.nan)
         a[np.searchsorted(tim, c["time"][sel]), np.searchsorted(ang, c["angle_deg"][sel])] = c[key][sel]
         flux[key] = a
@@ -325,7 +330,7 @@ def analyse(out, discard=0.3, wall="tube", angles_from=None):
     p = case_properties(out)
     energy, area = wall_energy(out / "wall_heat.csv", wall)
     cp = read_csv(out / "coupling.csv")
-    paths = {m: energy[m] for m in ("contact", "gas_gap", "gas_convection") if m in energy}
+    paths = {m: energy[m] for m in ("contact", "gas_gap", "radiation", "gas_convection") if m in energy}
     t = energy["total"][0] if "total" in energy else next(iter(paths.values()))[0]
     t0, t1 = t[:-1], t[1:]
     rates = {m: interval_rates(*paths[m]) for m in paths}
@@ -334,7 +339,7 @@ def analyse(out, discard=0.3, wall="tube", angles_from=None):
         rates["gas_convection"], gas_src = q, "solver log"
     T_bed = np.interp(0.5 * (t0 + t1), cp["time"], cp["T_particles"])     # at each interval's middle
     h = {m: rates[m] / (area * (p["T_tube"] - T_bed)) for m in rates}
-    h["particles"] = sum(h[m] for m in ("contact", "gas_gap") if m in h)
+    h["particles"] = sum(h[m] for m in ("contact", "gas_gap", "radiation") if m in h)
     if "gas_convection" in h:
         h["all"] = h["particles"] + h["gas_convection"]
     keep = t0 >= discard - 1e-9
@@ -399,8 +404,9 @@ def report(r):
                      f"{k['loop_s']:.0f} s ({100 * k['dem_share']:.0f} % DEM), wall {k['wall_s']:.0f} s of this run")
     if r["angles"] is not None:
         a = r["angles"]
-        lines.append("local h by angle (contact + gas gap): " + ", ".join(
-            f"{x:g}: {y:.0f}" for x, y in zip(a["angle"], a["contact_W_m2"] + a["gas_gap_W_m2"])))
+        lines.append("local h by angle (contact + gas gap + radiation): " + ", ".join(
+            f"{x:g}: {y:.0f}" for x, y in zip(a["angle"], a["contact_W_m2"] + a["gas_gap_W_m2"]
+                                              + a.get("radiation_W_m2", 0.0))))
     return "\n".join(lines)
 
 
@@ -447,6 +453,8 @@ def plot(r, path):
         g = r["angles"]
         a.plot(g["angle"], g["contact_W_m2"], label="contact")
         a.plot(g["angle"], g["gas_gap_W_m2"], label="gas gap")
+        if np.any(np.asarray(g.get("radiation_W_m2", 0.0)) != 0):
+            a.plot(g["angle"], g["radiation_W_m2"], label="radiation")
         a.set_xlabel("angle [deg]")
         a.set_ylabel("local h [W/(m2 K)]")
     else:

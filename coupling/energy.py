@@ -343,18 +343,21 @@ BALANCE_COLUMNS = ["E_gas_solver", "E_walls_particles", "E_walls_gas", "E_open",
 
 # --------------------------------------------------------------------------- particle paths per face
 
+NPATH = 3   # the particles' paths through a tied wall: contact, gas gap, radiation
+
+
 class FluxSplit:
     """The particles' heat through each tied wall, per cell of the gas mesh, sent with each
-    frame: two columns per tied wall (contact, gas gap; W through the wall faces of each cell
-    over the coming interval). The solver writes them as per-face fields of the patch
-    (wallHeatFluxContact, wallHeatFluxGasGap: a cell's value over its faces on the patch, by
-    area), and at a fixed-heat-flux wall it gives the gas the rest of q_w (reference 001's
+    frame: three columns per tied wall (contact, gas gap, radiation; W through the wall faces of
+    each cell over the coming interval). The solver writes them as per-face fields of the patch
+    (wallHeatFluxContact, wallHeatFluxGasGap, wallHeatFluxRadiation: a cell's value over its
+    faces on the patch, by area), and at a fixed-heat-flux wall it gives the gas the rest of q_w (reference 001's
     split: the contacts take A_c q_w, the gas the rest of each face's q_w A_f), so the wall
     delivers q_w A whatever the bed does.
 
-    A column is the contacts' heat at the interval's start (each particle's wall conductance
-    Hw, its gap part Hwg, times T_w - T_i; A_c q_w at a fixed-flux wall), each on the patch face
-    nearest its contact point (the face's owner cell), plus what the particles took by that
+    A column is the particles' heat at the interval's start (each particle's wall conductance
+    Hw, its gap part Hwg, times T_w - T_i; A_c q_w at a fixed-flux wall; the wall's part of its
+    radiation), each on the patch face nearest its contact point (the face's owner cell), plus what the particles took by that
     path in the intervals already done beyond what was sent for them (the DEM's exact wall
     records), spread like the estimate (or over the patch by area when no particle touches it).
     Summed over the run, what was sent is the particles' energy up to the last interval plus
@@ -377,7 +380,7 @@ class FluxSplit:
             self.faces.append((mesh.owner[f0:f0 + nf], np.linalg.norm(mesh.face_areas[f0:f0 + nf], axis=1),
                                cKDTree(mesh.face_centres[f0:f0 + nf])))
         self.n_cells = mesh.n_cells
-        self.sent = np.zeros((len(self.walls), 2))   # J: cumulative energy sent per (contact, gap)
+        self.sent = np.zeros((len(self.walls), NPATH))   # J: cumulative energy sent per path
 
     def __bool__(self):
         return bool(self.walls)
@@ -390,12 +393,12 @@ class FluxSplit:
         return dict(split_sent=self.sent.copy())
 
     def _records(self, sim):
-        """[n_walls, 2] J: the particles' (contact, gas gap) heat through each tied wall."""
-        tot = sim.wall_heat_totals()   # collective; [n_walls, 2] of (all, gap) or None
-        r = np.zeros((len(self.walls), 2))
+        """[n_walls, 3] J: the particles' (contact, gas gap, radiation) heat through each tied wall."""
+        tot = sim.wall_heat_totals()   # collective; [n_walls, 3] of (all, gap, radiation) or None
+        r = np.zeros((len(self.walls), NPATH))
         if tot is not None:
             for k, (wi, *_rest) in enumerate(self.walls):
-                r[k] = (tot[wi, 0] - tot[wi, 1], tot[wi, 1])
+                r[k] = (tot[wi, 0] - tot[wi, 1] - tot[wi, 2], tot[wi, 1], tot[wi, 2])
         return r
 
     def restore(self, d: dict, sim):
@@ -403,44 +406,46 @@ class FluxSplit:
         rec = self._records(sim)   # collective
         if a is not None and np.asarray(a).shape == self.sent.shape:
             self.sent = np.asarray(a, float).copy()
+        elif a is not None and np.asarray(a).shape == (len(self.walls), 2):   # before the radiation path
+            self.sent = np.c_[np.asarray(a, float), rec[:, 2]]
         else:   # an older state: count the outstanding difference from the restart
             self.sent = rec
 
     def _estimate(self, sim, k):
-        """[n_cells, 2] W: the contacts' heat on tied wall k now (dem.thermal.wall_heat.
-        particle_wall_heat), by owner cell of the patch face nearest each contact point."""
+        """[n_cells, 3] W: the particles' heat from tied wall k now by path (dem.thermal.wall_heat.
+        particle_wall_heat), by owner cell of the patch face nearest each particle."""
         from dem.thermal.wall_heat import particle_wall_heat
         wi = self.walls[k][0]
         cells, _, tree = self.faces[k]
-        est = np.zeros((self.n_cells, 2))
-        rows, qc, qg = particle_wall_heat(sim, wi)
+        est = np.zeros((self.n_cells, NPATH))
+        rows, *q = particle_wall_heat(sim, wi)
         if rows.size:
             _, f = tree.query(_contact_points(sim.scene.walls[wi], sim.state.position[rows]))
-            est[:, 0] = np.bincount(cells[f], weights=qc, minlength=self.n_cells)
-            est[:, 1] = np.bincount(cells[f], weights=qg, minlength=self.n_cells)
+            for p in range(NPATH):
+                est[:, p] = np.bincount(cells[f], weights=q[p], minlength=self.n_cells)
         return est
 
     def columns(self, sim, dt):
-        """[n_cells, 2 n_walls] W of the coming interval: (contact, gas gap) per tied wall
-        (collective over the DEM ranks)."""
+        """[n_cells, 3 n_walls] W of the coming interval: (contact, gas gap, radiation) per tied
+        wall (collective over the DEM ranks)."""
         m = len(self.walls)
-        out = np.zeros((self.n_cells, 2 * m))
+        out = np.zeros((self.n_cells, NPATH * m))
         if not m:
             return out
         rec = self._records(sim)
         est = np.concatenate([self._estimate(sim, k) for k in range(m)], axis=1)
         if sim.par is not None:
-            est = np.asarray(sim.par.allsum(est.ravel()), float).reshape(self.n_cells, 2 * m)
+            est = np.asarray(sim.par.allsum(est.ravel()), float).reshape(self.n_cells, NPATH * m)
         for k in range(m):
             cells, area, _ = self.faces[k]
             by_area = np.bincount(cells, weights=area, minlength=self.n_cells) / area.sum()
-            for p in range(2):
-                e = est[:, 2 * k + p]
+            for p in range(NPATH):
+                e = est[:, NPATH * k + p]
                 owed = rec[k, p] - self.sent[k, p]        # taken beyond what was sent, J
                 tot = e.sum()
                 shape = e / tot if tot != 0.0 and np.all(e * tot >= 0.0) else by_area
-                out[:, 2 * k + p] = e + shape * (owed / dt)
-                self.sent[k, p] += out[:, 2 * k + p].sum() * dt
+                out[:, NPATH * k + p] = e + shape * (owed / dt)
+                self.sent[k, p] += out[:, NPATH * k + p].sum() * dt
         return out
 
 

@@ -47,8 +47,9 @@ class CheckpointError(SceneError):
 # Arrays that checkpoints of earlier versions do not hold: such a checkpoint still continues.
 # th_Hwg (the gas-gap part of each wall conductance) is recomputed from the restored state;
 # th_wgap (heat across the gas gap per wall since the start) starts at 0, so a continued run
-# counts the gap heat of the earlier part as contact heat (issue 14: the wall records by path).
-ADDED_LATER = ("th_Hwg", "th_wgap")
+# counts the gap heat of the earlier part as contact heat (issue 14: the wall records by path);
+# th_wrad (radiation per wall) likewise starts at 0.
+ADDED_LATER = ("th_Hwg", "th_wgap", "th_wrad")
 
 def content_digest(arrays):
     """sha256 over every entry but ``checksum``: name, dtype, shape, then the bytes."""
@@ -703,7 +704,7 @@ def _remap_walls(arrays, plan, sim):
         if f.tail[0] == "W":  # one column per wall: moved with the wall
             b[:, dst] = a[:, src]
         arrays[f.checkpoint] = b  # per candidate: rebuilt (wnb below) or recomputed (Hw)
-    for key in ("th_wtot", "th_wgap"):
+    for key in (f.checkpoint for f in S.of("wall") if f.checkpoint):   # per-wall totals
         if key in arrays:
             w = np.zeros(W1)
             w[dst] = arrays[key][src]

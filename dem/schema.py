@@ -138,11 +138,13 @@ FIELDS = (
     # ---------------------------------------------------------------- walls
     _f("wf", "wall", F8, (None,), doc="geometry and motion (dem.contact.walls columns)"),
     _f("wi", "wall", I8, (None,), doc="type and material"),
-    _f("wth", "wall", F8, (4,), doc="thermal condition, temperature, flux, table length"),
+    _f("wth", "wall", F8, (5,), doc="thermal condition, temperature, flux, table length, emissivity"),
     _f("wtab", "wall", F8, (None, 2), doc="temperature table [time, T]"),
     _f("wtot", "wall", F8, (), checkpoint="th_wtot", doc="heat through each wall since the start (J)"),
     _f("wgap", "wall", F8, (), checkpoint="th_wgap",
        doc="the part of wtot across the gas gap (indirect conduction, J); the rest went through the contacts"),
+    _f("wrad", "wall", F8, (), checkpoint="th_wrad",
+       doc="the part of wtot by radiation (a fixed-temperature wall with an emissivity, J)"),
     # ---------------------------------------------------------------- tables
     _f("tab", "table", F8, (None, None), doc="pair tables E*, G*, damping, mu, mu_r [5, mat, mat]"),
     _f("tmat", "table", F8, (None,), doc="thermal material table (dem.thermal.registry)"),

@@ -359,9 +359,9 @@ class Simulation:
         """The interact phase at the current time (no step): forces, torques and (with heat)
         the conductances; the heat totals are left as they were."""
         st = self.state
-        saved = (st.tot.copy(), st.wtot.copy(), st.wgap.copy())  # the initial force evaluation exchanges no heat
+        saved = st.heat_totals()  # the initial force evaluation exchanges no heat
         _, _, i, j, maxov, nc, _, _ = self._phases(K.PH_FORCES)
-        st.tot[:], st.wtot[:], st.wgap[:] = saved
+        st.restore_heat_totals(saved)
         self._nc2 = nc
         self.last_contacts = nc // 2
         return maxov
@@ -658,14 +658,15 @@ class Simulation:
 
     def wall_heat_totals(self):
         """Heat through each wall since the start (J), summed over the ranks (collective):
-        [n_walls, 2] of (all paths, across the gas gap); None without heat or walls."""
+        [n_walls, 3] of (all paths, across the gas gap, by radiation); None without heat or
+        walls."""
         nw = len(self.scene.walls)
         if self.thermal is None or nw == 0:
             return None
         st = self.state
-        a = np.c_[st.wtot[:nw], st.wgap[:nw]].astype(float)
+        a = np.c_[st.wtot[:nw], st.wgap[:nw], st.wrad[:nw]].astype(float)
         if self.par is not None:
-            a = np.asarray(self.par.allsum(a.ravel()), float).reshape(nw, 2)
+            a = np.asarray(self.par.allsum(a.ravel()), float).reshape(nw, 3)
         return a
 
     def history_columns(self):

@@ -75,6 +75,16 @@ class State:
         return [f.name for f in S.FIELDS if f.owner == owner and S.enabled(f, self.features)
                 and all(bool(getattr(f, k)) == v for k, v in flags.items())]
 
+    def heat_totals(self):
+        """Copies of the run's heat totals: the checkpointed wall and parameter arrays of
+        dem.schema (per mechanism, per wall and path)."""
+        return {f.name: getattr(self, f.name).copy() for f in S.FIELDS
+                if f.owner in ("wall", "param") and f.checkpoint and S.enabled(f, self.features)}
+
+    def restore_heat_totals(self, saved):
+        for k, v in saved.items():
+            getattr(self, k)[:] = v
+
     def permute(self, perm):
         """Reorder the particles (spatial sort): every sorted per-particle array follows; the
         pair arrays follow with their neighbour indices renumbered."""

@@ -173,7 +173,8 @@ def test_wall_areas():
 
 def test_stopped_and_continued_run_writes_the_same_records(tmp_path):
     """Through the command line: a run to 30 s continued to 60 s (--restart) gives the
-    wall_heat.csv of one run to 60 s, byte for byte."""
+    wall_heat.csv of one run to 60 s, byte for byte (contact, gas gap and radiation: the
+    floor radiates, Zhou 2009)."""
     ov = 2e-5
     toml = f'''
 [simulation]
@@ -196,6 +197,7 @@ restitution = 0.5
 friction = 0.3
 thermal_conductivity = 1.0
 heat_capacity = 840.0
+emissivity = 0.9
 
 [[particles]]
 material = "p"
@@ -209,11 +211,12 @@ name = "floor"
 point = [0.0, 0.0, {-R + ov}]
 normal = [0.0, 0.0, 1.0]
 material = "p"
-thermal = {{ condition = "fixed_temperature", temperature = 400.0 }}
+thermal = {{ condition = "fixed_temperature", temperature = 400.0, emissivity = 0.8 }}
 
 [thermal]
 direct = "batchelor_obrien"
 indirect = "voronoi_a"
+radiation = "zhou_2009"
 integrator = "exponential"
 porosity = "global"
 time_step = 0.5
@@ -239,7 +242,9 @@ porosity = 0.4
     a = (tmp_path / "one" / "wall_heat.csv").read_text()
     b = (tmp_path / "two" / "wall_heat.csv").read_text()
     assert a == b
-    assert a.count("\n") == 1 + 13 * 3
+    assert a.count("\n") == 1 + 13 * 4
+    w1 = read(tmp_path / "one" / "wall_heat.csv")
+    assert w1[("floor", "radiation")][-1, 1] > 1e-3 * w1[("floor", "total")][-1, 1] > 0
 
     # a checkpoint of the earlier version (without the gas-gap arrays) still continues: the
     # conductances are recomputed (same temperatures, bit for bit), the gap count restarts at 0
@@ -247,7 +252,7 @@ porosity = 0.4
     from dem import checkpoint as ckpt
     dem("--out", str(tmp_path / "three"), "--end-time", "30")
     z = np.load(tmp_path / "three" / "checkpoint.npz")
-    meta = ("format", "format_version", "record", "checksum", "th_Hwg", "th_wgap")
+    meta = ("format", "format_version", "record", "checksum", "th_Hwg", "th_wgap", "th_wrad")
     old = {k: z[k] for k in z.files if k not in meta}
     ckpt.write(str(tmp_path / "old.npz"), old, json.loads(str(z["record"])))
     dem("--out", str(tmp_path / "three"), "--restart", str(tmp_path / "old.npz"))
@@ -255,8 +260,9 @@ porosity = 0.4
     assert np.array_equal(f1["temperature"].view(np.uint64), f3["temperature"].view(np.uint64))
     w1, w3 = read(tmp_path / "one" / "wall_heat.csv"), read(tmp_path / "three" / "wall_heat.csv")
     assert w3[("floor", "total")][:, 1] == pytest.approx(w1[("floor", "total")][:, 1], rel=1e-14)
-    gap1, gap3 = w1[("floor", "gas_gap")], w3[("floor", "gas_gap")]
-    assert gap3[-1, 1] == pytest.approx(gap1[-1, 1] - gap1[6, 1], rel=1e-12)  # counted from t = 30 s
+    for path in ("gas_gap", "radiation"):   # counted from t = 30 s
+        p1, p3 = w1[("floor", path)], w3[("floor", path)]
+        assert p3[-1, 1] == pytest.approx(p1[-1, 1] - p1[6, 1], rel=1e-12)
 
 
 def test_coupled_run_writes_the_particles_wall_heat(tmp_path, solver):
@@ -294,10 +300,11 @@ def test_coupled_run_writes_the_particles_wall_heat(tmp_path, solver):
 
 # ------------------------------------------------------------------ walls of both phases
 
-def _tied_case(dest, n_steps=10, Tw=400.0, q_w=None):
+def _tied_case(dest, n_steps=10, Tw=400.0, q_w=None, emissivity=None):
     """A frozen bed of 9 beads of 2 mm on the floor of a 12 x 12 x 30 mm box meshed 3 x 3 x 6, hot
     gas (373.15 K) entering at 0.5 m/s; the DEM wall `left` (x = 0, three beads touch it) at a
-    fixed 400 K is tied to the gas patch `left` (fixedValue 400 K); every other wall adiabatic."""
+    fixed 400 K is tied to the gas patch `left` (fixedValue 400 K); every other wall adiabatic.
+    emissivity: the wall radiates (Zhou 2009 radiation, beads of emissivity 0.9)."""
     import re
     sys.path.insert(0, str(ROOT / "benchmarks"))
     from stability.coupled import write_case
@@ -309,9 +316,16 @@ def _tied_case(dest, n_steps=10, Tw=400.0, q_w=None):
     t = (case / "dem.toml").read_text()
     old = 'name = "left"\npoint = [0.0, 0.0, 0.0]\nnormal = [1.0, 0.0, 0.0]\nmaterial = "glass"\n'
     assert old in t
-    cond = (f'thermal = {{ condition = "fixed_temperature", temperature = {Tw!r} }}\n' if q_w is None else
+    emis = "" if emissivity is None else f", emissivity = {emissivity!r}"
+    cond = (f'thermal = {{ condition = "fixed_temperature", temperature = {Tw!r}{emis} }}\n' if q_w is None else
             f'thermal = {{ condition = "fixed_heat_flux", heat_flux = {q_w!r} }}\n')
-    (case / "dem.toml").write_text(t.replace(old, old + cond))
+    t = t.replace(old, old + cond)
+    if emissivity is not None:
+        for a, b in (('thermal_conductivity = 1.0\n', 'thermal_conductivity = 1.0\nemissivity = 0.9\n'),
+                     ('direct = "batchelor_obrien"\n', 'direct = "batchelor_obrien"\nradiation = "zhou_2009"\n')):
+            assert a in t
+            t = t.replace(a, b)
+    (case / "dem.toml").write_text(t)
     bm = case / "system" / "blockMeshDict"
     s = bm.read_text()
     s2 = re.sub(r"xWalls\s*\{[^}]*\}", "left\n{\n    type wall;\n    faces ( (0 4 7 3) );\n}\nright\n{\n"
@@ -414,6 +428,44 @@ def test_tied_wall_heats_both_phases_and_the_energy_balance_closes(tmp_path, sol
     c2 = np.atleast_1d(np.genfromtxt(two / "coupling.csv", delimiter=",", names=True))
     for name in ("E_walls_gas", "E_open", "balance_error", "E_exchange_mismatch", "E_gas_solver"):
         assert np.array_equal(c[name], c2[name]), name
+
+
+def test_tied_wall_radiation_reaches_the_gas_fields_and_the_balance(tmp_path, solver):
+    """A tied wall at 800 K with an emissivity (Zhou 2009): the particles' radiation from it is a
+    path of its own in wall_heat.csv and, per face, in wallHeatFluxRadiation (the beads next to
+    the wall only, integrating to the DEM's record), wallHeatFluxTotal is the sum of the four
+    paths, coupling.csv's balance closes with it, and a stopped and continued run writes the
+    same records."""
+    case = _tied_case(tmp_path / "case", Tw=800.0, emissivity=0.8)
+    one = tmp_path / "one"
+    _coupling_run(case, one)
+    w = read(one / "wall_heat.csv")
+    rad = w[("left", "radiation")]
+    assert rad[-1, 1] > 0.01 * w[("left", "contact")][-1, 1] > 0
+    parts = sum(w[("left", p)][:, 1] for p in ("contact", "gas_gap", "radiation", "gas_convection"))
+    assert parts == pytest.approx(w[("left", "total")][:, 1], rel=1e-12)
+    last = one / "0.001"
+    A = 0.004 * 0.005
+    from coupling.mesh import read_polymesh
+    mesh = read_polymesh(str(one))
+    zc = mesh.face_centres[[f for p in mesh.boundary if p["name"] == "left"
+                            for f in range(p["startFace"], p["startFace"] + p["nFaces"])], 2]
+    qr = _foam_list(last / "wallHeatFluxRadiation", "left")
+    assert np.all(qr[zc < 0.005] > 0) and np.all(qr[zc > 0.005] == 0)   # the bottom row of beads
+    assert float(qr.sum()) * A == pytest.approx(rad[-1, 2], rel=1e-6)
+    q = _foam_list(last / "wallHeatFlux", "left")
+    qc, qg = _foam_list(last / "wallHeatFluxContact", "left"), _foam_list(last / "wallHeatFluxGasGap", "left")
+    assert _foam_list(last / "wallHeatFluxTotal", "left") == pytest.approx(q + qc + qg + qr, rel=1e-12)
+    c = np.atleast_1d(np.genfromtxt(one / "coupling.csv", delimiter=",", names=True))
+    through = np.abs(c["E_open"]) + np.abs(c["E_walls_gas"]) + np.abs(c["E_walls_particles"])
+    scale = np.abs(c["E_particles"]) + np.abs(c["E_gas_solver"])
+    assert np.all(np.abs(c["balance_residual"]) <= 1e-14 * scale + 1e-9 * through)
+    assert c["E_walls_particles"][-1] == pytest.approx(
+        sum(w[("left", p)][-1, 1] for p in ("contact", "gas_gap", "radiation")), rel=1e-12)
+    two = tmp_path / "two"
+    _coupling_run(case, two, "--end-time", "0.0005")
+    _coupling_run(case, two, "--restart")
+    assert (one / "wall_heat.csv").read_text() == (two / "wall_heat.csv").read_text()
 
 
 def test_tied_wall_check_names_both(tmp_path):

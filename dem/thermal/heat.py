@@ -25,17 +25,20 @@ import numpy as np
 from numba import njit
 
 from .convection import convection_conductance, nusselt_gas
-from .radiation import SIGMA_SB, radiation_accumulate, radiation_env_temperature, radiation_pp_heat
+from .radiation import (SIGMA_SB, radiation_accumulate, radiation_env_temperature, radiation_pp_heat,
+                        radiation_heat, radiation_wall_weight, radiation_wall_accumulate,
+                        radiation_env_temperature_walls, radiation_wall_omega, radiation_wall_rate)
 from .registry import EMISSIVITY, KF, RHO_F, MU_F, PR, RAD_KRAUSE_2017
 from .implicit import jacobi_pcg, CG_RTOL
 from ..neighbors import pair_distance
-from ..contact.walls import PX, NX, VX, WTYPE, PLANE
+from ..contact.walls import PX, NX, VX, WTYPE, PLANE, wall_distance
 
 # integer thermal parameters
 TI_HEAT, TI_DIRECT, TI_CR, TI_CORR, TI_INDIRECT, TI_CONV, TI_RAD, TI_FRIC, TI_PART, TI_INTEG, TI_AGE = range(11)
 TI_LOCALPOR = 11
 TI_FUSED = 12  # pairs and walls accumulated in the force loop (mechanics + euler)
-NTI = 13
+TI_WRAD = 13   # 1: a fixed-temperature wall with an emissivity takes part in the radiation
+NTI = 14
 # float thermal parameters
 TF_DFACTOR, TF_RADRANGE, TF_CT, TF_CN, TF_CHI = range(5)
 NTF = 8
@@ -43,8 +46,9 @@ NTF = 8
 # generation, sources, walls
 E_DIRECT, E_INDIRECT, E_CONV, E_RAD, E_GEN, E_SRC, E_WALL = range(7)
 NTOT = 8
-# wall thermal columns
-WT_COND, WT_T, WT_Q, WT_NTAB = 0, 1, 2, 3
+# wall thermal columns: condition, temperature, flux, table length, emissivity
+WT_COND, WT_T, WT_Q, WT_NTAB, WT_EMIS = 0, 1, 2, 3, 4
+NWT = 5
 
 
 @njit(cache=True, error_model="numpy")
@@ -60,6 +64,87 @@ def wall_temperature(wth, wtab, w, t):
             a = (t - wtab[w, k, 0]) / (wtab[w, k + 1, 0] - wtab[w, k, 0])
             return wtab[w, k, 1] + a * (wtab[w, k + 1, 1] - wtab[w, k, 1])
     return wtab[w, nt - 1, 1]
+
+
+@njit(cache=True, error_model="numpy")
+def radiation_accumulators(rad, rows, n, T, r, mat, tmat, nb, nnb, rnear):
+    """The radiation accumulators (acc0, acc1) [n] of every particle from its neighbours within
+    the range (rnear) over the half list of rows [0, rows) (dem.thermal.radiation)."""
+    acc0 = np.zeros(n)
+    acc1 = np.zeros(n)
+    for i in range(rows):
+        for s in range(nnb[i]):
+            if rnear[i, s]:
+                j = nb[i, s]
+                a0, a1 = radiation_accumulate(rad, acc0[i], acc1[i], T[j], tmat[mat[j], EMISSIVITY], r[j])
+                acc0[i] = a0
+                acc1[i] = a1
+                a0, a1 = radiation_accumulate(rad, acc0[j], acc1[j], T[i], tmat[mat[i], EMISSIVITY], r[i])
+                acc0[j] = a0
+                acc1[j] = a1
+    return acc0, acc1
+
+
+@njit(cache=True, error_model="numpy")
+def wall_radiation_now(P, C, W, TB, prm, nown, t, k, out):
+    """out[i] = the radiation wall k gives owned particle i now (W; 0 out of reach), at the
+    current temperatures: the part of the heat step's radiation (heat_step) that is wall k's."""
+    rad = prm.thi[TI_RAD]
+    if rad < 0 or prm.thi[TI_WRAD] != 1:
+        return
+    T, r, mat, x, por, tf = P.temperature, P.radius, P.material, P.position, P.por, P.tf
+    wth, wtab, tmat = W.wth, W.wtab, TB.tmat
+    n = T.shape[0]
+    acc0, acc1 = radiation_accumulators(rad, n, n, T, r, mat, tmat, C.nb, C.nnb, C.rnear)
+    wgt = np.zeros((nown, wth.shape[0]))
+    aw0 = np.zeros(nown)
+    aw1 = np.zeros(nown)
+    wall_radiation_weights(rad, nown, x, r, W.wf, W.wi, wth, wtab, t, prm.thf[TF_RADRANGE], wgt, aw0, aw1)
+    for i in range(nown):
+        if wgt[i, k] <= 0.0:
+            continue
+        te = radiation_env_temperature_walls(rad, acc0[i], acc1[i], aw0[i], aw1[i], por[i], tf[i], T[i])
+        om = radiation_wall_omega(rad, wgt[i, k], acc1[i], aw1[i])
+        out[i] = radiation_wall_rate(rad, tmat[mat[i], EMISSIVITY], r[i], T[i], te, om,
+                                     wall_temperature(wth, wtab, k, t))
+
+
+@njit(cache=True, error_model="numpy")
+def wall_radiation_weights(rad, m, x, r, wf, wi, wth, wtab, t, srange, wgt, aw0, aw1):
+    """The radiating walls in each sphere of influence (dem.thermal.radiation, walls): for rows
+    [0, m), wgt[i, w] the weight of wall w (fixed temperature, emissivity > 0, its surface within
+    srange r_i of the centre) and the wall accumulators (aw0, aw1) of particle i."""
+    nw = wth.shape[0]
+    for i in range(m):
+        s = srange * r[i]
+        for w in range(nw):
+            ew = wth[w, WT_EMIS]
+            if ew <= 0.0 or wth[w, WT_COND] != 1.0:
+                continue
+            d, _, _, _ = wall_distance(wf, wi, w, x[i, 0], x[i, 1], x[i, 2], t)
+            g = radiation_wall_weight(rad, ew, d, s)
+            if g > 0.0:
+                wgt[i, w] = g
+                a0, a1 = radiation_wall_accumulate(rad, aw0[i], aw1[i], g, wall_temperature(wth, wtab, w, t))
+                aw0[i] = a0
+                aw1[i] = a1
+
+
+@njit(cache=True, error_model="numpy")
+def wall_radiation_parts(rad, eps_i, R_i, T_i, T_e, acc1_i, aw1_i, wgt_i, wth, wtab, t, scale, wtot, wrad):
+    """Add each wall's part of particle i's radiation rate (radiation_wall_rate), times
+    ``scale``, to wtot and wrad; returns the sum of the parts (W, before the scale)."""
+    q = 0.0
+    for w in range(wgt_i.shape[0]):
+        g = wgt_i[w]
+        if g <= 0.0:
+            continue
+        om = radiation_wall_omega(rad, g, acc1_i, aw1_i)
+        qw = radiation_wall_rate(rad, eps_i, R_i, T_i, T_e, om, wall_temperature(wth, wtab, w, t))
+        wtot[w] += qw * scale
+        wrad[w] += qw * scale
+        q += qw
+    return q
 
 
 @njit(cache=True, error_model="numpy")
@@ -108,7 +193,7 @@ def heat_step(P, C, W, TB, prm, n, nown, dt, t):
     wnb, wnn, Hw, tf, uf, por, qgen, qsrc, work = P.wnb, P.wnn, P.Hw, P.tf, P.uf, P.por, P.qgen, P.qsrc, P.work
     nb, nnb, Hd, Hi, rnear = C.nb, C.nnb, C.Hd, C.Hi, C.rnear
     wth, wtab, wtot, tmat, gas = W.wth, W.wtab, W.wtot, TB.tmat, TB.gas
-    Hwg, wgap = P.Hwg, W.wgap
+    Hwg, wgap, wrad = P.Hwg, W.wgap, W.wrad
     has_wg = Hwg.shape[0] == n
     thi, tot, srcbox = prm.thi, prm.tot, prm.srcbox
     integ = thi[TI_INTEG]
@@ -150,18 +235,14 @@ def heat_step(P, C, W, TB, prm, n, nown, dt, t):
             _pair_sweep(nown, 0.5 * dt, T, cinv, Q, nb, nnb, Hd, Hi, has_ind, integ, fwd, tot)
     # ---- radiation environment (from the temperatures after the first pair half-sweep)
     if rad >= 0:
-        acc0 = np.zeros(n)
-        acc1 = np.zeros(n)
-        for i in range(n):
-            for s in range(nnb[i]):
-                if rnear[i, s]:
-                    j = nb[i, s]
-                    a0, a1 = radiation_accumulate(rad, acc0[i], acc1[i], T[j], tmat[mat[j], EMISSIVITY], r[j])
-                    acc0[i] = a0
-                    acc1[i] = a1
-                    a0, a1 = radiation_accumulate(rad, acc0[j], acc1[j], T[i], tmat[mat[i], EMISSIVITY], r[i])
-                    acc0[j] = a0
-                    acc1[j] = a1
+        acc0, acc1 = radiation_accumulators(rad, n, n, T, r, mat, tmat, nb, nnb, rnear)
+    # radiating walls (fixed temperature, emissivity > 0) in the spheres of influence
+    wr = rad >= 0 and thi[TI_WRAD] == 1
+    wgt = np.zeros((nown if wr else 0, wth.shape[0]))
+    aw0 = np.zeros(nown if wr else 0)
+    aw1 = np.zeros(nown if wr else 0)
+    if wr:
+        wall_radiation_weights(rad, nown, x, r, W.wf, W.wi, wth, wtab, t, prm.thf[TF_RADRANGE], wgt, aw0, aw1)
     # ---- reservoir links: fixed-temperature walls, gas (convection), radiation environment.
     # Euler: explicit rates into Q. Exponential: all links of a particle together relax it
     # exactly towards their conductance-weighted temperature (steady state exact, bounded,
@@ -208,6 +289,24 @@ def heat_step(P, C, W, TB, prm, n, nown, dt, t):
     if rad >= 0:
         er = 0.0
         for i in range(nown):
+            walls_i = wr and aw1[i] > 0.0
+            if walls_i:
+                te = radiation_env_temperature_walls(rad, acc0[i], acc1[i], aw0[i], aw1[i], por[i], tf[i], T[i])
+                if expo:
+                    ti = T[i]
+                    h = tmat[mat[i], EMISSIVITY] * SIGMA_SB * 4.0 * math.pi * r[i] * r[i] * (te * te + ti * ti) * (te + ti)
+                    hrad[i] = h
+                    tenv[i] = te
+                    hs[i] += h
+                    hts[i] += h * te
+                else:
+                    qq = radiation_heat(tmat[mat[i], EMISSIVITY], r[i], te, T[i])
+                    qw = wall_radiation_parts(rad, tmat[mat[i], EMISSIVITY], r[i], T[i], te, acc1[i], aw1[i],
+                                              wgt[i], wth, wtab, t, dt, wtot, wrad)
+                    Q[i] += qq
+                    tot[E_WALL] += qw * dt
+                    er += (qq - qw) * dt
+                continue
             if expo:
                 te = radiation_env_temperature(rad, acc0[i], acc1[i], por[i], tf[i], T[i])
                 ti = T[i]
@@ -248,7 +347,13 @@ def heat_step(P, C, W, TB, prm, n, nown, dt, t):
             if conv >= 0:
                 tot[E_CONV] += f * hconv[i] * (tf[i] - ti)
             if rad >= 0:
-                tot[E_RAD] += f * hrad[i] * (tenv[i] - ti)
+                if wr and aw1[i] > 0.0:
+                    qw = wall_radiation_parts(rad, tmat[mat[i], EMISSIVITY], r[i], ti, tenv[i], acc1[i], aw1[i],
+                                              wgt[i], wth, wtab, t, f, wtot, wrad)
+                    tot[E_WALL] += f * qw
+                    tot[E_RAD] += f * (hrad[i] * (tenv[i] - ti) - qw)
+                else:
+                    tot[E_RAD] += f * hrad[i] * (tenv[i] - ti)
     if not fused and expo:
         _pair_sweep(nown, 0.5 * dt, T, cinv, Q, nb, nnb, Hd, Hi, has_ind, integ, -fwd, tot)
     # ---- explicit terms: generation, sources, fixed fluxes (Q)
@@ -300,7 +405,7 @@ def _implicit_step(P, C, W, TB, prm, m, dt, t, has_ind):
     conv = thi[TI_CONV]
     rad = thi[TI_RAD]
     n = T.shape[0]
-    Hwg, wgap = P.Hwg, W.wgap
+    Hwg, wgap, wrad = P.Hwg, W.wgap, W.wrad
     has_wg = Hwg.shape[0] == n
     b = np.zeros(m)   # Q(T^n), W
     dg = np.empty(m)  # C/dt + K, W/K
@@ -346,22 +451,32 @@ def _implicit_step(P, C, W, TB, prm, m, dt, t, has_ind):
     qrad = np.zeros(m if rad >= 0 else 0)
     krad = np.zeros(m if rad >= 0 else 0)
     if rad >= 0:
-        acc0 = np.zeros(n)
-        acc1 = np.zeros(n)
+        acc0, acc1 = radiation_accumulators(rad, m, n, T, r, mat, tmat, nb, nnb, rnear)
+    # radiating walls: their parts of each particle's rate at T^n (qw) and weights omega (om)
+    wr = rad >= 0 and thi[TI_WRAD] == 1
+    nw = wth.shape[0]
+    wgt = np.zeros((m if wr else 0, nw))
+    aw0 = np.zeros(m if wr else 0)
+    aw1 = np.zeros(m if wr else 0)
+    qw = np.zeros((m if wr else 0, nw))
+    om = np.zeros((m if wr else 0, nw))
+    if wr:
+        wall_radiation_weights(rad, m, x, r, W.wf, W.wi, wth, wtab, t, prm.thf[TF_RADRANGE], wgt, aw0, aw1)
+    if rad >= 0:
         for i in range(m):
-            for s in range(nnb[i]):
-                if rnear[i, s]:
-                    j = nb[i, s]
-                    a0, a1 = radiation_accumulate(rad, acc0[i], acc1[i], T[j], tmat[mat[j], EMISSIVITY], r[j])
-                    acc0[i] = a0
-                    acc1[i] = a1
-                    a0, a1 = radiation_accumulate(rad, acc0[j], acc1[j], T[i], tmat[mat[i], EMISSIVITY], r[i])
-                    acc0[j] = a0
-                    acc1[j] = a1
-        for i in range(m):
-            qrad[i] = radiation_pp_heat(rad, tmat[mat[i], EMISSIVITY], r[i], T[i], acc0[i], acc1[i], por[i], tf[i])
-            if not (rad == RAD_KRAUSE_2017 and acc1[i] == 0.0):  # (krause without neighbour: T_e = T_i, no heat)
+            if wr and aw1[i] > 0.0:
+                te = radiation_env_temperature_walls(rad, acc0[i], acc1[i], aw0[i], aw1[i], por[i], tf[i], T[i])
+                qrad[i] = radiation_heat(tmat[mat[i], EMISSIVITY], r[i], te, T[i])
+                for w in range(nw):
+                    if wgt[i, w] > 0.0:
+                        om[i, w] = radiation_wall_omega(rad, wgt[i, w], acc1[i], aw1[i])
+                        qw[i, w] = radiation_wall_rate(rad, tmat[mat[i], EMISSIVITY], r[i], T[i], te, om[i, w],
+                                                       wall_temperature(wth, wtab, w, t))
                 krad[i] = 4.0 * tmat[mat[i], EMISSIVITY] * SIGMA_SB * 4.0 * math.pi * r[i] * r[i] * T[i] ** 3
+            else:
+                qrad[i] = radiation_pp_heat(rad, tmat[mat[i], EMISSIVITY], r[i], T[i], acc0[i], acc1[i], por[i], tf[i])
+                if not (rad == RAD_KRAUSE_2017 and acc1[i] == 0.0):  # (krause without neighbour: T_e = T_i, no heat)
+                    krad[i] = 4.0 * tmat[mat[i], EMISSIVITY] * SIGMA_SB * 4.0 * math.pi * r[i] * r[i] * T[i] ** 3
             dg[i] += krad[i]
             b[i] += qrad[i]
     # explicit heat: generation, sources
@@ -407,9 +522,19 @@ def _implicit_step(P, C, W, TB, prm, m, dt, t, has_ind):
             ec += hconv[i] * (tf[i] - T[i]) * dt
         tot[E_CONV] += ec
     if rad >= 0:
+        # the linearised rate qrad - krad d at T^{n+1}; a wall's part qw - omega krad d
         er = 0.0
         for i in range(m):
-            er += (qrad[i] - krad[i] * d[i]) * dt
+            e = (qrad[i] - krad[i] * d[i]) * dt
+            if wr and aw1[i] > 0.0:
+                for w in range(nw):
+                    if wgt[i, w] > 0.0:
+                        ew = (qw[i, w] - om[i, w] * krad[i] * d[i]) * dt
+                        wtot[w] += ew
+                        wrad[w] += ew
+                        tot[E_WALL] += ew
+                        e -= ew
+            er += e
         tot[E_RAD] += er
     for i in range(m):
         if not (T[i] > 0.0) or not math.isfinite(T[i]):

@@ -11,7 +11,7 @@ from . import registry as R
 from .convection import BIOT_LUMPED
 from .heat import (NTI, NTF, NTOT, TI_HEAT, TI_DIRECT, TI_CR, TI_CORR, TI_INDIRECT, TI_CONV, TI_RAD,
                    TI_FRIC, TI_PART, TI_INTEG, TI_AGE, TI_LOCALPOR, TI_FUSED, TF_DFACTOR, TF_RADRANGE, TF_CT,
-                   TF_CN, TF_CHI, WT_COND, WT_T, WT_Q, WT_NTAB, E_DIRECT, E_INDIRECT, E_CONV, E_RAD,
+                   TF_CN, TF_CHI, WT_COND, WT_T, WT_Q, WT_NTAB, WT_EMIS, NWT, TI_WRAD, E_DIRECT, E_INDIRECT, E_CONV, E_RAD,
                    E_GEN, E_SRC, E_WALL, local_porosity)
 
 MECHANISMS = ("direct", "indirect", "convection", "radiation", "generation", "sources")
@@ -27,7 +27,8 @@ def no_heat_tables(st):
     thi[TI_HEAT] = 0
     st.thi, st.thf, st.tmat, st.gas = thi, np.zeros(NTF), np.zeros((1, R.N_TPROP)), np.zeros(R.N_GAS)
     st.ereal, st.keff = np.zeros((1, 1)), np.zeros((1, 1))
-    st.wth, st.wtab, st.wtot, st.wgap = np.zeros((nw, 4)), np.zeros((nw, 1, 2)), np.zeros(nw), np.zeros(nw)
+    st.wth, st.wtab, st.wtot, st.wgap = np.zeros((nw, NWT)), np.zeros((nw, 1, 2)), np.zeros(nw), np.zeros(nw)
+    st.wrad = np.zeros(nw)
     st.srcbox, st.tot = np.zeros((0, 7)), np.zeros(NTOT)
 
 
@@ -68,6 +69,7 @@ class ThermalModel:
         # porosity is computed in Python at start-up and at each spatial reordering
         thi[TI_LOCALPOR] = 1 if (self.local_porosity and not self.voronoi) else 0
         thi[TI_FUSED] = 1 if (sc.simulation["mechanics"] and th["integrator"] == "euler") else 0
+        thi[TI_WRAD] = 1 if (th["radiation_id"] >= 0 and any(w["emissivity"] > 0 for w in th["walls"])) else 0
         self.thi = thi
         thf = np.zeros(NTF)
         thf[TF_DFACTOR] = th["direct_factor"]
@@ -96,13 +98,14 @@ class ThermalModel:
         self.reach = reach
         # walls
         nw = max(len(sc.walls), 1)
-        wth = np.zeros((nw, 4))
+        wth = np.zeros((nw, NWT))
         ntab = max([len(w["table"]) for w in th["walls"] if w["table"] is not None], default=1)
         wtab = np.zeros((nw, ntab, 2))
         for k, w in enumerate(th["walls"]):
             wth[k, WT_COND] = w["cond_id"]
             wth[k, WT_T] = w["temperature"]
             wth[k, WT_Q] = w["heat_flux"]
+            wth[k, WT_EMIS] = w["emissivity"]
             if w["table"] is not None:
                 wth[k, WT_NTAB] = len(w["table"])
                 wtab[k, :len(w["table"])] = w["table"]
@@ -116,7 +119,7 @@ class ThermalModel:
         st.enable(heat=True, contact_age=self.needs_age, friction_heat=bool(thi[TI_FRIC] >= 0),
                   group_sources=bool(np.any(qsrc != 0)), indirect=bool(thi[TI_INDIRECT] >= 0),
                   radiation=bool(thi[TI_RAD] >= 0))
-        st.wth, st.wtab, st.wtot, st.wgap = wth, wtab, np.zeros(nw), np.zeros(nw)
+        st.wth, st.wtab, st.wtot, st.wgap, st.wrad = wth, wtab, np.zeros(nw), np.zeros(nw), np.zeros(nw)
         st.thi, st.thf, st.tmat, st.gas, st.ereal, st.keff = thi, thf, self.tmat, self.gas, self.ereal, self.keff
         st.srcbox, st.tot = np.array(boxes, float).reshape(-1, 7), np.zeros(NTOT)
         st.por[:] = self.gas[R.POROSITY_GLOBAL]
@@ -201,12 +204,12 @@ class ThermalModel:
         warnings = []
         # conductances stored per slot (the fused Euler path does not store them)
         fused = self.thi[TI_FUSED]
-        saved = (self.tot.copy(), self.wtot.copy(), st.wgap.copy(), st.heat_rate.copy(), st.force.copy(),
-                 st.torque.copy())
+        saved = (st.heat_totals(), st.heat_rate.copy(), st.force.copy(), st.torque.copy())
         self.thi[TI_FUSED] = 0
         compute_forces()
         self.thi[TI_FUSED] = fused
-        self.tot[:], self.wtot[:], st.wgap[:], st.heat_rate[:], st.force[:], st.torque[:] = saved
+        st.restore_heat_totals(saved[0])
+        st.heat_rate[:], st.force[:], st.torque[:] = saved[1:]
         lim = self.network_limit()
         rep["network_step_limit"] = lim
         if self.cfg["integrator"] == "euler" and dt > lim:

@@ -23,7 +23,9 @@
     conductivity = 0.026                 # temperature, velocity = [ux, uy, uz], ...
 
 Walls: ``thermal = { condition = "adiabatic" | "fixed_temperature" | "fixed_heat_flux",
-temperature = 400.0 | table = [[t0, T0], [t1, T1], ...], heat_flux = 1000.0 }``.
+temperature = 400.0 | table = [[t0, T0], [t1, T1], ...], heat_flux = 1000.0, emissivity = 0.8 }``
+(emissivity: a fixed-temperature wall in the particles' radiation environment, with a
+radiation model; default 0, the wall takes no part in the radiation).
 """
 import math
 
@@ -215,9 +217,16 @@ def parse_thermal(v, sc, data):
     for k, w in enumerate(sc.walls):
         p = f"walls[{k}].thermal"
         spec = w.get("thermal") or {"condition": "adiabatic"}
-        v.table(spec, p, {"condition", "temperature", "table", "heat_flux"}, required=("condition",))
+        v.table(spec, p, {"condition", "temperature", "table", "heat_flux", "emissivity"}, required=("condition",))
         cond = v.string(spec, "condition", p, choices=list(WALL_CONDITIONS), required=True)
-        W = dict(condition=cond, cond_id=WALL_CONDITIONS[cond], table=None, temperature=0.0, heat_flux=0.0)
+        W = dict(condition=cond, cond_id=WALL_CONDITIONS[cond], table=None, temperature=0.0, heat_flux=0.0,
+                 emissivity=v.num(spec, "emissivity", p, default=0.0, lo=0.0, hi=1.0))
+        if W["emissivity"] > 0.0 and cond != "fixed_temperature":
+            v.err(p + ".emissivity", f"only a fixed_temperature wall radiates (the DEM knows no temperature of "
+                                     f"a {cond} wall, which is taken as reradiating); remove the key")
+        if W["emissivity"] > 0.0 and th["radiation_id"] < 0:
+            v.err(p + ".emissivity", "needs a radiation model: [thermal] radiation = \"zhou_2009\" or "
+                                     "\"krause_2017\"")
         if cond == "fixed_temperature":
             if ("temperature" in spec) == ("table" in spec):
                 v.err(p, "fixed_temperature needs exactly one of temperature (K) or table ([[t, T], ...])")
@@ -240,10 +249,12 @@ def parse_thermal(v, sc, data):
                     v.err(f"{p}.table[{k}]", f"times must increase, got {tab[k, 0]} after {tab[k - 1, 0]}")
                 W["table"] = tab
                 W["temperature"] = float(tab[0, 1])
-            if th["direct_id"] < 0 and th["indirect_id"] < 0:
-                v.err(p + ".condition", "fixed_temperature needs a direct or indirect conduction model")
+            conducts = th["direct_id"] >= 0 or th["indirect_id"] >= 0
+            if not conducts and not (W["emissivity"] > 0.0 and th["radiation_id"] >= 0):
+                v.err(p + ".condition", "fixed_temperature needs a direct or indirect conduction model, or an "
+                                        "emissivity with a radiation model")
             m = sc.materials[w["material"]]
-            if "thermal_conductivity" not in m:
+            if conducts and "thermal_conductivity" not in m:
                 v.err(f"materials[{w['material']}].thermal_conductivity",
                       f"missing: wall {w['name']!r} conducts heat (fixed_temperature)")
         elif cond == "fixed_heat_flux":

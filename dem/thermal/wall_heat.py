@@ -1,15 +1,17 @@
 """Per-wall heat records by path: wall_heat.csv (issue 14).
 
 Each thermal wall's heat since the start is kept per path in the run's state (dem.schema:
-``wtot``, all paths, and ``wgap``, indirect conduction across the gas gap; the rest went through
+``wtot``, all paths, ``wgap``, indirect conduction across the gas gap, and ``wrad``, radiation
+(a fixed-temperature wall with an emissivity, dem.thermal.radiation); the rest went through
 the contacts: the direct model's wall form at a fixed-temperature wall, A_c q_w at a fixed-flux
 wall, reference 001). ``WallHeatFile`` writes them as rows
 
     time, wall, mechanism, energy_J, heat_rate_W, heat_flux_W_m2, area_m2
 
-with mechanism ``contact``, ``gas_gap``, for a wall tied to a patch of the gas mesh in a coupled
-run (coupling.energy) ``gas_convection`` (the gas's own heat from the wall: the solver's wall
-conduction), and ``total`` (their sum); heat_rate_W is the mean over the
+with mechanism ``contact``, ``gas_gap``, ``radiation`` (a wall in the radiation environment
+only), for a wall tied to a patch of the gas
+mesh in a coupled run (coupling.energy) ``gas_convection`` (the gas's own heat from the wall:
+the solver's wall conduction), and ``total`` (their sum); heat_rate_W is the mean over the
 interval since the previous row (energy difference over time difference; 0 on the first row),
 heat_flux_W_m2 = heat_rate_W / area_m2, and the sign is that of the heat given to the
 particles (positive: the wall heats the bed). energy_J is written to 17 digits, so that a
@@ -22,7 +24,8 @@ import os
 
 import numpy as np
 
-MECHANISMS = ("contact", "gas_gap", "gas_convection", "total")
+MECHANISMS = ("contact", "gas_gap", "radiation", "gas_convection", "total")
+PATHS = ("contact", "gas_gap", "radiation")   # the particles' paths (DEM records)
 COLUMNS = ("time", "wall", "mechanism", "energy_J", "heat_rate_W", "heat_flux_W_m2", "area_m2")
 
 
@@ -96,6 +99,15 @@ def wall_area(w, lo, hi):
     return 2.0 * math.pi * float(w["radius"]) * length
 
 
+def radiating_walls(scene):
+    """[n_walls] bool: the walls in the particles' radiation environment (a radiation model, a
+    fixed-temperature wall with an emissivity > 0)."""
+    th = scene.thermal
+    if th is None or th.get("radiation_id", -1) < 0:
+        return [False] * len(scene.walls)
+    return [w["emissivity"] > 0.0 for w in th["walls"]]
+
+
 class WallHeatFile:
     """wall_heat.csv, rewritten atomically at each output (dem.output.write_text). A continued
     run keeps the rows up to its restart time and takes its interval means from them."""
@@ -106,6 +118,7 @@ class WallHeatFile:
         lo, hi = scene.domain["min"], scene.domain["max"]
         self.names = [w["name"] for w in scene.walls]
         self.areas = [wall_area(w, lo, hi) for w in scene.walls]
+        self.radiates = radiating_walls(scene)
         self.lines = []
         self.last = None  # (time, energies[n_walls, 3]) of the previous row
         if keep_until is not None and os.path.exists(path):
@@ -125,18 +138,21 @@ class WallHeatFile:
             for k, name in enumerate(self.names):
                 for j, mech in enumerate(MECHANISMS):
                     te = last.get((name, mech))
-                    e[k, j] = te[1] if te is not None and te[0] == t else math.nan
+                    if te is None and mech == "radiation":   # a file from before the radiation records
+                        e[k, j] = 0.0
+                    else:
+                        e[k, j] = te[1] if te is not None and te[0] == t else math.nan
             self.last = (t, e)
 
     def add(self, t, totals, gas=None):
-        """totals: [n_walls, 2] of the particles' (all paths, gas gap) in J since the start;
+        """totals: [n_walls, 3] of the particles' (all paths, gas gap, radiation) in J since the start;
         gas: [n_walls] the gas's own heat from each tied wall in J (NaN: not tied; None: no
         tied walls)."""
         from ..output import write_text
         tot = np.asarray(totals, float)
         g = np.full(len(tot), math.nan) if gas is None else np.asarray(gas, float)
         tied = np.isfinite(g)
-        e = np.c_[tot[:, 0] - tot[:, 1], tot[:, 1], g, tot[:, 0] + np.where(tied, g, 0.0)]
+        e = np.c_[tot[:, 0] - tot[:, 1] - tot[:, 2], tot[:, 1], tot[:, 2], g, tot[:, 0] + np.where(tied, g, 0.0)]
         # the time as written (12 digits) and the energies exactly (17): a continued run reads
         # them back and takes the same interval means as an uninterrupted one
         t = float(f"{t:.12g}")
@@ -147,7 +163,7 @@ class WallHeatFile:
         for k, name in enumerate(self.names):
             a = self.areas[k]
             for j, mech in enumerate(MECHANISMS):
-                if mech == "gas_convection" and not tied[k]:
+                if (mech == "gas_convection" and not tied[k]) or (mech == "radiation" and not self.radiates[k]):
                     continue
                 q = rate[k, j] / a if a > 0 else math.nan
                 self.lines.append(f"{t:.12g},{name},{mech},{float(e[k, j])!r},{rate[k, j]:.12g},{q:.12g},{a:.12g}\n")
@@ -157,7 +173,7 @@ class WallHeatFile:
 
 # --------------------------------------------------------------------------- by angle
 
-ANGLE_COLUMNS = ("time", "wall", "angle_deg", "contact_W_m2", "gas_gap_W_m2")
+ANGLE_COLUMNS = ("time", "wall", "angle_deg", "contact_W_m2", "gas_gap_W_m2", "radiation_W_m2")
 ANGLE_BINS = 24   # 15 degree sectors
 
 
@@ -177,13 +193,15 @@ def _angle_frame(w, gravity):
 
 def particle_wall_heat(sim, k):
     """The heat (W) wall ``k`` gives each owned particle it touches or reaches now, by path:
-    (rows, contact, gas_gap). Each wall conductance (dem.schema ``Hw``, its gas-gap part
-    ``Hwg``) times T_w - T_i at a fixed-temperature wall, A_c q_w (all through the contact) at a
-    fixed-flux wall; empty arrays without heat, at an adiabatic wall or with no candidate."""
-    from .heat import WT_COND, WT_Q, wall_temperature
+    (rows, contact, gas_gap, radiation). Each wall conductance (dem.schema ``Hw``, its gas-gap
+    part ``Hwg``) times T_w - T_i at a fixed-temperature wall, A_c q_w (all through the contact)
+    at a fixed-flux wall; the wall's part of each particle's radiation (dem.thermal.heat.
+    wall_radiation_now) at a fixed-temperature wall with an emissivity; empty arrays without
+    heat, at an adiabatic wall or with no particle in reach."""
+    from .heat import WT_COND, WT_Q, TI_WRAD, wall_temperature, wall_radiation_now
     st = sim.state
     n = st.n_owned
-    none = np.zeros(0, np.int64), np.zeros(0), np.zeros(0)
+    none = np.zeros(0, np.int64), np.zeros(0), np.zeros(0), np.zeros(0)
     if sim.thermal is None or not n:
         return none
     cond = int(st.wth[k, WT_COND])
@@ -193,10 +211,22 @@ def particle_wall_heat(sim, k):
     rows, cols = np.nonzero((wnb == k) & (np.arange(wnb.shape[1])[None, :] < wnn[:, None]))
     H = st.Hw[rows, cols]
     if cond == 2:   # fixed flux: Hw holds the contact area
-        return rows, H * st.wth[k, WT_Q], np.zeros_like(H)
+        return rows, H * st.wth[k, WT_Q], np.zeros_like(H), np.zeros_like(H)
     Hg = st.Hwg[rows, cols] if st.Hwg.shape[0] >= n else np.zeros_like(H)   # Hwg: indirect models only
     dT = wall_temperature(st.wth, st.wtab, k, sim.time) - st.temperature[rows]
-    return rows, (H - Hg) * dT, Hg * dT
+    qc, qg = (H - Hg) * dT, Hg * dT
+    if st.thi[TI_WRAD] != 1:
+        return rows, qc, qg, np.zeros_like(H)
+    qr = np.zeros(n)
+    P, C, W, TB, prm = st.bundles()
+    wall_radiation_now(P, C, W, TB, prm, n, sim.time, k, qr)
+    allr = np.union1d(rows, np.flatnonzero(qr))
+    out = np.zeros((3, allr.size))
+    pos = np.searchsorted(allr, rows)
+    np.add.at(out[0], pos, qc)
+    np.add.at(out[1], pos, qg)
+    out[2] = qr[allr]
+    return allr, out[0], out[1], out[2]
 
 
 def cylinder_flux_by_angle(sim, n_bins=ANGLE_BINS):
@@ -204,7 +234,7 @@ def cylinder_flux_by_angle(sim, n_bins=ANGLE_BINS):
     state's time: ``particle_wall_heat`` binned by the angle of the particle's centre around the
     axis (``_angle_frame``) and divided by the sector's area 2 pi R L / n_bins. Collective over
     the MPI ranks. Returns {wall index: (angles_deg [n_bins] (sector centres), contact [n_bins],
-    gas_gap [n_bins]) in W/m^2}; empty without heat."""
+    gas_gap [n_bins], radiation [n_bins]) in W/m^2}; empty without heat."""
     from .heat import WT_COND
     st, sc = sim.state, sim.scene
     out = {}
@@ -217,18 +247,18 @@ def cylinder_flux_by_angle(sim, n_bins=ANGLE_BINS):
         if w["type"] != "cylinder" or int(st.wth[k, WT_COND]) == 0:
             continue
         e0, e1 = _angle_frame(w, sc.simulation["gravity"])
-        sums = np.zeros(2 * n_bins)
-        rows, q_c, q_g = particle_wall_heat(sim, k)
+        sums = np.zeros((3, n_bins))
+        rows, *q = particle_wall_heat(sim, k)
         if rows.size:
             r = st.position[rows] - np.asarray(w["point"], float)
             ang = np.degrees(np.arctan2(r @ e1, r @ e0)) % 360.0
             b = np.minimum((ang / (360.0 / n_bins)).astype(np.int64), n_bins - 1)
-            sums[:n_bins] = np.bincount(b, weights=q_c, minlength=n_bins)
-            sums[n_bins:] = np.bincount(b, weights=q_g, minlength=n_bins)
+            for p in range(3):
+                sums[p] = np.bincount(b, weights=q[p], minlength=n_bins)
         if sim.par is not None:
-            sums = np.asarray(sim.par.allsum(sums), float)
+            sums = np.asarray(sim.par.allsum(sums.ravel()), float).reshape(3, n_bins)
         area = wall_area(w, lo, hi) / n_bins
-        out[k] = (centres, sums[:n_bins] / area, sums[n_bins:] / area)
+        out[k] = (centres, sums[0] / area, sums[1] / area, sums[2] / area)
     return out
 
 
@@ -246,6 +276,9 @@ class WallAngleFile:
             with open(path) as f:
                 next(f, None)
                 self.lines = [ln for ln in f if ln.strip() and float(ln.split(",", 1)[0]) <= keep_until + 1e-15]
+            # rows of a file from before the radiation column: no wall radiated then
+            self.lines = [ln if ln.count(",") == len(ANGLE_COLUMNS) - 1 else ln.rstrip("\n") + ",0\n"
+                          for ln in self.lines]
 
     @staticmethod
     def wanted(scene):
@@ -255,7 +288,7 @@ class WallAngleFile:
     def add(self, t, by_angle):
         from ..output import write_text
         t = float(f"{t:.12g}")
-        for k, (ang, qc, qg) in by_angle.items():
-            for a, c, g in zip(ang, qc, qg):
-                self.lines.append(f"{t:.12g},{self.names[k]},{a:.6g},{c:.12g},{g:.12g}\n")
+        for k, (ang, qc, qg, qr) in by_angle.items():
+            for a, c, g, rr in zip(ang, qc, qg, qr):
+                self.lines.append(f"{t:.12g},{self.names[k]},{a:.6g},{c:.12g},{g:.12g},{rr:.12g}\n")
         write_text(self.path, ",".join(ANGLE_COLUMNS) + "\n" + "".join(self.lines))
