@@ -197,3 +197,47 @@ def test_bad_wall_emissivity_is_refused_by_name(tmp_path, line, radiation, words
 def test_good_wall_emissivity_passes_the_check(tmp_path):
     r = _check(tmp_path, '{ condition = "fixed_temperature", temperature = 400.0, emissivity = 0.5 }', "krause_2017")
     assert r.returncode == 0, r.stdout + r.stderr
+
+
+def _exact_cylinder(a, h, s, inside):
+    """The area of a cylinder surface of radius a within a sphere of radius s whose centre is at
+    distance h from the surface (outside a solid tube, or inside a hollow one), and the fraction
+    of the sphere's volume on the wall's side, by quadrature."""
+    from scipy import integrate
+    rho = a + h if not inside else a - h
+
+    def band(r, phi):
+        return 2.0 * math.sqrt(max(s * s - (r * r + rho * rho - 2 * r * rho * math.cos(phi)), 0.0))
+    A = integrate.quad(lambda p: a * band(a, p), -math.pi, math.pi, limit=400, points=[0.0])[0]
+    lo, hi = (max(rho - s, 0.0), a) if not inside else (a, rho + s)
+    V = integrate.dblquad(lambda r, p: r * band(r, p), -math.pi, math.pi, lambda p: lo, lambda p: hi,
+                          epsabs=1e-16)[0]
+    return A, V / (4.0 / 3.0 * math.pi * s ** 3)
+
+
+def test_tangent_plane_against_the_exact_cylinder():
+    """A cylinder wall is taken as its tangent plane: for a particle of 0.5 mm touching a tube
+    (h = R, s = 3 R), the plane's disc area (Krause) and cap fraction (Zhou) differ from the
+    exact cylinder's by first-order amounts in s / a: +4.6 % (area) and +8.7 % (volume) outside
+    a tube of 5 mm radius (s / a = 0.3), -5.4 % and -8.5 % inside a pipe of the same radius; the
+    error halves with s / a."""
+    from dem.thermal.radiation import radiation_wall_weight
+    from dem.thermal.registry import RAD_KRAUSE_2017, RAD_ZHOU_2009
+    R = 0.5e-3
+    h, s = R, 3 * R
+    plane_area = radiation_wall_weight(RAD_KRAUSE_2017, 1.0, h, s)
+    plane_frac = radiation_wall_weight(RAD_ZHOU_2009, 1.0, h, s)
+    assert plane_area == pytest.approx(math.pi * (s * s - h * h), rel=1e-15)
+    errs = {}
+    for a in (5e-3, 10e-3):
+        for inside in (False, True):
+            A, f = _exact_cylinder(a, h, s, inside)
+            errs[a, inside] = (plane_area / A - 1.0, plane_frac / f - 1.0)
+    # the plane over-counts a convex tube's surface and volume and under-counts a pipe's
+    assert errs[5e-3, False][0] == pytest.approx(1 / 0.9557 - 1, abs=2e-3)
+    assert errs[5e-3, False][1] == pytest.approx(1 / 0.9201 - 1, abs=2e-3)
+    assert errs[5e-3, True][0] == pytest.approx(1 / 1.0571 - 1, abs=2e-3)
+    assert errs[5e-3, True][1] == pytest.approx(1 / 1.0929 - 1, abs=2e-3)
+    for inside in (False, True):   # first order in s / a
+        for k in range(2):
+            assert errs[10e-3, inside][k] / errs[5e-3, inside][k] == pytest.approx(0.5, abs=0.05)
