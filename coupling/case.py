@@ -284,6 +284,14 @@ def load_case(case_dir, *, build_sim: bool = True) -> CoupledCase:
             scene = scene_mod.load(str(dem_file), end_time=end)
         except SceneError as e:
             raise CaseConfigError(dem_file, str(e).split(": ", 1)[-1]) from None
+        cgs = getattr(scene, "coarse_graining", None)
+        if cgs is not None and np.any(cgs != 1.0):
+            for key, val in (("torque", cfg.torque), ("lift", cfg.lift)):
+                if val != "none":
+                    raise CaseConfigError(cfg_file, f"{key} = \"{val}\" with coarse-grained particles "
+                                                    f"(dem.toml coarse_graining = {float(cgs.max()):g}): the fluid "
+                                                    f"{key} of a parcel is not derived (its rotation is not its "
+                                                    f"real particles'); use {key} = \"none\"", key)
         if scene.end_time_in_file and not _same_time(scene.simulation["end_time"], end):
             raise CaseConfigError(dem_file, _end_time_conflict(scene.simulation["end_time"], "[simulation] end_time",
                                                                dem_file, end, ctl_file), "simulation.end_time")

@@ -301,7 +301,8 @@ class CouplingInterface:
             # the particle velocity the gas of this frame responded to: Us of the last frame at the
             # particle (its own velocity at the first frame)
             up = vel if self.us_sent is None else _gather_vector(pw.cells, pw.weights, self.us_sent, vel)
-            force, beta, bimp, fexp = _particle_forces(self.drag_id, self.model_type == "B", rad, vel, uf, gradp,
+            force, beta, bimp, fexp = _particle_forces(self.drag_id, self.model_type == "B", rad, st.cg[:n],
+                                                       vel, uf, gradp,
                                                        eps_p, self.gas.rho, self.gas.mu, self.gravity, cells, up,
                                                        self.drag_mode)
             tframe = None
@@ -409,9 +410,12 @@ def _gather_vector(scells, sweights, field, own):
 
 
 @njit(cache=True, error_model="numpy")
-def _particle_forces(model_id, model_b, rad, vel, uf, gradp, eps_p, rho, mu, g, cells, up, mode):
+def _particle_forces(model_id, model_b, rad, cg, vel, uf, gradp, eps_p, rho, mu, g, cells, up, mode):
     """beta_p (drag law; /eps for model B) and the fluid force on each particle at the frame:
     A: beta (u_f - u_p) - V_p grad p;  B: beta (u_f - u_p) - rho V_p g.
+    A parcel (cg: its coarse-graining factor; empty without coarse graining) takes the drag of its
+    cg^3 real particles: beta = cg^3 beta(d / cg), the law at the real diameter (its Re and drag
+    coefficient), and V_p its own volume (cg^3 real volumes; docs/models.md, "Coarse graining").
 
     Returns (force, beta, beta_imp, F_exp) for the drag integration of the DEM
     (dem.step.half_kick_implicit: v_new = (v + h (F_other + F_exp) / m) / (1 + h beta_imp / m)),
@@ -434,6 +438,7 @@ def _particle_forces(model_id, model_b, rad, vel, uf, gradp, eps_p, rho, mu, g, 
     fexp = np.zeros((n, 3))
     beta = np.zeros(n)
     bimp = np.zeros(n)
+    has_cg = cg.shape[0] > 0
     for p in range(n):
         if cells[p] < 0:
             continue
@@ -442,7 +447,10 @@ def _particle_forces(model_id, model_b, rad, vel, uf, gradp, eps_p, rho, mu, g, 
         r1 = uf[p, 1] - vel[p, 1]
         r2 = uf[p, 2] - vel[p, 2]
         ur = math.sqrt(r0 * r0 + r1 * r1 + r2 * r2)
-        b = drag_coefficient(model_id, d, eps_p[p], rho, mu, ur)
+        if has_cg:
+            b = drag_coefficient(model_id, d / cg[p], eps_p[p], rho, mu, ur) * cg[p] ** 3
+        else:
+            b = drag_coefficient(model_id, d, eps_p[p], rho, mu, ur)
         if model_b:
             b /= eps_p[p]
         beta[p] = b

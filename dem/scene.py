@@ -140,7 +140,7 @@ SIM_KEYS = {"time_step", "end_time", "gravity", "output_interval", "checkpoint_i
 MAT_KEYS_MECH = {"name", "density", "youngs_modulus", "poisson_ratio", "restitution", "friction",
                  "rolling_friction"}
 PART_KEYS = {"material", "positions", "radii", "radius", "velocities", "velocity", "file", "count",
-             "region", "temperature", "angular_velocities"}
+             "region", "temperature", "angular_velocities", "coarse_graining"}
 WALL_KEYS = {"type", "material", "point", "normal", "extent", "u_axis", "axis", "radius", "inside",
              "length", "velocity", "angular_velocity", "rotation_center", "name", "thermal"}
 CONTACT_KEYS = {"model", "rolling", "damping", "normal_stiffness", "tangential_stiffness_ratio",
@@ -353,12 +353,17 @@ def parse(data, file="<dict>", base_dir=".", end_time=None):
     if not isinstance(parts, list) or not parts:
         v.err("particles", "must be a non-empty array of tables [[particles]]")
     rng = np.random.default_rng(sim["seed"])
-    P = dict(x=[], r=[], v=[], w=[], mat=[], id=[], T=[], group=[], mode=[], where=[])
+    P = dict(x=[], r=[], v=[], w=[], mat=[], id=[], T=[], group=[], mode=[], where=[], cg=[])
     from .insertion import insert, sample_radii
     for k, g in enumerate(parts):
         p = f"particles[{k}]"
         v.table(g, p, PART_KEYS, required=("material",))
         mi = mat_ref(g, p)
+        # coarse graining (issue 15): each parcel stands for cg^3 real particles; the radii given
+        # are the real particles', the parcel's is cg times larger (docs/models.md)
+        cg = v.num(g, "coarse_graining", p, default=1.0, lo=1.0)
+        if cg > 1000.0:
+            v.err(p + ".coarse_graining", f"must be in [1.0, 1000.0] (a parcel of at most 1e9 particles), got {cg}")
         modes = [m for m in ("positions", "file", "count") if m in g]
         if len(modes) != 1:
             v.err(p, "give exactly one of 'positions' (explicit list), 'file' (CSV/NPZ) or 'count' (insertion)"
@@ -452,9 +457,12 @@ def parse(data, file="<dict>", base_dir=".", end_time=None):
                 v.unit(reg, "axis", p + ".region")
                 v.num(reg, "radius", p + ".region", lo=0, lo_open=True, required=True)
                 v.num(reg, "length", p + ".region", lo=0, lo_open=True, required=True)
-            _check_region_in_domain(v, p, reg, spec, lo, hi, periodic)
-            _check_count(v, p, reg, spec, n, sim["force"])
-            rad = sample_radii(spec, n, rng)
+            # the checks see the parcels' radii
+            spec_p = {key: (val * cg if key in ("value", "min", "max", "mean", "std") else val)
+                      for key, val in spec.items()}
+            _check_region_in_domain(v, p, reg, spec_p, lo, hi, periodic)
+            _check_count(v, p, reg, spec_p, n, sim["force"])
+            rad = sample_radii(spec, n, rng) * cg
             ex_x = np.concatenate(P["x"]) if P["x"] else np.zeros((0, 3))
             ex_r = np.concatenate(P["r"]) if P["r"] else np.zeros(0)
             pos, keep, placed = insert(reg, rad, rng, ex_x, ex_r)
@@ -462,6 +470,8 @@ def parse(data, file="<dict>", base_dir=".", end_time=None):
                 v.err(p + ".count", f"could place only {placed} of {n} particles without overlap in the region; "
                                     "enlarge the region or lower the count")
             vel = np.zeros((n, 3))
+        if mode != "count":
+            rad = rad * cg   # the parcels' radii (count: before the insertion)
         if "velocity" in g:
             vel = np.tile(v.vec(g, "velocity", p, required=True), (n, 1))
         if om is None:
@@ -479,6 +489,7 @@ def parse(data, file="<dict>", base_dir=".", end_time=None):
         P["id"].append(ids)
         P["T"].append(T)
         P["group"].append(np.full(n, k, np.int32))
+        P["cg"].append(np.full(n, cg))
         P["mode"].append(mode)
         P["where"].append(where)
     x = np.ascontiguousarray(np.concatenate(P["x"]))
@@ -572,7 +583,7 @@ def parse(data, file="<dict>", base_dir=".", end_time=None):
                materials=materials, material_index=names, contact=contact, walls=walls, output=output,
                parallel=parallel, id=ids, position=x, radius=r, velocity=np.ascontiguousarray(np.concatenate(P["v"])),
                angular_velocity=np.ascontiguousarray(np.concatenate(P["w"])),
-               material=np.concatenate(P["mat"]), group=group,
+               material=np.concatenate(P["mat"]), group=group, coarse_graining=np.concatenate(P["cg"]),
                temperature=P["T"], raw=data, thermal=None, end_time_in_file="end_time" in s)
     _check_overlaps(v, sc)
     _thermal_hook(v, sc, data)

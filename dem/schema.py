@@ -100,6 +100,8 @@ FIELDS = (
     _f("inv_mass_eff", "particle", F8, when="virtual_mass", doc="1 / (m + C_vm rho_f V_p) (1/kg): the "
        "translational half kicks of a coupled run with virtual mass (coupling.toml virtual_mass) take the "
        "-C_vm rho_f V_p dv/dt part implicitly by this effective mass (set by the coupling; not checkpointed)"),
+    _f("cg", "particle", F8, when="coarse_graining", ghost=True, checkpoint="state_cg", output="coarse_graining",
+       doc="coarse-graining factor: the parcel stands for cg^3 real particles of radius radius / cg"),
     # ---------------------------------------------------------------- particles (heat)
     _f("temperature", "particle", F8, when="heat", ghost=True, forward="temperature",
        checkpoint="state_temperature", output="temperature", doc="K"),
@@ -184,7 +186,7 @@ Params = _bundle("param", "Switches, scalars, domain and run totals.")
 
 # what enables an array; a feature a scene does not name is off
 FEATURES = ("heat", "fluid", "fluid_torque", "virtual_mass", "epsd", "contact_age", "friction_heat",
-            "group_sources", "indirect", "radiation")
+            "group_sources", "indirect", "radiation", "coarse_graining")
 
 
 # features a coupling sets before each interval (its arrays are not checkpointed: the coupling

@@ -138,6 +138,12 @@ def compute_forces(P, C, W, TB, prm, n, t, hon):
     Hw = P.Hw
     Hwg = P.Hwg
     has_wg = Hwg.shape[0] == n
+    # coarse graining (docs/models.md, "Coarse graining"): a parcel's conductances are its real
+    # particles' laws at the real size (lengths / cg), times cg for a pair (the bed's effective
+    # conductivity) and cg^2 for a wall contact (the wall's conductance per area); one cg per
+    # scene (dem.thermal.scene refuses mixed factors with conduction)
+    cgv = P.cg
+    has_cg = cgv.shape[0] > 0
     wgap = W.wgap
     wth = W.wth
     por = P.por
@@ -238,8 +244,13 @@ def compute_forces(P, C, W, TB, prm, n, t, hon):
                     if imodel >= 0 or radon:
                         d = math.sqrt(d2)
                         if imodel >= 0:
-                            hind = indirect_pp(imodel, ri, r[j], d, 0.0, mi, mat[j], por[i], por[j],
-                                               tmat, gas)
+                            if has_cg:
+                                c = cgv[i]
+                                hind = c * indirect_pp(imodel, ri / c, r[j] / c, d / c, 0.0, mi, mat[j], por[i],
+                                                       por[j], tmat, gas)
+                            else:
+                                hind = indirect_pp(imodel, ri, r[j], d, 0.0, mi, mat[j], por[i], por[j],
+                                                   tmat, gas)
                             if fused:
                                 qq = hind * (T[j] - T[i])
                                 Q[i] += qq
@@ -297,13 +308,24 @@ def compute_forces(P, C, W, TB, prm, n, t, hon):
                     rc = geometric_pp_inv(ri, rj, d, invd)
                 if crc != 0:
                     rc = apply_correction(crm, crc, rc, rstar, fel, tab[T_ESTAR, mi, mj], ereal[mi, mj])
-                if bo:  # Batchelor & O'Brien with the tabulated series conductivity
+                if bo:  # Batchelor & O'Brien with the tabulated series conductivity (linear in
+                    # r_c: the same for a parcel as its real law times cg)
                     hdir = dfac * batchelor_obrien_keff(rc, keff[mi, mj])
                 elif dmodel >= 0:
-                    hdir = dfac * direct_pp(dmodel, ri, rj, d, rc, mi, mj, tmat, gas, tc, vimp)
+                    if has_cg:
+                        c = cgv[i]
+                        hdir = dfac * c * direct_pp(dmodel, ri / c, rj / c, d / c, rc / c, mi, mj, tmat, gas, tc, vimp)
+                    else:
+                        hdir = dfac * direct_pp(dmodel, ri, rj, d, rc, mi, mj, tmat, gas, tc, vimp)
                 else:
                     hdir = 0.0
-                hind = indirect_pp(imodel, ri, rj, d, rc, mi, mj, por[i], por[j], tmat, gas) if imodel >= 0 else 0.0
+                if imodel < 0:
+                    hind = 0.0
+                elif has_cg:
+                    c = cgv[i]
+                    hind = c * indirect_pp(imodel, ri / c, rj / c, d / c, rc / c, mi, mj, por[i], por[j], tmat, gas)
+                else:
+                    hind = indirect_pp(imodel, ri, rj, d, rc, mi, mj, por[i], por[j], tmat, gas)
                 if fused:
                     dtij = T[j] - T[i]
                     qd = hdir * dtij
@@ -389,7 +411,12 @@ def compute_forces(P, C, W, TB, prm, n, t, hon):
                         wage[i, wl, 0] = 0.0
                     hw = 0.0
                     if imodel >= 0 and wth[wl, WT_COND] == 1.0 and dist >= ri:
-                        hw = indirect_pw(imodel, ri, dist, 0.0, mi, np.int32(wi[wl, WMAT]), por[i], tmat, gas)
+                        if has_cg:
+                            c = cgv[i]
+                            hw = c * c * indirect_pw(imodel, ri / c, dist / c, 0.0, mi, np.int32(wi[wl, WMAT]),
+                                                     por[i], tmat, gas)
+                        else:
+                            hw = indirect_pw(imodel, ri, dist, 0.0, mi, np.int32(wi[wl, WMAT]), por[i], tmat, gas)
                     if fused:
                         if hw > 0.0:
                             qq = hw * (wall_temperature(wth, wtab, wl, t) - T[i])
@@ -441,7 +468,14 @@ def compute_forces(P, C, W, TB, prm, n, t, hon):
                 hwg = 0.0  # the part across the gas gap
                 if cond != 0.0:
                     rc = contact_radius_pw(crm, crc, ri, dist, fel, tab[T_ESTAR, mi, mw], ereal[mi, mw])
-                    if cond == 1.0:
+                    if cond == 1.0 and has_cg:
+                        c = cgv[i]
+                        if dmodel >= 0:
+                            hw = dfac * c * c * direct_pw(dmodel, ri / c, dist / c, rc / c, mi, mw, tmat, gas, tc, vimp)
+                        if imodel >= 0:
+                            hwg = c * c * indirect_pw(imodel, ri / c, dist / c, rc / c, mi, mw, por[i], tmat, gas)
+                            hw += hwg
+                    elif cond == 1.0:
                         if dmodel >= 0:
                             hw = dfac * direct_pw(dmodel, ri, dist, rc, mi, mw, tmat, gas, tc, vimp)
                         if imodel >= 0:

@@ -66,6 +66,17 @@ def wall_temperature(wth, wtab, w, t):
     return wtab[w, nt - 1, 1]
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def own_emissivity(tmat, mat, cg, i):
+    """Particle i's emissivity in its own radiation, times its coarse-graining factor when the run
+    has parcels: a parcel radiates as its cg^3 real particles, whose surface is cg^3 A_real =
+    cg A_parcel (docs/models.md, "Coarse graining")."""
+    e = tmat[mat[i], EMISSIVITY]
+    if cg.shape[0] > 0:
+        return e * cg[i]
+    return e
+
+
 @njit(cache=True, error_model="numpy")
 def radiation_accumulators(rad, rows, n, T, r, mat, tmat, nb, nnb, rnear):
     """The radiation accumulators (acc0, acc1) [n] of every particle from its neighbours within
@@ -92,7 +103,7 @@ def wall_radiation_now(P, C, W, TB, prm, nown, t, k, out):
     rad = prm.thi[TI_RAD]
     if rad < 0 or prm.thi[TI_WRAD] != 1:
         return
-    T, r, mat, x, por, tf = P.temperature, P.radius, P.material, P.position, P.por, P.tf
+    T, r, mat, x, por, tf, cgv = P.temperature, P.radius, P.material, P.position, P.por, P.tf, P.cg
     wth, wtab, tmat = W.wth, W.wtab, TB.tmat
     n = T.shape[0]
     acc0, acc1 = radiation_accumulators(rad, n, n, T, r, mat, tmat, C.nb, C.nnb, C.rnear)
@@ -105,7 +116,7 @@ def wall_radiation_now(P, C, W, TB, prm, nown, t, k, out):
             continue
         te = radiation_env_temperature_walls(rad, acc0[i], acc1[i], aw0[i], aw1[i], por[i], tf[i], T[i])
         om = radiation_wall_omega(rad, wgt[i, k], acc1[i], aw1[i])
-        out[i] = radiation_wall_rate(rad, tmat[mat[i], EMISSIVITY], r[i], T[i], te, om,
+        out[i] = radiation_wall_rate(rad, own_emissivity(tmat, mat, cgv, i), r[i], T[i], te, om,
                                      wall_temperature(wth, wtab, k, t))
 
 
@@ -193,7 +204,7 @@ def heat_step(P, C, W, TB, prm, n, nown, dt, t):
     wnb, wnn, Hw, tf, uf, por, qgen, qsrc, work = P.wnb, P.wnn, P.Hw, P.tf, P.uf, P.por, P.qgen, P.qsrc, P.work
     nb, nnb, Hd, Hi, rnear = C.nb, C.nnb, C.Hd, C.Hi, C.rnear
     wth, wtab, wtot, tmat, gas = W.wth, W.wtab, W.wtot, TB.tmat, TB.gas
-    Hwg, wgap, wrad = P.Hwg, W.wgap, W.wrad
+    Hwg, wgap, wrad, cgv = P.Hwg, W.wgap, W.wrad, P.cg
     has_wg = Hwg.shape[0] == n
     thi, tot, srcbox = prm.thi, prm.tot, prm.srcbox
     integ = thi[TI_INTEG]
@@ -272,7 +283,7 @@ def heat_step(P, C, W, TB, prm, n, nown, dt, t):
             tot[E_WALL] += qq * dt
     hconv = np.zeros(n if conv >= 0 else 0)
     if conv >= 0:
-        convection_conductances(nown, v, r, uf, por, gas, conv, hconv)
+        convection_conductances(nown, v, r, cgv, uf, por, gas, conv, hconv)
         ec = 0.0
         for i in range(nown):
             h = hconv[i]
@@ -294,14 +305,14 @@ def heat_step(P, C, W, TB, prm, n, nown, dt, t):
                 te = radiation_env_temperature_walls(rad, acc0[i], acc1[i], aw0[i], aw1[i], por[i], tf[i], T[i])
                 if expo:
                     ti = T[i]
-                    h = tmat[mat[i], EMISSIVITY] * SIGMA_SB * 4.0 * math.pi * r[i] * r[i] * (te * te + ti * ti) * (te + ti)
+                    h = own_emissivity(tmat, mat, cgv, i) * SIGMA_SB * 4.0 * math.pi * r[i] * r[i] * (te * te + ti * ti) * (te + ti)
                     hrad[i] = h
                     tenv[i] = te
                     hs[i] += h
                     hts[i] += h * te
                 else:
-                    qq = radiation_heat(tmat[mat[i], EMISSIVITY], r[i], te, T[i])
-                    qw = wall_radiation_parts(rad, tmat[mat[i], EMISSIVITY], r[i], T[i], te, acc1[i], aw1[i],
+                    qq = radiation_heat(own_emissivity(tmat, mat, cgv, i), r[i], te, T[i])
+                    qw = wall_radiation_parts(rad, own_emissivity(tmat, mat, cgv, i), r[i], T[i], te, acc1[i], aw1[i],
                                               wgt[i], wth, wtab, t, dt, wtot, wrad)
                     Q[i] += qq
                     tot[E_WALL] += qw * dt
@@ -310,13 +321,13 @@ def heat_step(P, C, W, TB, prm, n, nown, dt, t):
             if expo:
                 te = radiation_env_temperature(rad, acc0[i], acc1[i], por[i], tf[i], T[i])
                 ti = T[i]
-                h = tmat[mat[i], EMISSIVITY] * SIGMA_SB * 4.0 * math.pi * r[i] * r[i] * (te * te + ti * ti) * (te + ti)
+                h = own_emissivity(tmat, mat, cgv, i) * SIGMA_SB * 4.0 * math.pi * r[i] * r[i] * (te * te + ti * ti) * (te + ti)
                 hrad[i] = h
                 tenv[i] = te
                 hs[i] += h
                 hts[i] += h * te
             else:
-                qq = radiation_pp_heat(rad, tmat[mat[i], EMISSIVITY], r[i], T[i], acc0[i], acc1[i], por[i], tf[i])
+                qq = radiation_pp_heat(rad, own_emissivity(tmat, mat, cgv, i), r[i], T[i], acc0[i], acc1[i], por[i], tf[i])
                 Q[i] += qq
                 er += qq * dt
         tot[E_RAD] += er
@@ -348,7 +359,7 @@ def heat_step(P, C, W, TB, prm, n, nown, dt, t):
                 tot[E_CONV] += f * hconv[i] * (tf[i] - ti)
             if rad >= 0:
                 if wr and aw1[i] > 0.0:
-                    qw = wall_radiation_parts(rad, tmat[mat[i], EMISSIVITY], r[i], ti, tenv[i], acc1[i], aw1[i],
+                    qw = wall_radiation_parts(rad, own_emissivity(tmat, mat, cgv, i), r[i], ti, tenv[i], acc1[i], aw1[i],
                                               wgt[i], wth, wtab, t, f, wtot, wrad)
                     tot[E_WALL] += f * qw
                     tot[E_RAD] += f * (hrad[i] * (tenv[i] - ti) - qw)
@@ -405,7 +416,7 @@ def _implicit_step(P, C, W, TB, prm, m, dt, t, has_ind):
     conv = thi[TI_CONV]
     rad = thi[TI_RAD]
     n = T.shape[0]
-    Hwg, wgap, wrad = P.Hwg, W.wgap, W.wrad
+    Hwg, wgap, wrad, cgv = P.Hwg, W.wgap, W.wrad, P.cg
     has_wg = Hwg.shape[0] == n
     b = np.zeros(m)   # Q(T^n), W
     dg = np.empty(m)  # C/dt + K, W/K
@@ -443,7 +454,7 @@ def _implicit_step(P, C, W, TB, prm, m, dt, t, has_ind):
     # convection
     hconv = np.zeros(m if conv >= 0 else 0)
     if conv >= 0:
-        convection_conductances(m, v, r, uf, por, gas, conv, hconv)
+        convection_conductances(m, v, r, cgv, uf, por, gas, conv, hconv)
         for i in range(m):
             dg[i] += hconv[i]
             b[i] += hconv[i] * (tf[i] - T[i])
@@ -466,17 +477,17 @@ def _implicit_step(P, C, W, TB, prm, m, dt, t, has_ind):
         for i in range(m):
             if wr and aw1[i] > 0.0:
                 te = radiation_env_temperature_walls(rad, acc0[i], acc1[i], aw0[i], aw1[i], por[i], tf[i], T[i])
-                qrad[i] = radiation_heat(tmat[mat[i], EMISSIVITY], r[i], te, T[i])
+                qrad[i] = radiation_heat(own_emissivity(tmat, mat, cgv, i), r[i], te, T[i])
                 for w in range(nw):
                     if wgt[i, w] > 0.0:
                         om[i, w] = radiation_wall_omega(rad, wgt[i, w], acc1[i], aw1[i])
-                        qw[i, w] = radiation_wall_rate(rad, tmat[mat[i], EMISSIVITY], r[i], T[i], te, om[i, w],
+                        qw[i, w] = radiation_wall_rate(rad, own_emissivity(tmat, mat, cgv, i), r[i], T[i], te, om[i, w],
                                                        wall_temperature(wth, wtab, w, t))
-                krad[i] = 4.0 * tmat[mat[i], EMISSIVITY] * SIGMA_SB * 4.0 * math.pi * r[i] * r[i] * T[i] ** 3
+                krad[i] = 4.0 * own_emissivity(tmat, mat, cgv, i) * SIGMA_SB * 4.0 * math.pi * r[i] * r[i] * T[i] ** 3
             else:
-                qrad[i] = radiation_pp_heat(rad, tmat[mat[i], EMISSIVITY], r[i], T[i], acc0[i], acc1[i], por[i], tf[i])
+                qrad[i] = radiation_pp_heat(rad, own_emissivity(tmat, mat, cgv, i), r[i], T[i], acc0[i], acc1[i], por[i], tf[i])
                 if not (rad == RAD_KRAUSE_2017 and acc1[i] == 0.0):  # (krause without neighbour: T_e = T_i, no heat)
-                    krad[i] = 4.0 * tmat[mat[i], EMISSIVITY] * SIGMA_SB * 4.0 * math.pi * r[i] * r[i] * T[i] ** 3
+                    krad[i] = 4.0 * own_emissivity(tmat, mat, cgv, i) * SIGMA_SB * 4.0 * math.pi * r[i] * r[i] * T[i] ** 3
             dg[i] += krad[i]
             b[i] += qrad[i]
     # explicit heat: generation, sources
@@ -668,13 +679,18 @@ def _lens(R, r, d):
 
 
 @njit(cache=True, error_model="numpy")
-def convection_conductances(n, v, r, uf, por, gas, conv, out):
+def convection_conductances(n, v, r, cg, uf, por, gas, conv, out):
     """h A = 2 pi R k_f Nu(Re, Pr, eps) of each particle (W/K), Re = eps rho_f |u_f - v| d / mu_f:
-    the same numbers heat_step uses, for the gas-side source terms of a coupled run."""
+    the same numbers heat_step uses, for the gas-side source terms of a coupled run. A parcel
+    (cg, empty without coarse graining) takes its real particles' law, R = r / cg in Re and
+    h A, times their number cg^3 (docs/models.md, "Coarse graining")."""
+    has_cg = cg.shape[0] > 0
     for i in range(n):
         ux = uf[i, 0] - v[i, 0]
         uy = uf[i, 1] - v[i, 1]
         uz = uf[i, 2] - v[i, 2]
         ur = math.sqrt(ux * ux + uy * uy + uz * uz)
-        re = por[i] * gas[RHO_F] * ur * 2.0 * r[i] / gas[MU_F]
-        out[i] = convection_conductance(r[i], gas[KF], nusselt_gas(conv, re, gas[PR], por[i], gas))
+        R = r[i] / cg[i] if has_cg else r[i]
+        re = por[i] * gas[RHO_F] * ur * 2.0 * R / gas[MU_F]
+        h = convection_conductance(R, gas[KF], nusselt_gas(conv, re, gas[PR], por[i], gas))
+        out[i] = h * cg[i] ** 3 if has_cg else h

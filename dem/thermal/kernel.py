@@ -113,7 +113,9 @@ class ThermalModel:
         boxes = []
         for s in th["sources"]:
             if "power" in s:
-                qsrc[st.group == s["group"]] += s["power"]
+                # W per real particle: a parcel holds cg^3 of them
+                qsrc[st.group == s["group"]] += s["power"] * (st.cg[st.group == s["group"]] ** 3
+                                                               if st.cg.shape[0] else 1.0)
             else:
                 boxes.append(list(s["min"]) + list(s["max"]) + [s["power_density"]])
         st.enable(heat=True, contact_age=self.needs_age, friction_heat=bool(thi[TI_FRIC] >= 0),
@@ -163,7 +165,7 @@ class ThermalModel:
         st = self.state
         out = np.zeros(st.n)
         if self.thi[TI_CONV] >= 0:
-            convection_conductances(st.n, st.velocity, st.radius, st.uf, st.por, self.gas,
+            convection_conductances(st.n, st.velocity, st.radius, st.cg, st.uf, st.por, self.gas,
                                     int(self.thi[TI_CONV]), out)
         return out
 

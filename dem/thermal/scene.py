@@ -84,6 +84,7 @@ def parse_thermal(v, sc, data):
     th["radiation"], th["radiation_id"] = _model(v, t, "radiation", "radiation", "none")
     th["friction_heat"], th["friction_id"] = _model(v, t, "friction_heat", "friction", "none")
     th["partition"], th["partition_id"] = _model(v, t, "partition", "partition", "equal")
+    _check_coarse_graining(v, sc, th)
     th["direct_factor"] = v.num(t, "direct_factor", "thermal", default=1.0, lo=0)
     th["porosity"] = v.string(t, "porosity", "thermal", default="local", choices=["local", "global", "voronoi"])
     th["impact_ct"] = v.num(t, "impact_heat_ct", "thermal", default=0.0, lo=0, hi=1)
@@ -261,3 +262,32 @@ def parse_thermal(v, sc, data):
             W["heat_flux"] = v.num(spec, "heat_flux", p, required=True)
         th["walls"].append(W)
     return th
+
+
+# models whose coarse-grained form is not derived (docs/models.md, "Coarse graining"): refused
+# with coarse_graining > 1, with the reason
+CG_REFUSED = {
+    "zhou_2008_collisional": "its conductance switches from the collisional law to Batchelor & O'Brien "
+                             "at the real collision time; the collisional phase needs the factor cg^3 "
+                             "and the static one cg (docs/models.md), which the kernel does not apply yet",
+}
+
+
+def _check_coarse_graining(v, sc, th):
+    """Coarse-grained groups (issue 15): refuse what has no derived scaling, naming the model."""
+    cg = getattr(sc, "coarse_graining", None)
+    if cg is None or not np.any(cg != 1.0):
+        return
+    k = int(np.flatnonzero(cg != 1.0)[0])
+    where = f"particles[{int(sc.group[k])}].coarse_graining"
+    for mech in ("direct", "indirect", "convection", "radiation", "friction_heat"):
+        why = CG_REFUSED.get(th[mech])
+        if why:
+            v.err(where, f"{cg[k]:g} with thermal.{mech} = \"{th[mech]}\": no coarse-grained form of this model "
+                         f"({why}); use coarse_graining = 1 or another {mech} model")
+    conducts = th["direct_id"] >= 0 or th["indirect_id"] >= 0
+    vals = np.unique(cg)
+    if conducts and vals.size > 1:
+        v.err(where, f"groups with different coarse-graining factors ({', '.join(f'{x:g}' for x in vals)}) "
+                     f"in one scene with conduction: the scaling of a contact between parcels of different "
+                     f"factors is not derived; give every group the same coarse_graining")

@@ -1,0 +1,307 @@
+"""Coarse graining (issue 15; docs/models.md "Coarse graining").
+
+A parcel of factor cg has the radius cg r (r: the real particles' radius the scene gives), the
+same density and material, and stands for W = cg^3 real particles. Its exchanges are its real
+particles' laws scaled:
+
+* fluid: drag and convection with the real diameter (Re, Nu, C_d), times W (each drag law and
+  each Nusselt correlation);
+* radiation: W times the real particle's, i.e. cg times the parcel's own surface;
+* conduction: a pair's conductance is cg times its real particles' law at the real size
+  (lengths / cg), a wall contact's cg^2 times (so the bed's effective conductivity and the wall's
+  conductance per area are the fine bed's);
+* sources: a group's power per real particle times W.
+
+cg = 1 is today's run bit for bit. Bad input is refused by name.
+"""
+from __future__ import annotations
+
+import math
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from dem import Simulation
+
+ROOT = Path(__file__).resolve().parents[1]
+R = 0.5e-3
+MAT = dict(name="p", density=2500.0, youngs_modulus=1e7, poisson_ratio=0.3, restitution=0.5, friction=0.3,
+           thermal_conductivity=1.0, heat_capacity=840.0, emissivity=0.9)
+AIR = dict(conductivity=0.026, density=1.2, viscosity=1.8e-5, heat_capacity=1005.0, temperature=350.0,
+           porosity=0.4)
+
+
+def _scene(positions, cg=None, thermal=None, walls=(), mechanics=True, end=2e-3, dom=0.01, gas=None, mat=None,
+           extra=None):
+    g = {"material": "p", "positions": positions, "radius": R, "temperature": 300.0}
+    if cg is not None:
+        g["coarse_graining"] = cg
+    if extra:
+        g.update(extra)
+    sc = {"simulation": {"time_step": 1e-5, "end_time": end, "mechanics": mechanics, "gravity": [0, 0, -9.81],
+                         "output_interval": end},
+          "domain": {"min": [0, 0, 0], "max": [dom, dom, dom]}, "materials": [dict(mat or MAT)],
+          "particles": [g], "walls": list(walls)}
+    if thermal is not None:
+        sc["thermal"] = thermal
+        sc["gas"] = dict(gas or AIR)
+    return sc
+
+
+def _floor(T=400.0):
+    return {"type": "plane", "name": "floor", "point": [0, 0, 0], "normal": [0, 0, 1], "material": "p",
+            "thermal": {"condition": "fixed_temperature", "temperature": T, "emissivity": 0.5}}
+
+
+def test_cg_one_is_the_run_without(tmp_path):
+    """coarse_graining = 1 is exactly the scene without the key: every final array and the
+    history bit for bit, and no parcel column in the output."""
+    pos = [[0.002 + 0.0011 * i, 0.005, 0.0006 + 0.0011 * (i % 2)] for i in range(6)]
+    th = {"direct": "batchelor_obrien", "indirect": "cheng_1999_voronoi_a", "convection": "gunn",
+          "radiation": "zhou_2009"}
+    gas = dict(AIR, velocity=[0.0, 0.0, 0.2])
+    outs = []
+    for k, cg in enumerate((None, 1.0)):
+        sim = Simulation.from_dict(_scene(pos, cg, th, [_floor()], gas=gas))
+        out = tmp_path / f"o{k}"
+        sim.run(out_dir=str(out), progress=False)
+        outs.append(out)
+    a, b = np.load(outs[0] / "final.npz"), np.load(outs[1] / "final.npz")
+    assert sorted(a.files) == sorted(b.files) and "coarse_graining" not in a.files
+    for f in a.files:
+        assert np.array_equal(a[f], b[f]), f
+    assert (outs[0] / "history.csv").read_text() == (outs[1] / "history.csv").read_text()
+
+
+def test_parcel_size_mass_and_output(tmp_path):
+    sim = Simulation.from_dict(_scene([[0.005, 0.005, 0.005]], 3.0, {"direct": "batchelor_obrien"},
+                                      mechanics=False, end=1e-4))
+    st = sim.state
+    assert st.radius[0] == pytest.approx(3 * R, rel=1e-15)
+    real_mass = 2500.0 * 4 / 3 * math.pi * R ** 3
+    assert st.mass[0] == pytest.approx(27 * real_mass, rel=1e-14)
+    assert 1 / st.inv_heat_capacity[0] == pytest.approx(27 * real_mass * 840.0, rel=1e-14)
+    sim.run(out_dir=str(tmp_path / "o"), progress=False)
+    f = np.load(tmp_path / "o" / "final.npz")
+    assert f["coarse_graining"].tolist() == [3.0]
+
+
+@pytest.mark.parametrize("corr", ["ranz_marshall", "whitaker", "gunn", "li_mason"])
+def test_convection_is_the_real_particles_times_W(corr):
+    """h A of a parcel = cg^3 x 2 pi R_r k_f Nu(Re_r, Pr, eps), Re_r with the real diameter."""
+    from dem.thermal import nusselt
+    cg, u, eps = 2.5, 0.7, 0.45
+    gas = dict(AIR, porosity=eps, velocity=[0.0, 0.0, u])
+    sim = Simulation.from_dict(_scene([[0.005, 0.005, 0.005]], cg, {"direct": "none", "convection": corr,
+                                                                     "porosity": "global"},
+                                      mechanics=False, end=1e-4, gas=gas))
+    hA = sim.thermal.convection_h()[0]
+    Rr = R
+    Re = eps * AIR["density"] * u * 2 * Rr / AIR["viscosity"]
+    Pr = AIR["heat_capacity"] * AIR["viscosity"] / AIR["conductivity"]
+    Nu = nusselt(corr, Re, Pr, eps)
+    assert hA == pytest.approx(cg ** 3 * 2 * math.pi * Rr * AIR["conductivity"] * Nu, rel=1e-12)
+    # ... and not the parcel's own law (the Re of the parcel's diameter)
+    own = 2 * math.pi * cg * R * AIR["conductivity"] * nusselt(corr, cg * Re, Pr, eps)
+    assert abs(hA / own - 1) > 0.05
+
+
+@pytest.mark.parametrize("law", ["di_felice_1994", "gidaspow_1994", "beetstra_2007", "huilin_gidaspow_2003"])
+def test_drag_is_the_real_particles_times_W(law):
+    """beta of a parcel = cg^3 beta(d / cg) for every drag law, and the pressure-gradient force
+    is on the parcel's whole volume."""
+    from coupling.drag import DRAG_MODELS, drag_coefficient, drag_model_id
+    from coupling.interface import DRAG_EXPLICIT, _particle_forces
+    assert sorted(DRAG_MODELS) == sorted(["di_felice_1994", "gidaspow_1994", "beetstra_2007",
+                                          "huilin_gidaspow_2003"])   # every law of the catalogue
+    mid = drag_model_id(law)
+    cg = np.array([1.0, 2.0, 3.0])
+    rad = R * cg
+    vel = np.zeros((3, 3))
+    uf = np.tile([0.0, 0.0, 0.8], (3, 1))
+    gradp = np.tile([0.0, 0.0, -1.2e4], (3, 1))
+    eps = np.array([0.5, 0.5, 0.5])
+    cells = np.zeros(3, np.int64)
+    force, beta, bimp, fexp = _particle_forces(mid, False, rad, cg, vel, uf, gradp, eps, 1.2, 1.8e-5,
+                                               np.array([0.0, 0.0, -9.81]), cells, vel, DRAG_EXPLICIT)
+    b1 = drag_coefficient(mid, 2 * R, 0.5, 1.2, 1.8e-5, 0.8)
+    assert beta == pytest.approx(cg ** 3 * b1, rel=1e-13)
+    vp = 4 / 3 * math.pi * rad ** 3
+    assert force[:, 2] == pytest.approx(beta * 0.8 + vp * 1.2e4, rel=1e-13)
+    # without coarse graining (an empty cg), the law at the given diameter
+    _, b0, _, _ = _particle_forces(mid, False, rad[:1], np.zeros(0), vel[:1], uf[:1], gradp[:1], eps[:1], 1.2,
+                                   1.8e-5, np.array([0.0, 0.0, -9.81]), cells[:1], vel[:1], DRAG_EXPLICIT)
+    assert b0[0] == b1
+
+
+def test_radiation_is_the_real_particles_times_W(tmp_path):
+    """A lone parcel (Zhou 2009, no neighbour: T_e = T_f): one Euler step's rate is
+    cg^3 eps A_r sigma (T_f^4 - T^4), i.e. cg times its own surface's."""
+    cg = 2.0
+    sim = Simulation.from_dict(_scene([[0.005, 0.005, 0.005]], cg, {"direct": "none", "radiation": "zhou_2009",
+                                                                     "integrator": "euler", "porosity": "global",
+                                                                     "time_step": 1e-3},
+                                      mechanics=False, end=1e-3, gas=dict(AIR, temperature=1000.0)))
+    sim.run(out_dir=str(tmp_path / "o"), progress=False)
+    q = 0.9 * 4 * math.pi * R * R * 5.670374419e-8 * (1000.0 ** 4 - 300.0 ** 4)
+    assert sim.state.heat_rate[0] == pytest.approx(cg ** 3 * q, rel=1e-12)
+
+
+@pytest.mark.parametrize("indirect", ["cheng_1999_voronoi_a", "vargas_mccarthy_2002"])
+def test_pair_and_wall_conductances_scale_by_cg_and_cg2(tmp_path, indirect):
+    """Two touching parcels and a parcel on a fixed-temperature wall, frozen, in the
+    configuration of the fine pair scaled by cg (overlaps cg times the fine ones): the pair's
+    direct and indirect conductances are cg times the fine pair's, the wall's cg^2 times, for a
+    geometrically similar model (Voronoi A) and one with an absolute length (Vargas & McCarthy's
+    gas mean free path), since each parcel law is its real particles' at the real size."""
+    ov = 2e-6
+    res = {}
+    for cg in (1.0, 3.0):
+        Rp = cg * R
+        z0 = Rp - cg * ov   # on the floor, overlap cg ov; the second on top of it, overlap cg ov
+        pos = [[0.01, 0.01, z0], [0.01, 0.01, z0 + 2 * Rp - cg * ov]]
+        th = {"direct": "batchelor_obrien", "indirect": indirect, "integrator": "exponential",
+              "porosity": "global", "time_step": 1e-3}
+        walls = [{"type": "plane", "name": "floor", "point": [0, 0, 0], "normal": [0, 0, 1], "material": "p",
+                  "thermal": {"condition": "fixed_temperature", "temperature": 400.0}}]
+        sim = Simulation.from_dict(_scene(pos, cg, th, walls, mechanics=False, end=1e-3, dom=0.03))
+        sim.run(out_dir=str(tmp_path / f"o{cg:g}"), progress=False)
+        st = sim.state
+        order = np.argsort(st.id)
+        i0 = int(order[0])
+        res[cg] = dict(Hd=float(st.Hd[st.Hd > 0].sum()), Hi=float(st.Hi[st.Hi > 0].sum()),
+                       Hw=float(st.Hw[i0, 0]), Hwg=float(st.Hwg[i0, 0]))
+    f, p = res[1.0], res[3.0]
+    assert f["Hd"] > 0 and f["Hi"] > 0 and f["Hw"] > 0 and f["Hwg"] > 0
+    assert p["Hd"] == pytest.approx(3 * f["Hd"], rel=1e-10)
+    assert p["Hi"] == pytest.approx(3 * f["Hi"], rel=1e-10)
+    assert p["Hw"] == pytest.approx(9 * f["Hw"], rel=1e-10)
+    assert p["Hwg"] == pytest.approx(9 * f["Hwg"], rel=1e-10)
+
+
+def test_group_source_is_per_real_particle(tmp_path):
+    sim = Simulation.from_dict(_scene([[0.005, 0.005, 0.005]], 2.0, {"direct": "none", "integrator": "euler",
+                                                                     "time_step": 1e-3,
+                                                                     "sources": [{"group": 0, "power": 0.01}]},
+                                      mechanics=False, end=1e-3))
+    sim.run(out_dir=str(tmp_path / "o"), progress=False)
+    assert sim.state.heat_rate[0] == pytest.approx(8 * 0.01, rel=1e-14)
+
+
+def _check(tmp_path, scene_text):
+    (tmp_path / "scene.toml").write_text(scene_text)
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    return subprocess.run([sys.executable, "-m", "dem", "check", str(tmp_path / "scene.toml")],
+                          capture_output=True, text=True, env=env, cwd=str(tmp_path))
+
+
+BASE = '''
+[simulation]
+time_step = 1e-5
+end_time = 1e-4
+
+[domain]
+min = [0.0, 0.0, 0.0]
+max = [0.02, 0.02, 0.02]
+
+[[materials]]
+name = "p"
+density = 2500.0
+youngs_modulus = 1e7
+poisson_ratio = 0.3
+restitution = 0.5
+friction = 0.3
+thermal_conductivity = 1.0
+heat_capacity = 840.0
+
+[[particles]]
+material = "p"
+radius = 0.0005
+positions = [[0.005, 0.005, 0.005]]
+temperature = 300.0
+coarse_graining = {cg}
+{more}
+[thermal]
+direct = "{direct}"
+
+[gas]
+conductivity = 0.026
+density = 1.2
+viscosity = 1.8e-5
+heat_capacity = 1005.0
+temperature = 300.0
+'''
+
+
+@pytest.mark.parametrize("cg,direct,more,words", [
+    (0.5, "batchelor_obrien", "", ["particles[0].coarse_graining", "must be in [1.0, inf)"]),
+    (2.0, "zhou_2008_collisional", "", ["particles[0].coarse_graining", "zhou_2008_collisional",
+                                        "no coarse-grained form"]),
+    (2.0, "batchelor_obrien",
+     '\n[[particles]]\nmaterial = "p"\nradius = 0.0005\npositions = [[0.015, 0.015, 0.015]]\n'
+     'temperature = 300.0\ncoarse_graining = 3.0\n', ["different coarse-graining factors (2, 3)"]),
+])
+def test_bad_coarse_graining_is_refused_by_name(tmp_path, cg, direct, more, words):
+    r = _check(tmp_path, BASE.format(cg=cg, direct=direct, more=more))
+    out = r.stdout + r.stderr
+    assert r.returncode == 2, out
+    assert "scene.toml" in out and "Traceback" not in out
+    for w in words:
+        assert w in out, out
+
+
+def _coupled_case(dest, cg=2.0, coupling_extra=""):
+    """4 parcels of cg x 1 mm radius (real beads of 2 mm) resting apart on the floor of a 24 x 24
+    x 30 mm box meshed 3 x 3 x 6, hot gas (373.15 K) entering at 0.5 m/s."""
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    from stability.coupled import write_case
+    Rp = 1e-3 * cg
+    x = [[0.006, 0.006, Rp], [0.018, 0.006, Rp], [0.006, 0.018, Rp], [0.018, 0.018, Rp]]
+    case = write_case(Path(dest), L=0.024, H=0.03, nxy=3, nz=6, positions=x, dt_dem=1e-5, interval=10,
+                      n_steps=10, u_in=0.5, mechanics=True, periodic=False, walls_top=False)
+    t = (case / "dem.toml").read_text()
+    a = 'file = "particles.csv"\ntemperature = 300.0\n'
+    assert a in t
+    (case / "dem.toml").write_text(t.replace(a, a + f"coarse_graining = {cg!r}\n"))
+    if coupling_extra:
+        with open(case / "coupling.toml", "a") as fh:
+            fh.write(coupling_extra)
+    return case
+
+
+def _cli(*args, cwd):
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    return subprocess.run([sys.executable, "-m", *args], capture_output=True, text=True, env=env, cwd=str(cwd))
+
+
+def test_coarse_grained_coupled_run(tmp_path, solver):
+    """A short coupled run of parcels (cg = 2) through the command line: the parcels are heated
+    by the gas, coupling.csv's energy balance closes, final.npz carries the factor, and the
+    gas's heat from the parcels is what their records say (E_conv_particles)."""
+    case = _coupled_case(tmp_path / "case")
+    r = _cli("coupling.run", "run", str(case), "--out", str(tmp_path / "out"), cwd=ROOT)
+    assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-2000:]
+    f = np.load(tmp_path / "out" / "final.npz")
+    assert f["coarse_graining"].tolist() == [2.0] * 4
+    assert np.all(f["temperature"] > 300.0)
+    c = np.atleast_1d(np.genfromtxt(tmp_path / "out" / "coupling.csv", delimiter=",", names=True))
+    through = np.abs(c["E_open"]) + np.abs(c["E_walls_gas"]) + np.abs(c["E_walls_particles"])
+    scale = np.abs(c["E_particles"]) + np.abs(c["E_gas_solver"])
+    assert np.all(np.abs(c["balance_residual"]) <= 1e-14 * scale + 1e-9 * through)
+    # the particles' energy gain is what convection gave them (no walls, no other source)
+    mass = 2500.0 * 4 / 3 * math.pi * (2e-3) ** 3       # a parcel: 8 beads of 1 mm radius
+    gain = float(((f["temperature"] - 300.0) * mass * 840.0).sum())
+    assert c["E_conv_particles"][-1] == pytest.approx(gain, rel=1e-9)
+
+
+def test_coupled_torque_with_parcels_is_refused(tmp_path):
+    case = _coupled_case(tmp_path / "case", coupling_extra='torque = "rotational_drag"\n')
+    r = _cli("coupling.run", "check", str(case), cwd=tmp_path)
+    out = r.stdout + r.stderr
+    assert r.returncode == 2, out
+    assert "coupling.toml" in out and "torque" in out and "coarse_graining = 2" in out
+    assert "Traceback" not in out
