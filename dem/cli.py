@@ -23,6 +23,15 @@ def cmd_check(args):
     p(f"particles: {rep['particles']}  walls: {rep['walls']}  materials: {rep['materials']}")
     p(f"radius: {rep['radius_min']:.4g} .. {rep['radius_max']:.4g} m   mass: {rep['mass_min']:.4g} .. "
       f"{rep['mass_max']:.4g} kg (total {rep['mass_total']:.4g} kg)")
+    cgs = getattr(sim.scene, "coarse_graining", None)
+    if cgs is not None and (cgs != 1.0).any():
+        import numpy as np
+        for g in np.unique(sim.scene.group):
+            c = float(cgs[sim.scene.group == g][0])
+            if c != 1.0:
+                k = int((sim.scene.group == g).sum())
+                p(f"coarse graining, group {int(g)}: cg = {c:g}, parcels of {c:g} x the real radius, each "
+                  f"{c ** 3:.4g} real particles: {k} parcels = {k * c ** 3:.4g} real particles")
     p(f"time step: {rep['dt']:.4g} s   steps: {rep['steps']}")
     p(f"Rayleigh time: {rep['rayleigh_time']:.4g} s  (dt / t_R = {rep['dt_over_rayleigh']:.3g}, "
       f"allowed <= 0.3)")

@@ -305,3 +305,29 @@ def test_coupled_torque_with_parcels_is_refused(tmp_path):
     assert r.returncode == 2, out
     assert "coupling.toml" in out and "torque" in out and "coarse_graining = 2" in out
     assert "Traceback" not in out
+
+
+def test_dem_check_reports_the_parcels(tmp_path):
+    r = _check(tmp_path, BASE.format(cg=2.0, direct="batchelor_obrien", more=""))
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "coarse graining, group 0: cg = 2, parcels of 2 x the real radius, each 8 real particles: " \
+           "1 parcels = 8 real particles" in r.stdout
+
+
+def test_parcels_on_two_ranks_equal_serial(tmp_path):
+    """A settling bed of parcels (cg = 2) heated by a radiating floor, the gas and conduction: 2
+    MPI ranks give the serial run's temperatures, positions and factors bit for bit (the factor
+    travels with the particles and their ghosts)."""
+    import shutil
+    sys.path.insert(0, str(ROOT / "tests"))
+    if shutil.which("mpirun") is None:
+        pytest.fail("Open MPI (mpirun) is part of this project's setup")
+    from test_parallel import mpirun
+    scene = str(ROOT / "tests" / "scenes" / "cg_heat_bed.toml")
+    mpirun(1, "run", scene, "--out", str(tmp_path / "s"), "--quiet")
+    mpirun(2, "run", scene, "--out", str(tmp_path / "p"), "--quiet")
+    a, b = np.load(tmp_path / "s" / "final.npz"), np.load(tmp_path / "p" / "final.npz")
+    ia, ib = np.argsort(a["id"]), np.argsort(b["id"])
+    assert np.all(a["coarse_graining"] == 2.0) and a["temperature"].max() > 300.0
+    for k in ("temperature", "position", "velocity", "coarse_graining"):
+        assert np.array_equal(a[k][ia], b[k][ib]), k
