@@ -90,6 +90,25 @@ def settle(cg, n_real, L, folder, seed=7):
     return x, el
 
 
+def contacts(x, cg, L):
+    """(coordination number, mean real contact radius sqrt(R* delta / cg)) of the parcels in the
+    middle of the bed (the Hertz contact radius of the real particles: their overlap is the
+    parcel's / cg)."""
+    from scipy.spatial import cKDTree
+    Rp = cg * R
+    n = len(x)
+    xs = np.concatenate([x, x + [0, LY, 0], x - [0, LY, 0]])   # periodic along y
+    pairs = np.array(sorted(cKDTree(xs).query_pairs(2 * Rp)))
+    pairs = pairs[pairs[:, 0] < n]
+    d = np.linalg.norm(xs[pairs[:, 0]] - xs[pairs[:, 1]], axis=1)
+    H = float((x[:, 2] + Rp).max())
+    mid = (x[:, 0] > 0.2 * L) & (x[:, 0] < 0.8 * L) & (x[:, 2] > 0.2 * H) & (x[:, 2] < 0.7 * H)
+    ends = np.c_[pairs[:, 0], pairs[:, 1] % n]
+    z = (mid[ends[:, 0]].sum() + mid[ends[:, 1]].sum()) / mid.sum()
+    inm = mid[ends[:, 0]]
+    return float(z), float(np.sqrt(0.5 * R * (2 * Rp - d[inm]) / cg).mean())
+
+
 def conductivity(x, cg, L, direct, indirect, kp):
     """(G = Q / dT walls included, Q / |dT/dx| of the middle, k_eff, run time, steadiness)."""
     from dem import Simulation
@@ -137,16 +156,20 @@ def main():
     cases = [("direct", "batchelor_obrien", "none"), ("indirect", "none", "cheng_1999_voronoi_a"),
              ("both", "batchelor_obrien", "cheng_1999_voronoi_a")]
     for cg in cgs:
-        phis, tops = [], []
+        phis, tops, zs, rcs = [], [], [], []
         for sd in seeds[cg]:
             x = packs[cg, sd]
             H = float((x[:, 2] + cg * R).max())
             mid = (x[:, 0] > 0.2 * L) & (x[:, 0] < 0.8 * L) & (x[:, 2] > 0.2 * H) & (x[:, 2] < 0.7 * H)
             phis.append(mid.sum() * 4 / 3 * math.pi * (cg * R) ** 3 / (0.6 * L * LY * 0.5 * H))
             tops.append(H)
+            z, rc = contacts(x, cg, L)
+            zs.append(z)
+            rcs.append(rc)
         print(f"  cg {cg}: {len(packs[cg, seeds[cg][0]])} parcels x {len(seeds[cg])} packings, bed top "
-              f"{1e3 * np.mean(tops):.1f} mm, solid fraction of the middle {np.mean(phis):.3f} "
-              f"(range {min(phis):.3f}-{max(phis):.3f})")
+              f"{1e3 * np.mean(tops):.1f} mm, middle: solid fraction {np.mean(phis):.3f} "
+              f"(range {min(phis):.3f}-{max(phis):.3f}), coordination number {np.mean(zs):.2f}, mean real contact "
+              f"radius {1e6 * np.mean(rcs):.2f} um")
     print("| case | k_p/k_f | cg | G = Q/dT [W/K] | / cg=1 (+- std. error) | Q/|dT/dx| middle [W m/K] | / cg=1 | "
           "k_eff [W/(m K)] | steady (|Q_hot + Q_cold| / Q_hot) |")
     print("|---|---|---|---|---|---|---|---|---|")

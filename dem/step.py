@@ -25,7 +25,7 @@ from .neighbors import build_half_list
 from .schema import Pairs
 from .thermal.contact_radius import (contact_radius_pw, hertz_force, hertz_overlap, geometric_pp_inv,
                                      apply_correction, HERTZ_FORCE, HERTZ_OVERLAP)
-from .thermal.direct import direct_pp, direct_pw, batchelor_obrien_keff
+from .thermal.direct import direct_pp, direct_pw, direct_cg_pp, direct_cg_pw, batchelor_obrien_keff
 from .thermal.registry import DIRECT_BATCHELOR_OBRIEN
 from .thermal.indirect import indirect_pp, indirect_pw
 from .thermal.generation import friction_heat, partition
@@ -312,9 +312,11 @@ def compute_forces(P, C, W, TB, prm, n, t, hon):
                     # r_c: the same for a parcel as its real law times cg)
                     hdir = dfac * batchelor_obrien_keff(rc, keff[mi, mj])
                 elif dmodel >= 0:
-                    if has_cg:
+                    if has_cg:   # the real particles' law at the real size and age, scaled
                         c = cgv[i]
-                        hdir = dfac * c * direct_pp(dmodel, ri / c, rj / c, d / c, rc / c, mi, mj, tmat, gas, tc, vimp)
+                        hdir = dfac * direct_cg_pp(dmodel, c, ri / c, rj / c, d / c, rc / c, mi, mj, tmat, gas,
+                                                   tc / c, vimp) \
+                            * direct_pp(dmodel, ri / c, rj / c, d / c, rc / c, mi, mj, tmat, gas, tc / c, vimp)
                     else:
                         hdir = dfac * direct_pp(dmodel, ri, rj, d, rc, mi, mj, tmat, gas, tc, vimp)
                 else:
@@ -471,7 +473,9 @@ def compute_forces(P, C, W, TB, prm, n, t, hon):
                     if cond == 1.0 and has_cg:
                         c = cgv[i]
                         if dmodel >= 0:
-                            hw = dfac * c * c * direct_pw(dmodel, ri / c, dist / c, rc / c, mi, mw, tmat, gas, tc, vimp)
+                            hw = dfac * direct_cg_pw(dmodel, c, ri / c, dist / c, rc / c, mi, mw, tmat, gas,
+                                                     tc / c, vimp) \
+                                * direct_pw(dmodel, ri / c, dist / c, rc / c, mi, mw, tmat, gas, tc / c, vimp)
                         if imodel >= 0:
                             hwg = c * c * indirect_pw(imodel, ri / c, dist / c, rc / c, mi, mw, por[i], tmat, gas)
                             hw += hwg

@@ -361,6 +361,26 @@ def _zhou_pp(Ri, Rj, d, rc, mi, mj, tmat, gas, t_contact, vn_impact):
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
+def _zhou_cg_pp(cg, Ri, Rj, d, rc, mi, mj, tmat, gas, t_contact, vn_impact):
+    """Coarse-graining factor of a parcel pair (real-size arguments, contact age / cg): W = cg^3
+    during the collision, cg once static (docs/models.md, "Coarse graining"). At the same
+    granular temperature the collision rate per volume of parcels is cg^-4 the real particles'
+    (n^2 d^2), so a parcel collision, which lasts cg real collision times, must exchange cg^4 the
+    heat of a real one: cg^3 times the real collisional conductance. The phase is the law's own
+    (the real collision time against the age / cg, i.e. the parcel's collision time)."""
+    if rc <= 0.0 or vn_impact <= 0.0:
+        return cg
+    Es = effective_modulus(real_modulus(tmat, mi), tmat[mi, POISSON],
+                           real_modulus(tmat, mj), tmat[mj, POISSON])
+    m1 = tmat[mi, DENSITY] * 4.0 / 3.0 * math.pi * Ri ** 3
+    m2 = tmat[mj, DENSITY] * 4.0 / 3.0 * math.pi * Rj ** 3
+    _, tc = hertz_collision(m1 * m2 / (m1 + m2), Ri * Rj / (Ri + Rj), Es, vn_impact)
+    if t_contact < tc:
+        return cg * cg * cg
+    return cg
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _zhou_pw(R, d, rc, mp, mw, tmat, gas, t_contact, vn_impact):
     kp = tmat[mp, K_COND]
     kw = tmat[mw, K_COND]
@@ -416,7 +436,7 @@ RECORDS = (
                 aliases=("zhou_2008", "collisional"),
                 material=("thermal_conductivity", "heat_capacity", "density", "youngs_modulus",
                           "poisson_ratio"),
-                history=2, laws=dict(pp=_zhou_pp, pw=_zhou_pw), law=zhou_2008_collisional,
+                history=2, laws=dict(pp=_zhou_pp, pw=_zhou_pw, cg_pp=_zhou_cg_pp), law=zhou_2008_collisional,
                 reference="Zhou, Yu & Horio (2008); ref 002",
                 summary="collisional conductance while the contact is younger than t_c, then B&O"),
     ModelRecord("beaulieu_2020", "direct", DIRECT_BEAULIEU,
@@ -433,7 +453,7 @@ RECORDS = (
 
 def __getattr__(name):
     # direct_pp / direct_pw are generated from the records of all direct models
-    if name in ("direct_pp", "direct_pw"):
+    if name in ("direct_pp", "direct_pw", "direct_cg_pp", "direct_cg_pw"):
         from . import dispatch
         return getattr(dispatch.module(), name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -266,11 +266,7 @@ def parse_thermal(v, sc, data):
 
 # models whose coarse-grained form is not derived (docs/models.md, "Coarse graining"): refused
 # with coarse_graining > 1, with the reason
-CG_REFUSED = {
-    "zhou_2008_collisional": "its conductance switches from the collisional law to Batchelor & O'Brien "
-                             "at the real collision time; the collisional phase needs the factor cg^3 "
-                             "and the static one cg (docs/models.md), which the kernel does not apply yet",
-}
+CG_REFUSED = {}   # every model of the catalogue has its scaling
 
 
 def _check_coarse_graining(v, sc, th):
