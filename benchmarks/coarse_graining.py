@@ -140,11 +140,91 @@ def conductivity(x, cg, L, direct, indirect, kp):
     return G, Q / abs(slope), G * L / A, el, abs(q[1] + q[2]) / abs(q[1])
 
 
+# ----------------------------------------------------------------------------- bubbling bed
+CASE = os.path.join(os.path.dirname(HERE), "openfoam_cases", "fluidized_bed_heating")
+N_FINE = 24000     # the main case's 3,000 beads of 2 mm as beads of 1 mm: the same bed mass
+
+
+def bubbling_case(dest, cg, end):
+    """The main case (openfoam_cases/fluidized_bed_heating) with beads of half the size (d = 0.95-
+    1.05 mm, 24,000 of them, the same bed mass) as parcels of factor cg, fluidized at 2 U_mf of
+    1 mm beads (Wen & Yu), to ``end``."""
+    import re
+    import shutil
+    from coupling.drag import wen_yu_1966_umf
+    if os.path.exists(dest):
+        shutil.rmtree(dest)      # this benchmark's own case folder
+    shutil.copytree(CASE, dest, ignore=shutil.ignore_patterns("README.md"))
+    u = 2.0 * wen_yu_1966_umf(1e-3, 2500.0, 1.2, 1.8e-5, 9.81)
+    t = open(os.path.join(dest, "dem.toml")).read()
+    a = 'count = 3000\nradius = { distribution = "uniform", min = 0.00095, max = 0.00105 }\n'
+    assert a in t
+    n = int(round(N_FINE / cg ** 3))
+    t = t.replace(a, f'count = {n}\nradius = {{ distribution = "uniform", min = 0.000475, max = 0.000525 }}\n'
+                     f'coarse_graining = {float(cg)!r}\n')
+    t = t.replace("vtk = true", "vtk = false")
+    open(os.path.join(dest, "dem.toml"), "w").write(t)
+    for name in ("0/U",):
+        f = os.path.join(dest, name)
+        s = open(f).read()
+        s = s.replace("uniform (0 0 2.0)", f"uniform (0 0 {u!r})")
+        open(f, "w").write(s)
+    f = os.path.join(dest, "system", "controlDict")
+    s = open(f).read()
+    s = re.sub(r"\nendTime\s+[^;]+;", f"\nendTime         {end!r};", s)
+    s = re.sub(r"\nwriteInterval\s+[^;]+;", "\nwriteInterval   100000;", s)
+    open(f, "w").write(s)
+    return n, u
+
+
+def bubbling(cg, folder, end):
+    """Run the bubbling bed at factor cg; returns (coupling.csv columns, particles, wall s)."""
+    import subprocess
+    case = os.path.join(folder, f"bubbling_case_cg{cg:g}")
+    out = os.path.join(folder, f"bubbling_cg{cg:g}")
+    n, u = bubbling_case(case, cg, end)
+    if not os.path.exists(os.path.join(out, "final.npz")):
+        t0 = time.perf_counter()
+        r = subprocess.run([sys.executable, "-m", "coupling.run", "run", case, "--out", out, "--overwrite"],
+                           capture_output=True, text=True, cwd=os.path.dirname(HERE))
+        if r.returncode != 0:
+            raise SystemExit(f"cg {cg}: coupling run failed\n{r.stdout[-3000:]}\n{r.stderr[-3000:]}")
+        print(f"  bubbling bed cg {cg:g}: {n} parcels at {u:.3f} m/s, {end:g} s in {time.perf_counter() - t0:.0f} s",
+              flush=True)
+    c = np.genfromtxt(os.path.join(out, "coupling.csv"), delimiter=",", names=True)
+    return c, n
+
+
+def bubbling_table(folder, end, cgs=(1, 2, 3), t_avg=0.15):
+    res = {cg: bubbling(cg, folder, end) for cg in cgs}
+    c1 = res[cgs[0]][0]
+    print(f"Bubbling bed heated by the gas: the main case with beads of 1 mm ({N_FINE} of them at cg = 1), "
+          f"to {end:g} s; means over t >= {t_avg:g} s")
+    print("| cg | parcels | T rise at the end [K] | / cg=1 | heat to the particles [J] | / cg=1 | "
+          "bed height [mm] | / cg=1 | dp [Pa] | / cg=1 |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    ref = None
+    for cg in cgs:
+        c, n = res[cg]
+        late = c["time"] >= t_avg - 1e-12
+        row = (c["T_particles"][-1] - c["T_particles"][0], c["E_conv_particles"][-1],
+               1e3 * c["bed_height"][late].mean(), c["dp"][late].mean())
+        ref = ref or row
+        print(f"| {cg} | {n} | {row[0]:.4f} | {row[0] / ref[0]:.3f} | {row[1]:.4g} | {row[1] / ref[1]:.3f} | "
+              f"{row[2]:.2f} | {row[2] / ref[2]:.3f} | {row[3]:.1f} | {row[3] / ref[3]:.3f} |", flush=True)
+    return res
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--out", default=os.path.join("out", "coarse_graining"))
+    ap.add_argument("--bubbling", type=float, default=None, metavar="END",
+                    help="only the bubbling bed, to END s")
     a = ap.parse_args()
+    if a.bubbling:
+        bubbling_table(a.out, a.bubbling)
+        return
     n_real, L = (2000, 0.040) if a.quick else (8000, 0.080)
     cgs = (1, 2, 3, 4)
     print(f"Packed bed between a hot and a cold wall: {n_real} real beads of 1 mm radius, walls {1e3 * L:g} mm "

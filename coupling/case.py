@@ -603,11 +603,13 @@ def check_coupled_case(case: CoupledCase, mesh, *, eps0: np.ndarray | None = Non
     elif cfl > GAS_CFL[0]:
         warnings.append(f"gas CFL {cfl:.3g} > {GAS_CFL[0]}")
     # --- Biot number of the particles in the case's gas stream
+    # (parcels: the real particles' diameter, whose laws they follow; docs/models.md "Coarse graining")
+    d_real = d / st.cg[:n] if st.cg.shape[0] else d
     if thermal is not None and cfg.heat:
-        _biot_check(case, thermal, umax, d, eps0, cells, n, vals, warnings)
+        _biot_check(case, thermal, umax, d_real, eps0, cells, n, vals, warnings)
     # --- particle Courant number: displacement per coupling step / cell size
     mech = bool(sim.scene.simulation["mechanics"])
-    speeds, info = _particle_speeds(sim, gas, umax, d, n) if mech else ({}, {})
+    speeds, info = _particle_speeds(sim, gas, umax, d_real, n) if mech else ({}, {})
     vals.update(info)
     vals.update(speeds)
     v_char = max(speeds.values(), default=0.0)

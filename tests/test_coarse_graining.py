@@ -381,3 +381,18 @@ def test_collisional_conduction_scales_by_W_during_the_collision(tmp_path):
     assert np.all(coll | stat)
     k = int(np.argmin(coll))          # the first static step
     assert k > 20 and np.all(coll[:k]) and np.all(stat[k:])
+
+
+def test_coupling_check_uses_the_real_particles(tmp_path):
+    """`coupling check` of a case of parcels (cg = 2 of 2 mm beads) reports the minimum
+    fluidization velocity of the real beads (the parcels follow their drag), not of a 4 mm
+    sphere."""
+    from coupling.drag import wen_yu_1966_umf
+    case = _coupled_case(tmp_path / "case")
+    r = _cli("coupling.run", "check", str(case), cwd=tmp_path)
+    assert r.returncode == 0, r.stdout + r.stderr
+    line = [ln for ln in r.stdout.splitlines() if ln.strip().startswith("u_mf")]
+    assert len(line) == 1, r.stdout
+    umf = float(line[0].split()[1])
+    assert umf == pytest.approx(wen_yu_1966_umf(2e-3, 2500.0, 1.2, 1.8e-5, 9.81), rel=1e-3)
+    assert abs(umf / wen_yu_1966_umf(4e-3, 2500.0, 1.2, 1.8e-5, 9.81) - 1) > 0.3
