@@ -148,7 +148,7 @@ N_FINE = 24000     # the main case's 3,000 beads of 2 mm as beads of 1 mm: the s
 def bubbling_case(dest, cg, end):
     """The main case (openfoam_cases/fluidized_bed_heating) with beads of half the size (d = 0.95-
     1.05 mm, 24,000 of them, the same bed mass) as parcels of factor cg, fluidized at 2 U_mf of
-    1 mm beads (Wen & Yu), to ``end``."""
+    1 mm beads (Wen & Yu), to ``end``; DEM step 5e-6 cg s (100 / cg DEM steps per CFD step)."""
     import re
     import shutil
     from coupling.drag import wen_yu_1966_umf
@@ -163,7 +163,16 @@ def bubbling_case(dest, cg, end):
     t = t.replace(a, f'count = {n}\nradius = {{ distribution = "uniform", min = 0.000475, max = 0.000525 }}\n'
                      f'coarse_graining = {float(cg)!r}\n')
     t = t.replace("vtk = true", "vtk = false")
+    # the DEM step: a tenth of the Hertz collision time of a 1 mm bead at 1 m/s (9.8e-5 s), which
+    # grows with the parcel's radius; the CFD step stays 5e-4 s
+    k = {1: 100, 2: 50, 3: 34, 4: 25}[int(cg)]
+    assert "time_step = 1e-5\n" in t
+    t = t.replace("time_step = 1e-5\n", f"time_step = {5e-4 / k!r}\n")
     open(os.path.join(dest, "dem.toml"), "w").write(t)
+    f = os.path.join(dest, "coupling.toml")
+    s = open(f).read()
+    assert "coupling_interval = 50 " in s
+    open(f, "w").write(s.replace("coupling_interval = 50 ", f"coupling_interval = {k} "))
     for name in ("0/U",):
         f = os.path.join(dest, name)
         s = open(f).read()

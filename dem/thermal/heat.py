@@ -303,33 +303,25 @@ def heat_step(P, C, W, TB, prm, n, nown, dt, t):
             walls_i = wr and aw1[i] > 0.0
             if walls_i:
                 te = radiation_env_temperature_walls(rad, acc0[i], acc1[i], aw0[i], aw1[i], por[i], tf[i], T[i])
-                if expo:
-                    ti = T[i]
-                    h = own_emissivity(tmat, mat, cgv, i) * SIGMA_SB * 4.0 * math.pi * r[i] * r[i] * (te * te + ti * ti) * (te + ti)
-                    hrad[i] = h
-                    tenv[i] = te
-                    hs[i] += h
-                    hts[i] += h * te
-                else:
-                    qq = radiation_heat(own_emissivity(tmat, mat, cgv, i), r[i], te, T[i])
-                    qw = wall_radiation_parts(rad, own_emissivity(tmat, mat, cgv, i), r[i], T[i], te, acc1[i], aw1[i],
-                                              wgt[i], wth, wtab, t, dt, wtot, wrad)
-                    Q[i] += qq
-                    tot[E_WALL] += qw * dt
-                    er += (qq - qw) * dt
-                continue
-            if expo:
+            else:
                 te = radiation_env_temperature(rad, acc0[i], acc1[i], por[i], tf[i], T[i])
+            eps_i = own_emissivity(tmat, mat, cgv, i)
+            if expo:
                 ti = T[i]
-                h = own_emissivity(tmat, mat, cgv, i) * SIGMA_SB * 4.0 * math.pi * r[i] * r[i] * (te * te + ti * ti) * (te + ti)
+                h = eps_i * SIGMA_SB * 4.0 * math.pi * r[i] * r[i] * (te * te + ti * ti) * (te + ti)
                 hrad[i] = h
                 tenv[i] = te
                 hs[i] += h
                 hts[i] += h * te
             else:
-                qq = radiation_pp_heat(rad, own_emissivity(tmat, mat, cgv, i), r[i], T[i], acc0[i], acc1[i], por[i], tf[i])
+                qq = radiation_heat(eps_i, r[i], te, T[i])
                 Q[i] += qq
-                er += qq * dt
+                qw = 0.0   # the walls' parts go to their records, the rest to E_RAD
+                if walls_i:
+                    qw = wall_radiation_parts(rad, eps_i, r[i], T[i], te, acc1[i], aw1[i], wgt[i], wth, wtab, t,
+                                              dt, wtot, wrad)
+                    tot[E_WALL] += qw * dt
+                er += (qq - qw) * dt
         tot[E_RAD] += er
     if expo:
         for i in range(nown):
