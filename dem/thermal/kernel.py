@@ -19,6 +19,15 @@ INTEGRAL_INDIRECT = ("cheng_1999_voronoi_a", "gan_2016_voronoi_a", "rong_horio_1
                      "musser_2011_surrounding_layer")
 
 
+def zero_wall_totals(st, nw):
+    """Every per-wall total of dem.schema (the checkpointed wall arrays: all paths, gas gap,
+    radiation) at zero for nw walls."""
+    from .. import schema as S
+    for f in S.of("wall"):
+        if f.checkpoint:
+            setattr(st, f.name, np.zeros(nw))
+
+
 def no_heat_tables(st):
     """The tables and parameters of a scene without heat (dem.schema rows of owner wall, table
     and param): tiny arrays of the types a scene with heat has, so one kernel serves both."""
@@ -27,8 +36,8 @@ def no_heat_tables(st):
     thi[TI_HEAT] = 0
     st.thi, st.thf, st.tmat, st.gas = thi, np.zeros(NTF), np.zeros((1, R.N_TPROP)), np.zeros(R.N_GAS)
     st.ereal, st.keff = np.zeros((1, 1)), np.zeros((1, 1))
-    st.wth, st.wtab, st.wtot, st.wgap = np.zeros((nw, NWT)), np.zeros((nw, 1, 2)), np.zeros(nw), np.zeros(nw)
-    st.wrad = np.zeros(nw)
+    st.wth, st.wtab = np.zeros((nw, NWT)), np.zeros((nw, 1, 2))
+    zero_wall_totals(st, nw)
     st.srcbox, st.tot = np.zeros((0, 7)), np.zeros(NTOT)
 
 
@@ -121,7 +130,8 @@ class ThermalModel:
         st.enable(heat=True, contact_age=self.needs_age, friction_heat=bool(thi[TI_FRIC] >= 0),
                   group_sources=bool(np.any(qsrc != 0)), indirect=bool(thi[TI_INDIRECT] >= 0),
                   radiation=bool(thi[TI_RAD] >= 0))
-        st.wth, st.wtab, st.wtot, st.wgap, st.wrad = wth, wtab, np.zeros(nw), np.zeros(nw), np.zeros(nw)
+        st.wth, st.wtab = wth, wtab
+        zero_wall_totals(st, nw)
         st.thi, st.thf, st.tmat, st.gas, st.ereal, st.keff = thi, thf, self.tmat, self.gas, self.ereal, self.keff
         st.srcbox, st.tot = np.array(boxes, float).reshape(-1, 7), np.zeros(NTOT)
         st.por[:] = self.gas[R.POROSITY_GLOBAL]
