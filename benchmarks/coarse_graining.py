@@ -145,7 +145,7 @@ CASE = os.path.join(os.path.dirname(HERE), "openfoam_cases", "fluidized_bed_heat
 N_FINE = 24000     # the main case's 3,000 beads of 2 mm as beads of 1 mm: the same bed mass
 
 
-def bubbling_case(dest, cg, end):
+def bubbling_case(dest, cg, end, own=False):
     """The main case (openfoam_cases/fluidized_bed_heating) with beads of half the size (d = 0.95-
     1.05 mm, 24,000 of them, the same bed mass) as parcels of factor cg, fluidized at 2 U_mf of
     1 mm beads (Wen & Yu), to ``end``; DEM step 5e-6 cg s (100 / cg DEM steps per CFD step)."""
@@ -163,6 +163,9 @@ def bubbling_case(dest, cg, end):
     t = t.replace(a, f'count = {n}\nradius = {{ distribution = "uniform", min = 0.000475, max = 0.000525 }}\n'
                      f'coarse_graining = {float(cg)!r}\n')
     t = t.replace("vtk = true", "vtk = false")
+    if own:   # the parcels' own heat laws: what a code without the thermal scaling computes
+        assert 'convection = "ranz_marshall"\n' in t
+        t = t.replace('convection = "ranz_marshall"\n', 'convection = "ranz_marshall"\nparcel_heat = "own"\n')
     # the DEM step: a tenth of the Hertz collision time of a 1 mm bead at 1 m/s (9.8e-5 s), which
     # grows with the parcel's radius; the CFD step stays 5e-4 s
     k = {1: 100, 2: 50, 3: 34, 4: 25}[int(cg)]
@@ -186,40 +189,49 @@ def bubbling_case(dest, cg, end):
     return n, u
 
 
-def bubbling(cg, folder, end):
-    """Run the bubbling bed at factor cg; returns (coupling.csv columns, particles, wall s)."""
+def bubbling(cg, folder, end, own=False):
+    """Run the bubbling bed at factor cg; returns (coupling.csv columns, particles)."""
     import subprocess
-    case = os.path.join(folder, f"bubbling_case_cg{cg:g}")
-    out = os.path.join(folder, f"bubbling_cg{cg:g}")
-    n, u = bubbling_case(case, cg, end)
+    tag = f"cg{cg:g}" + ("_own" if own else "")
+    case = os.path.join(folder, f"bubbling_case_{tag}")
+    out = os.path.join(folder, f"bubbling_{tag}")
+    n, u = bubbling_case(case, cg, end, own)
     if not os.path.exists(os.path.join(out, "final.npz")):
         t0 = time.perf_counter()
         r = subprocess.run([sys.executable, "-m", "coupling.run", "run", case, "--out", out, "--overwrite"],
                            capture_output=True, text=True, cwd=os.path.dirname(HERE))
         if r.returncode != 0:
             raise SystemExit(f"cg {cg}: coupling run failed\n{r.stdout[-3000:]}\n{r.stderr[-3000:]}")
-        print(f"  bubbling bed cg {cg:g}: {n} parcels at {u:.3f} m/s, {end:g} s in {time.perf_counter() - t0:.0f} s",
+        print(f"  bubbling bed {tag}: {n} parcels at {u:.3f} m/s, {end:g} s in {time.perf_counter() - t0:.0f} s",
               flush=True)
     c = np.genfromtxt(os.path.join(out, "coupling.csv"), delimiter=",", names=True)
     return c, n
 
 
 def bubbling_table(folder, end, cgs=(1, 2, 3), t_avg=0.15):
-    res = {cg: bubbling(cg, folder, end) for cg in cgs}
-    c1 = res[cgs[0]][0]
+    runs = [(cg, False) for cg in cgs] + [(cg, True) for cg in cgs if cg > 1]
+    res = {k: bubbling(k[0], folder, end, k[1]) for k in runs}
     print(f"Bubbling bed heated by the gas: the main case with beads of 1 mm ({N_FINE} of them at cg = 1), "
-          f"to {end:g} s; means over t >= {t_avg:g} s")
-    print("| cg | parcels | T rise at the end [K] | / cg=1 | heat to the particles [J] | / cg=1 | "
-          "bed height [mm] | / cg=1 | dp [Pa] | / cg=1 |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
+          f"to {end:g} s; means over t >= {t_avg:g} s (own: the parcels' own heat laws, no thermal scaling)")
+    print("| cg | parcel heat | parcels | T rise at the end [K] | / cg=1 | largest over t >= 0.1 s | "
+          "heat to the particles [J] | / cg=1 | bed height [mm] | / cg=1 | dp [Pa] | / cg=1 |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     ref = None
-    for cg in cgs:
-        c, n = res[cg]
+    c1 = res[runs[0]][0]
+    for key in runs:
+        cg = key[0]
+        c, n = res[key]
         late = c["time"] >= t_avg - 1e-12
         row = (c["T_particles"][-1] - c["T_particles"][0], c["E_conv_particles"][-1],
                1e3 * c["bed_height"][late].mean(), c["dp"][late].mean())
         ref = ref or row
-        print(f"| {cg} | {n} | {row[0]:.4f} | {row[0] / ref[0]:.3f} | {row[1]:.4g} | {row[1] / ref[1]:.3f} | "
+        # the mean temperature rise against the fine bed's at the same output times
+        t1 = c1["time"] >= 0.1 - 1e-12
+        rise1 = c1["T_particles"][t1] - c1["T_particles"][0]
+        rise = np.interp(c1["time"][t1], c["time"], c["T_particles"]) - c["T_particles"][0]
+        dev = float(np.max(np.abs(rise / rise1 - 1.0)))
+        print(f"| {cg} | {'own' if key[1] else 'scaled'} | {n} | {row[0]:.4f} | {row[0] / ref[0]:.3f} | {dev:.3f} | "
+              f"{row[1]:.4g} | {row[1] / ref[1]:.3f} | "
               f"{row[2]:.2f} | {row[2] / ref[2]:.3f} | {row[3]:.1f} | {row[3] / ref[3]:.3f} |", flush=True)
     return res
 

@@ -32,7 +32,7 @@ from .thermal.generation import friction_heat, partition
 from .thermal.heat import (heat_step, local_porosity, TI_HEAT, TI_DIRECT, TI_CR, TI_CORR,
                            TI_INDIRECT, TI_RAD, TI_FRIC, TI_PART, TI_AGE, TF_DFACTOR,
                            TF_RADRANGE, TF_CT, TF_CN, TF_CHI, WT_COND, TI_LOCALPOR, TI_FUSED,
-                           E_DIRECT, E_INDIRECT, E_WALL, wall_temperature)
+                           E_DIRECT, E_INDIRECT, E_WALL, wall_temperature, heat_cg)
 
 # integer parameters
 I_CONTACT, I_ROLLING, I_NWALLS, I_MECH, I_NOWN = 0, 1, 2, 3, 4  # I_NOWN: owned rows (the rest are ghosts)
@@ -142,7 +142,7 @@ def compute_forces(P, C, W, TB, prm, n, t, hon):
     # particles' laws at the real size (lengths / cg), times cg for a pair (the bed's effective
     # conductivity) and cg^2 for a wall contact (the wall's conductance per area); one cg per
     # scene (dem.thermal.scene refuses mixed factors with conduction)
-    cgv = P.cg
+    cgv = heat_cg(P.cg, thi) if hon is not None else P.cg
     has_cg = cgv.shape[0] > 0
     wgap = W.wgap
     wth = W.wth

@@ -396,3 +396,19 @@ def test_coupling_check_uses_the_real_particles(tmp_path):
     umf = float(line[0].split()[1])
     assert umf == pytest.approx(wen_yu_1966_umf(2e-3, 2500.0, 1.2, 1.8e-5, 9.81), rel=1e-3)
     assert abs(umf / wen_yu_1966_umf(4e-3, 2500.0, 1.2, 1.8e-5, 9.81) - 1) > 0.3
+
+
+def test_parcel_heat_own_is_the_parcels_own_law():
+    """[thermal] parcel_heat = "own" (a comparison): a parcel exchanges heat as a particle of its
+    size would, 2 pi R_p k_f Nu(Re_p), what a code without the thermal scaling computes."""
+    from dem.thermal import nusselt
+    cg, u, eps = 2.5, 0.7, 0.45
+    gas = dict(AIR, porosity=eps, velocity=[0.0, 0.0, u])
+    sim = Simulation.from_dict(_scene([[0.005, 0.005, 0.005]], cg, {"direct": "none", "convection": "ranz_marshall",
+                                                                     "porosity": "global", "parcel_heat": "own"},
+                                      mechanics=False, end=1e-4, gas=gas))
+    Rp = cg * R
+    Re = eps * AIR["density"] * u * 2 * Rp / AIR["viscosity"]
+    Pr = AIR["heat_capacity"] * AIR["viscosity"] / AIR["conductivity"]
+    own = 2 * math.pi * Rp * AIR["conductivity"] * nusselt("ranz_marshall", Re, Pr, eps)
+    assert sim.thermal.convection_h()[0] == pytest.approx(own, rel=1e-12)

@@ -38,7 +38,8 @@ TI_HEAT, TI_DIRECT, TI_CR, TI_CORR, TI_INDIRECT, TI_CONV, TI_RAD, TI_FRIC, TI_PA
 TI_LOCALPOR = 11
 TI_FUSED = 12  # pairs and walls accumulated in the force loop (mechanics + euler)
 TI_WRAD = 13   # 1: a fixed-temperature wall with an emissivity takes part in the radiation
-NTI = 14
+TI_CG_OWN = 14  # 1: parcels exchange heat by their own laws ([thermal] parcel_heat = "own", a comparison)
+NTI = 15
 # float thermal parameters
 TF_DFACTOR, TF_RADRANGE, TF_CT, TF_CN, TF_CHI = range(5)
 NTF = 8
@@ -64,6 +65,15 @@ def wall_temperature(wth, wtab, w, t):
             a = (t - wtab[w, k, 0]) / (wtab[w, k + 1, 0] - wtab[w, k, 0])
             return wtab[w, k, 1] + a * (wtab[w, k + 1, 1] - wtab[w, k, 1])
     return wtab[w, nt - 1, 1]
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def heat_cg(cg, thi):
+    """The coarse-graining factors the heat laws scale by: ``cg`` (empty without parcels), or
+    none when the scene asks for the parcels' own laws (thi[TI_CG_OWN], a comparison)."""
+    if thi[TI_CG_OWN] == 1:
+        return cg[:0]
+    return cg
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -103,7 +113,8 @@ def wall_radiation_now(P, C, W, TB, prm, nown, t, k, out):
     rad = prm.thi[TI_RAD]
     if rad < 0 or prm.thi[TI_WRAD] != 1:
         return
-    T, r, mat, x, por, tf, cgv = P.temperature, P.radius, P.material, P.position, P.por, P.tf, P.cg
+    T, r, mat, x, por, tf = P.temperature, P.radius, P.material, P.position, P.por, P.tf
+    cgv = heat_cg(P.cg, prm.thi)
     wth, wtab, tmat = W.wth, W.wtab, TB.tmat
     n = T.shape[0]
     acc0, acc1 = radiation_accumulators(rad, n, n, T, r, mat, tmat, C.nb, C.nnb, C.rnear)
@@ -204,7 +215,7 @@ def heat_step(P, C, W, TB, prm, n, nown, dt, t):
     wnb, wnn, Hw, tf, uf, por, qgen, qsrc, work = P.wnb, P.wnn, P.Hw, P.tf, P.uf, P.por, P.qgen, P.qsrc, P.work
     nb, nnb, Hd, Hi, rnear = C.nb, C.nnb, C.Hd, C.Hi, C.rnear
     wth, wtab, wtot, tmat, gas = W.wth, W.wtab, W.wtot, TB.tmat, TB.gas
-    Hwg, wgap, wrad, cgv = P.Hwg, W.wgap, W.wrad, P.cg
+    Hwg, wgap, wrad, cgv = P.Hwg, W.wgap, W.wrad, heat_cg(P.cg, prm.thi)
     has_wg = Hwg.shape[0] == n
     thi, tot, srcbox = prm.thi, prm.tot, prm.srcbox
     integ = thi[TI_INTEG]
@@ -408,7 +419,7 @@ def _implicit_step(P, C, W, TB, prm, m, dt, t, has_ind):
     conv = thi[TI_CONV]
     rad = thi[TI_RAD]
     n = T.shape[0]
-    Hwg, wgap, wrad, cgv = P.Hwg, W.wgap, W.wrad, P.cg
+    Hwg, wgap, wrad, cgv = P.Hwg, W.wgap, W.wrad, heat_cg(P.cg, thi)
     has_wg = Hwg.shape[0] == n
     b = np.zeros(m)   # Q(T^n), W
     dg = np.empty(m)  # C/dt + K, W/K

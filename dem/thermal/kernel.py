@@ -11,7 +11,7 @@ from . import registry as R
 from .convection import BIOT_LUMPED
 from .heat import (NTI, NTF, NTOT, TI_HEAT, TI_DIRECT, TI_CR, TI_CORR, TI_INDIRECT, TI_CONV, TI_RAD,
                    TI_FRIC, TI_PART, TI_INTEG, TI_AGE, TI_LOCALPOR, TI_FUSED, TF_DFACTOR, TF_RADRANGE, TF_CT,
-                   TF_CN, TF_CHI, WT_COND, WT_T, WT_Q, WT_NTAB, WT_EMIS, NWT, TI_WRAD, E_DIRECT, E_INDIRECT, E_CONV, E_RAD,
+                   TF_CN, TF_CHI, WT_COND, WT_T, WT_Q, WT_NTAB, WT_EMIS, NWT, TI_WRAD, TI_CG_OWN, E_DIRECT, E_INDIRECT, E_CONV, E_RAD,
                    E_GEN, E_SRC, E_WALL, local_porosity)
 
 MECHANISMS = ("direct", "indirect", "convection", "radiation", "generation", "sources")
@@ -79,6 +79,7 @@ class ThermalModel:
         thi[TI_LOCALPOR] = 1 if (self.local_porosity and not self.voronoi) else 0
         thi[TI_FUSED] = 1 if (sc.simulation["mechanics"] and th["integrator"] == "euler") else 0
         thi[TI_WRAD] = 1 if (th["radiation_id"] >= 0 and any(w["emissivity"] > 0 for w in th["walls"])) else 0
+        thi[TI_CG_OWN] = 1 if th["parcel_heat"] == "own" else 0
         self.thi = thi
         thf = np.zeros(NTF)
         thf[TF_DFACTOR] = th["direct_factor"]
@@ -123,8 +124,8 @@ class ThermalModel:
         for s in th["sources"]:
             if "power" in s:
                 # W per real particle: a parcel holds cg^3 of them
-                qsrc[st.group == s["group"]] += s["power"] * (st.cg[st.group == s["group"]] ** 3
-                                                               if st.cg.shape[0] else 1.0)
+                scaled = st.cg.shape[0] and th["parcel_heat"] == "scaled"
+                qsrc[st.group == s["group"]] += s["power"] * (st.cg[st.group == s["group"]] ** 3 if scaled else 1.0)
             else:
                 boxes.append(list(s["min"]) + list(s["max"]) + [s["power_density"]])
         st.enable(heat=True, contact_age=self.needs_age, friction_heat=bool(thi[TI_FRIC] >= 0),
@@ -175,7 +176,8 @@ class ThermalModel:
         st = self.state
         out = np.zeros(st.n)
         if self.thi[TI_CONV] >= 0:
-            convection_conductances(st.n, st.velocity, st.radius, st.cg, st.uf, st.por, self.gas,
+            cg = st.cg if self.thi[TI_CG_OWN] == 0 else st.cg[:0]
+            convection_conductances(st.n, st.velocity, st.radius, cg, st.uf, st.por, self.gas,
                                     int(self.thi[TI_CONV]), out)
         return out
 

@@ -36,7 +36,7 @@ from . import registry as R
 THERMAL_KEYS = {"initial_temperature", "direct", "contact_radius", "correction", "direct_factor",
                 "indirect", "porosity", "convection", "radiation", "friction_heat", "partition",
                 "integrator", "time_step", "sources", "impact_heat_ct", "impact_heat_cn",
-                "friction_heat_chi", "initial_regions", "quadrature_tolerance"}
+                "friction_heat_chi", "initial_regions", "quadrature_tolerance", "parcel_heat"}
 INTEGRATORS = {"euler": 0, "exponential": 1, "implicit": 2}
 WALL_CONDITIONS = {"adiabatic": 0, "fixed_temperature": 1, "fixed_heat_flux": 2}
 
@@ -85,6 +85,10 @@ def parse_thermal(v, sc, data):
     th["friction_heat"], th["friction_id"] = _model(v, t, "friction_heat", "friction", "none")
     th["partition"], th["partition_id"] = _model(v, t, "partition", "partition", "equal")
     _check_coarse_graining(v, sc, th)
+    # "scaled" (default): parcels exchange heat as their real particles do (docs/models.md, "Coarse
+    # graining"); "own": by their own laws, as a particle of the parcel's size would (a comparison:
+    # what a code without the thermal scaling computes)
+    th["parcel_heat"] = v.string(t, "parcel_heat", "thermal", default="scaled", choices=["scaled", "own"])
     th["direct_factor"] = v.num(t, "direct_factor", "thermal", default=1.0, lo=0)
     th["porosity"] = v.string(t, "porosity", "thermal", default="local", choices=["local", "global", "voronoi"])
     th["impact_ct"] = v.num(t, "impact_heat_ct", "thermal", default=0.0, lo=0, hi=1)
