@@ -205,7 +205,10 @@ def bubbling(cg, folder, end, own=False):
         print(f"  bubbling bed {tag}: {n} parcels at {u:.3f} m/s, {end:g} s in {time.perf_counter() - t0:.0f} s",
               flush=True)
     c = np.genfromtxt(os.path.join(out, "coupling.csv"), delimiter=",", names=True)
-    return c, n
+    import json
+    with open(os.path.join(out, "timings.json")) as fh:
+        wall = float(json.load(fh)["wall_total"])
+    return c, n, wall
 
 
 def bubbling_table(folder, end, cgs=(1, 2, 3), t_avg=0.15):
@@ -213,14 +216,15 @@ def bubbling_table(folder, end, cgs=(1, 2, 3), t_avg=0.15):
     res = {k: bubbling(k[0], folder, end, k[1]) for k in runs}
     print(f"Bubbling bed heated by the gas: the main case with beads of 1 mm ({N_FINE} of them at cg = 1), "
           f"to {end:g} s; means over t >= {t_avg:g} s (own: the parcels' own heat laws, no thermal scaling)")
-    print("| cg | parcel heat | parcels | T rise at the end [K] | / cg=1 | largest over t >= 0.1 s | "
+    print("| cg | parcel heat | parcels | wall [s] | T rise at the end [K] | / cg=1 | largest over t >= 0.1 s | "
           "heat to the particles [J] | / cg=1 | bed height [mm] | / cg=1 | dp [Pa] | / cg=1 |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    wp = {}
     ref = None
     c1 = res[runs[0]][0]
     for key in runs:
         cg = key[0]
-        c, n = res[key]
+        c, n, wall = res[key]
         late = c["time"] >= t_avg - 1e-12
         row = (c["T_particles"][-1] - c["T_particles"][0], c["E_conv_particles"][-1],
                1e3 * c["bed_height"][late].mean(), c["dp"][late].mean())
@@ -230,10 +234,40 @@ def bubbling_table(folder, end, cgs=(1, 2, 3), t_avg=0.15):
         rise1 = c1["T_particles"][t1] - c1["T_particles"][0]
         rise = np.interp(c1["time"][t1], c["time"], c["T_particles"]) - c["T_particles"][0]
         dev = float(np.max(np.abs(rise / rise1 - 1.0)))
-        print(f"| {cg} | {'own' if key[1] else 'scaled'} | {n} | {row[0]:.4f} | {row[0] / ref[0]:.3f} | {dev:.3f} | "
+        wp[key] = (wall, dev)
+        print(f"| {cg} | {'own' if key[1] else 'scaled'} | {n} | {wall:.0f} | {row[0]:.4f} | {row[0] / ref[0]:.3f} | "
+              f"{dev:.3f} | "
               f"{row[1]:.4g} | {row[1] / ref[1]:.3f} | "
               f"{row[2]:.2f} | {row[2] / ref[2]:.3f} | {row[3]:.1f} | {row[3] / ref[3]:.3f} |", flush=True)
+    plot_work_precision(wp, os.path.join(os.path.dirname(HERE), "docs", "coarse_graining.png"))
     return res
+
+
+def plot_work_precision(wp, path):
+    """Run time against the error of the bed's heating (the largest deviation of the mean
+    temperature rise from the fine bed's after 0.1 s), scaled and own heat laws."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for own, style, label in ((False, "o-", "scaled heat laws"), (True, "s--", "own heat laws (no thermal scaling)")):
+        keys = sorted(k for k in wp if k[1] == own and k[0] > 1)
+        ax.plot([wp[k][0] for k in keys], [wp[k][1] for k in keys], style, label=label)
+        for k in keys:
+            ax.annotate(f"cg {k[0]}", (wp[k][0], wp[k][1]), textcoords="offset points", xytext=(4, 4))
+    fine = [v[0] for k, v in wp.items() if k[0] == 1]
+    if fine:
+        ax.axvline(fine[0], color="k", lw=0.8, label=f"the fine bed (cg = 1, the reference): {fine[0]:.0f} s")
+    ax.axhline(0.03, color="grey", lw=0.8, ls=":", label="3 % (issue 15's bound)")
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("wall time for 0.5 s of the bubbling bed [s]")
+    ax.set_ylabel("largest |dT/dT_fine - 1| of the mean rise, t >= 0.1 s")
+    ax.legend(fontsize=8)
+    ax.set_title("Coarse graining: run time against the error of the bed's heating", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    print(f"wrote {path}")
 
 
 def main():
