@@ -334,6 +334,9 @@ def particle_digests(scene):
              group=_digest(np.asarray(scene.group, np.int32)[order]))
     if scene.thermal is not None:
         d["temperature"] = _digest(np.asarray(scene.thermal["temperature"], float)[order])
+    cg = getattr(scene, "coarse_graining", None)
+    if cg is not None and np.any(cg != 1.0):   # parcels (a scene without them records nothing new)
+        d["coarse_graining"] = _digest(np.asarray(cg, float)[order])
     scene.particle_digests = d  # a Scene holds plain validated data: a public, derived entry
     return d
 
@@ -442,7 +445,8 @@ def plan_restart(sim, ck_path, arrays, record):
 
 
 def _plan_particles(sim, ck_path, record, now):
-    labels = dict(ids="particle ids", radius="radii", material="materials of the particles",
+    labels = dict(ids="particle ids", coarse_graining="coarse-graining factors (particles[].coarse_graining)",
+                  radius="radii", material="materials of the particles",
                   position="initial positions", velocity="initial velocities",
                   angular_velocity="initial angular velocities", group="particle groups",
                   temperature="initial temperatures (thermal.initial_temperature, initial_regions or "

@@ -434,7 +434,7 @@ def test_million_bead_case_passes_its_checks(tmp_path):
 def test_parcels_stopped_and_continued_equal_one_run(tmp_path):
     """Through the command line: the parcel bed run to 0.01 s and continued to 0.02 s (--restart)
     ends bit for bit where one run does, with the same wall_heat.csv; a restart that changes the
-    factor is refused by name (the parcels' radii are initial conditions)."""
+    factor is refused, naming it (the parcels are initial conditions)."""
     scene = str(ROOT / "tests" / "scenes" / "cg_heat_bed.toml")
 
     def dem(*args, scene_file=scene):
@@ -449,4 +449,6 @@ def test_parcels_stopped_and_continued_equal_one_run(tmp_path):
     edited = tmp_path / "edited.toml"
     edited.write_text(Path(scene).read_text().replace("coarse_graining = 2.0", "coarse_graining = 3.0"))
     r = dem("--out", "two", "--restart", "two/checkpoint.npz", "--end-time", "0.03", scene_file=str(edited))
-    assert r.returncode == 2 and "edited.toml" in r.stderr + r.stdout and "radii differ" in r.stderr + r.stdout
+    out = r.stderr + r.stdout
+    assert r.returncode == 2 and "edited.toml" in out and "coarse-graining factors (particles[].coarse_graining) " \
+        "differ from the scene that wrote the checkpoint" in out
