@@ -78,7 +78,8 @@ class ThermalModel:
         # porosity is computed in Python at start-up and at each spatial reordering
         thi[TI_LOCALPOR] = 1 if (self.local_porosity and not self.voronoi) else 0
         thi[TI_FUSED] = 1 if (sc.simulation["mechanics"] and th["integrator"] == "euler") else 0
-        thi[TI_WRAD] = 1 if (th["radiation_id"] >= 0 and any(w["emissivity"] > 0 for w in th["walls"])) else 0
+        from .wall_heat import radiating_walls
+        thi[TI_WRAD] = 1 if any(radiating_walls(sc)) else 0
         thi[TI_CG_OWN] = 1 if th["parcel_heat"] == "own" else 0
         self.thi = thi
         thf = np.zeros(NTF)

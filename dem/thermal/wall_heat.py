@@ -25,7 +25,6 @@ import os
 import numpy as np
 
 MECHANISMS = ("contact", "gas_gap", "radiation", "gas_convection", "total")
-PATHS = ("contact", "gas_gap", "radiation")   # the particles' paths (DEM records)
 COLUMNS = ("time", "wall", "mechanism", "energy_J", "heat_rate_W", "heat_flux_W_m2", "area_m2")
 
 
