@@ -25,9 +25,9 @@ import numpy as np
 from numba import njit
 
 from .convection import convection_conductance, nusselt_gas
-from .radiation import (SIGMA_SB, radiation_accumulate, radiation_env_temperature, radiation_pp_heat,
-                        radiation_heat, radiation_wall_weight, radiation_wall_accumulate,
-                        radiation_env_temperature_walls, radiation_wall_omega, radiation_wall_rate)
+from .radiation import (SIGMA_SB, radiation_accumulate, radiation_env_temperature, radiation_heat,
+                        radiation_wall_weight, radiation_wall_accumulate, radiation_env_temperature_walls,
+                        radiation_wall_omega, radiation_wall_rate)
 from .registry import EMISSIVITY, KF, RHO_F, MU_F, PR, RAD_KRAUSE_2017
 from .implicit import jacobi_pcg, CG_RTOL
 from ..neighbors import pair_distance
@@ -478,19 +478,22 @@ def _implicit_step(P, C, W, TB, prm, m, dt, t, has_ind):
         wall_radiation_weights(rad, m, x, r, W.wf, W.wi, wth, wtab, t, prm.thf[TF_RADRANGE], wgt, aw0, aw1)
     if rad >= 0:
         for i in range(m):
-            if wr and aw1[i] > 0.0:
+            walls_i = wr and aw1[i] > 0.0
+            if walls_i:
                 te = radiation_env_temperature_walls(rad, acc0[i], acc1[i], aw0[i], aw1[i], por[i], tf[i], T[i])
-                qrad[i] = radiation_heat(own_emissivity(tmat, mat, cgv, i), r[i], te, T[i])
+            else:
+                te = radiation_env_temperature(rad, acc0[i], acc1[i], por[i], tf[i], T[i])
+            eps_i = own_emissivity(tmat, mat, cgv, i)
+            qrad[i] = radiation_heat(eps_i, r[i], te, T[i])
+            if walls_i:
                 for w in range(nw):
                     if wgt[i, w] > 0.0:
                         om[i, w] = radiation_wall_omega(rad, wgt[i, w], acc1[i], aw1[i])
-                        qw[i, w] = radiation_wall_rate(rad, own_emissivity(tmat, mat, cgv, i), r[i], T[i], te, om[i, w],
+                        qw[i, w] = radiation_wall_rate(rad, eps_i, r[i], T[i], te, om[i, w],
                                                        wall_temperature(wth, wtab, w, t))
-                krad[i] = 4.0 * own_emissivity(tmat, mat, cgv, i) * SIGMA_SB * 4.0 * math.pi * r[i] * r[i] * T[i] ** 3
-            else:
-                qrad[i] = radiation_pp_heat(rad, own_emissivity(tmat, mat, cgv, i), r[i], T[i], acc0[i], acc1[i], por[i], tf[i])
-                if not (rad == RAD_KRAUSE_2017 and acc1[i] == 0.0):  # (krause without neighbour: T_e = T_i, no heat)
-                    krad[i] = 4.0 * own_emissivity(tmat, mat, cgv, i) * SIGMA_SB * 4.0 * math.pi * r[i] * r[i] * T[i] ** 3
+            # (krause with nothing in range: T_e = T_i, no heat and no tangent)
+            if walls_i or not (rad == RAD_KRAUSE_2017 and acc1[i] == 0.0):
+                krad[i] = 4.0 * eps_i * SIGMA_SB * 4.0 * math.pi * r[i] * r[i] * T[i] ** 3
             dg[i] += krad[i]
             b[i] += qrad[i]
     # explicit heat: generation, sources
