@@ -284,8 +284,8 @@ def load_case(case_dir, *, build_sim: bool = True) -> CoupledCase:
             scene = scene_mod.load(str(dem_file), end_time=end)
         except SceneError as e:
             raise CaseConfigError(dem_file, str(e).split(": ", 1)[-1]) from None
-        cgs = getattr(scene, "coarse_graining", None)
-        if cgs is not None and np.any(cgs != 1.0):
+        cgs = scene_mod.parcel_factors(scene)
+        if cgs is not None:
             for key, val in (("torque", cfg.torque), ("lift", cfg.lift)):
                 if val != "none":
                     raise CaseConfigError(cfg_file, f"{key} = \"{val}\" with coarse-grained particles "
@@ -604,7 +604,7 @@ def check_coupled_case(case: CoupledCase, mesh, *, eps0: np.ndarray | None = Non
         warnings.append(f"gas CFL {cfl:.3g} > {GAS_CFL[0]}")
     # --- Biot number of the particles in the case's gas stream
     # (parcels: the real particles' diameter, whose laws they follow; docs/models.md "Coarse graining")
-    d_real = d / st.cg[:n] if st.cg.shape[0] else d
+    d_real = 2 * st.real_radius(n)
     if thermal is not None and cfg.heat:
         _biot_check(case, thermal, umax, d_real, eps0, cells, n, vals, warnings)
     # --- particle Courant number: displacement per coupling step / cell size

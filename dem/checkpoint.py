@@ -28,7 +28,7 @@ import os
 
 import numpy as np
 
-from .scene import SceneError
+from .scene import SceneError, parcel_factors
 
 FORMAT = "thermodem-checkpoint"
 FORMAT_VERSION = 1
@@ -334,8 +334,8 @@ def particle_digests(scene):
              group=_digest(np.asarray(scene.group, np.int32)[order]))
     if scene.thermal is not None:
         d["temperature"] = _digest(np.asarray(scene.thermal["temperature"], float)[order])
-    cg = getattr(scene, "coarse_graining", None)
-    if cg is not None and np.any(cg != 1.0):   # parcels (a scene without them records nothing new)
+    cg = parcel_factors(scene)
+    if cg is not None:   # parcels (a scene without them records nothing new)
         d["coarse_graining"] = _digest(np.asarray(cg, float)[order])
     scene.particle_digests = d  # a Scene holds plain validated data: a public, derived entry
     return d

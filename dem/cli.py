@@ -23,8 +23,9 @@ def cmd_check(args):
     p(f"particles: {rep['particles']}  walls: {rep['walls']}  materials: {rep['materials']}")
     p(f"radius: {rep['radius_min']:.4g} .. {rep['radius_max']:.4g} m   mass: {rep['mass_min']:.4g} .. "
       f"{rep['mass_max']:.4g} kg (total {rep['mass_total']:.4g} kg)")
-    cgs = getattr(sim.scene, "coarse_graining", None)
-    if cgs is not None and (cgs != 1.0).any():
+    from .scene import parcel_factors
+    cgs = parcel_factors(sim.scene)
+    if cgs is not None:
         import numpy as np
         for g in np.unique(sim.scene.group):
             c = float(cgs[sim.scene.group == g][0])

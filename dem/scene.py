@@ -191,6 +191,13 @@ class Scene:
         self.__dict__.update(kw)
 
 
+def parcel_factors(sc):
+    """The coarse-graining factor of each particle of scene ``sc`` (issue 15), or None when every
+    one is 1: no parcels, and the run is exactly the one without the key."""
+    cg = getattr(sc, "coarse_graining", None)
+    return cg if cg is not None and np.any(cg != 1.0) else None
+
+
 def _read_particle_file(v, fname, path, base_dir):
     """A packing file (dem.particle_file): every cell checked, problems named by line/row
     and column under the key ``particles[k].file``."""

@@ -46,8 +46,8 @@ class Simulation:
                            scene.radius, scene.material, scene.group, [m["density"] for m in mats],
                            walls=len(scene.walls))
         st = self.state
-        cgs = getattr(scene, "coarse_graining", None)
-        if cgs is not None and np.any(cgs != 1.0):   # cg = 1 everywhere: exactly the run without
+        cgs = scene_mod.parcel_factors(scene)
+        if cgs is not None:   # cg = 1 everywhere: exactly the run without
             st.enable(coarse_graining=True)
             st.cg[:] = cgs
         st.lo = np.ascontiguousarray(scene.domain["min"], float)

@@ -75,6 +75,12 @@ class State:
         return [f.name for f in S.FIELDS if f.owner == owner and S.enabled(f, self.features)
                 and all(bool(getattr(f, k)) == v for k, v in flags.items())]
 
+    def real_radius(self, n):
+        """The radii of the real particles of rows [0, n): r / cg for a parcel (dem.schema cg),
+        r otherwise."""
+        r = self.radius[:n]
+        return r / self.cg[:n] if self.cg.shape[0] else r
+
     def heat_totals(self):
         """Copies of the run's heat totals: the checkpointed wall and parameter arrays of
         dem.schema (per mechanism, per wall and path)."""

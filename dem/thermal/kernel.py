@@ -283,7 +283,7 @@ class ThermalModel:
         por = np.asarray(por, float)
         n = re.shape[0]
         nu = np.array([nusselt_gas(corr, float(re[i]), g[R.PR], float(por[i]), g) for i in range(n)])
-        r = st.radius[:n] / st.cg[:n] if st.cg.shape[0] else st.radius[:n]   # a parcel's real particles
+        r = st.real_radius(n)   # a parcel's real particles
         h = nu * g[R.KF] / (2 * r)
         kp = self.tmat[st.material[:n], R.K_COND]
         return nu, h, biot_lumped(h, r, kp)

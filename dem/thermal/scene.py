@@ -275,8 +275,9 @@ CG_REFUSED = {}   # every model of the catalogue has its scaling
 
 def _check_coarse_graining(v, sc, th):
     """Coarse-grained groups (issue 15): refuse what has no derived scaling, naming the model."""
-    cg = getattr(sc, "coarse_graining", None)
-    if cg is None or not np.any(cg != 1.0):
+    from ..scene import parcel_factors
+    cg = parcel_factors(sc)
+    if cg is None:
         return
     k = int(np.flatnonzero(cg != 1.0)[0])
     where = f"particles[{int(sc.group[k])}].coarse_graining"
