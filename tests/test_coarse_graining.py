@@ -312,6 +312,20 @@ def test_dem_check_reports_the_parcels(tmp_path):
            "1 parcels = 8 real particles" in r.stdout
 
 
+def test_dem_check_warns_of_a_period_few_parcels_across(tmp_path):
+    """A periodic axis of 20 mm is 20 diameters of these 1 mm beads, but 5 parcel diameters at
+    cg = 4: dem check warns (naming the axis, the count and the length to give), and says nothing
+    for the fine bed in the same domain."""
+    per = BASE.replace('max = [0.02, 0.02, 0.02]\n', 'max = [0.02, 0.02, 0.02]\nperiodic = [false, true, false]\n')
+    r = _check(tmp_path, per.format(cg=4.0, direct="batchelor_obrien", more=""))
+    assert r.returncode == 0, r.stdout + r.stderr
+    w = [ln for ln in r.stdout.splitlines() if ln.startswith("warning:")]
+    assert len(w) == 1 and "axis y is periodic over 0.02 m, 5 parcel diameters" in w[0], r.stdout
+    assert "at least 10 parcel diameters (0.04 m)" in w[0]
+    r = _check(tmp_path, per.format(cg=1.0, direct="batchelor_obrien", more=""))
+    assert r.returncode == 0 and "parcel diameters" not in r.stdout, r.stdout + r.stderr
+
+
 def test_parcels_on_two_ranks_equal_serial(tmp_path):
     """A settling bed of parcels (cg = 2) heated by a radiating floor, the gas and conduction: 2
     MPI ranks give the serial run's temperatures, positions and factors bit for bit (the factor
