@@ -221,7 +221,8 @@ class Diagnostics:
 
     @staticmethod
     def row_of(diag, t, step, sim, iface, fluid, frame, wall):
-        """Particle sums of this rank, summed over the ranks; rank 0 (diag) writes the row."""
+        """Particle sums of this rank, summed over the ranks; rank 0 (diag) writes the row. The
+        particles' energy and convective heat are particle_records' (the balance's own)."""
         st = sim.state
         n = st.n_owned
         loc = np.zeros(7)
@@ -231,10 +232,7 @@ class Diagnostics:
         loc[4] = n
         loc[6] = iface.n_lost
         if sim.thermal is not None:
-            C = 1.0 / st.inv_heat_capacity[:n]
-            loc[0] = float((C * st.temperature[:n]).sum())
-            loc[1] = float(C.sum())
-            loc[2] = float(sim.thermal.tot[2])
+            loc[1] = float((1.0 / st.inv_heat_capacity[:n]).sum())
         if sim.par is not None:
             vmax = sim.par.allmax(loc[5])
             loc = sim.par.allsum(loc)
@@ -243,15 +241,17 @@ class Diagnostics:
         if diag is not None:
             diag.row(t, step, sim, iface, fluid, frame, wall, loc, precs)
 
-    def row(self, t, step, sim, iface, fluid, frame, wall, sums, precs=None):
+    def row(self, t, step, sim, iface, fluid, frame, wall, sums, precs):
+        """One coupling.csv row: ``sums`` = [-, sum C, -, sum z, n, max |v|, n lost] over the
+        ranks, ``precs`` = particle_records."""
         V = self.mesh.cell_volumes
         g = self.gas
         eps = frame["eps"]
         T = fluid["T"]
         if sim.thermal is not None:
-            Ep = float(sums[0])
-            Tp = float(sums[0] / sums[1])
-            Ec = float(sums[2])
+            Ep = float(precs[0])
+            Tp = float(precs[0] / sums[1])
+            Ec = float(precs[1])
         else:
             Tp = Ep = Ec = float("nan")
         mg = g.rho * g.cp * eps * V
