@@ -980,6 +980,6 @@ def _parcel_period_warnings(sc):
             out.append(f"axis {'xyz'[ax]} is periodic over {L:g} m, {L / d:.3g} parcel diameters: the periodic "
                        f"images order a packing of parcels this few across (a poured bed's coordination number, "
                        f"and its contact conduction, came out 6 to 15 % high over 3 to 6 parcel diameters, within "
-                       f"2 % over 12; docs/benchmarks.md, Coarse graining); make domain along {'xyz'[ax]} at "
+                       f"2 % over 12; docs/benchmarks.md, Coarse graining); make the domain along {'xyz'[ax]} at "
                        f"least {PARCEL_PERIOD_DIAMETERS:g} parcel diameters ({PARCEL_PERIOD_DIAMETERS * d:.3g} m)")
     return out
