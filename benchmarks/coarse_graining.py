@@ -102,10 +102,11 @@ def settle(cg, n_real, L, folder, seed=7):
     return x, el
 
 
-def contacts(x, cg, L):
-    """(coordination number, mean real contact radius sqrt(R* delta / cg)) of the parcels in the
-    middle of the bed (the Hertz contact radius of the real particles: their overlap is the
-    parcel's / cg)."""
+def packing(x, cg, L):
+    """(bed top H, solid fraction, coordination number, mean real contact radius
+    sqrt(R* delta / cg)) of a packing; the last three of the parcels in the middle of the bed
+    (0.2-0.8 L across, 0.2-0.7 H high; the Hertz contact radius of the real particles: their
+    overlap is the parcel's / cg)."""
     from scipy.spatial import cKDTree
     Rp = cg * R
     LY = depth(cg)
@@ -116,10 +117,11 @@ def contacts(x, cg, L):
     d = np.linalg.norm(xs[pairs[:, 0]] - xs[pairs[:, 1]], axis=1)
     H = float((x[:, 2] + Rp).max())
     mid = (x[:, 0] > 0.2 * L) & (x[:, 0] < 0.8 * L) & (x[:, 2] > 0.2 * H) & (x[:, 2] < 0.7 * H)
+    phi = mid.sum() * 4 / 3 * math.pi * Rp ** 3 / (0.6 * L * LY * 0.5 * H)
     ends = np.c_[pairs[:, 0], pairs[:, 1] % n]
     z = (mid[ends[:, 0]].sum() + mid[ends[:, 1]].sum()) / mid.sum()
     inm = mid[ends[:, 0]]
-    return float(z), float(np.sqrt(0.5 * R * (2 * Rp - d[inm]) / cg).mean())
+    return H, float(phi), float(z), float(np.sqrt(0.5 * R * (2 * Rp - d[inm]) / cg).mean())
 
 
 def conductivity(x, cg, L, direct, indirect, kp):
@@ -332,12 +334,9 @@ def main():
     for cg in cgs:
         phis, tops, zs, rcs = [], [], [], []
         for sd in seeds[cg]:
-            x = packs[cg, sd]
-            H = float((x[:, 2] + cg * R).max())
-            mid = (x[:, 0] > 0.2 * L) & (x[:, 0] < 0.8 * L) & (x[:, 2] > 0.2 * H) & (x[:, 2] < 0.7 * H)
-            phis.append(mid.sum() * 4 / 3 * math.pi * (cg * R) ** 3 / (0.6 * L * depth(cg) * 0.5 * H))
+            H, phi, z, rc = packing(packs[cg, sd], cg, L)
             tops.append(H)
-            z, rc = contacts(x, cg, L)
+            phis.append(phi)
             zs.append(z)
             rcs.append(rc)
         print(f"  cg {cg}: {len(packs[cg, seeds[cg][0]])} parcels x {len(seeds[cg])} packings, bed top "
