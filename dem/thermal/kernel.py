@@ -125,8 +125,9 @@ class ThermalModel:
         for s in th["sources"]:
             if "power" in s:
                 # W per real particle: a parcel holds cg^3 of them
+                sel = st.group == s["group"]
                 scaled = st.cg.shape[0] and th["parcel_heat"] == "scaled"
-                qsrc[st.group == s["group"]] += s["power"] * (st.cg[st.group == s["group"]] ** 3 if scaled else 1.0)
+                qsrc[sel] += s["power"] * (st.cg[sel] ** 3 if scaled else 1.0)
             else:
                 boxes.append(list(s["min"]) + list(s["max"]) + [s["power_density"]])
         st.enable(heat=True, contact_age=self.needs_age, friction_heat=bool(thi[TI_FRIC] >= 0),
