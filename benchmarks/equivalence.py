@@ -76,7 +76,7 @@ def collect(quick=False):
     sim.run(end_time=steps * sim.dt, progress=False)
     T = sim.state.temperature[:sim.state.n_owned]
     x = sim.state.position[:sim.state.n_owned, 0]
-    xm = 0.5 * (sim.lo[0] + sim.hi[0])
+    xm = 0.5 * (sim.state.lo[0] + sim.state.hi[0])
     order = np.argsort(sim.state.id[:sim.state.n_owned])
     res["shared_bed_heat_10k"] = dict(columns=[], history=[[float(T[x < xm].mean()), float(T[x >= xm].mean())]],
                                       sha={"temperature": hashlib.sha256(T[order].tobytes()).hexdigest()},

@@ -363,7 +363,7 @@ def scene_record(sim):
     from . import schema as S
     return dict(particles=dict(n=int(sim.n_particles), digests=particle_digests(sc)),
                 step_count=int(sim.step_count), time=float(sim.time), dt=float(sim.dt),
-                reach=float(sim.reach), simulation=simulation, domain=_plain(sc.domain),
+                reach=float(sim.world.reach), simulation=simulation, domain=_plain(sc.domain),
                 contact=_plain(sc.contact), materials=mats, walls=walls, thermal=thermal,
                 features={k: bool(v) for k, v in sim.state.features.items()
                           if k not in S.COUPLING_FEATURES},
@@ -592,10 +592,10 @@ def _check_added_wall(sim, ck_path, arrays, record, k, name):
     from .stats import max_overlap_ratio
     x, r = arrays["state_position"], arrays["state_radius"]
     n = r.shape[0]
-    wf = np.ascontiguousarray(sim.wf[k:k + 1])
-    wi = np.ascontiguousarray(sim.wi[k:k + 1])
-    ov = max_overlap_ratio(n, x, r, np.zeros((n, 1), np.int32), np.zeros(n, np.int32), sim.lo, sim.hi,
-                           sim.periodic, wf, wi, 1, float(record["time"]))
+    wf = np.ascontiguousarray(sim.state.wf[k:k + 1])
+    wi = np.ascontiguousarray(sim.state.wi[k:k + 1])
+    ov = max_overlap_ratio(n, x, r, np.zeros((n, 1), np.int32), np.zeros(n, np.int32), sim.state.lo, sim.state.hi,
+                           sim.state.periodic, wf, wi, 1, float(record["time"]))
     bound = sim.scene.simulation["max_overlap_ratio"]
     if ov > bound:
         raise SceneError(sim.scene.file, f"walls[{name}]",

@@ -105,7 +105,7 @@ def cmd_run(args):
     wall = time.perf_counter() - t0
     steps = sim.step_count
     n = sim.n_particles
-    stats = sim.par.stats(sim) if sim.par is not None else None
+    stats = sim.par.stats(sim.world) if sim.par is not None else None
     if sim.is_root:
         ranks = f" on {sim.par.size} ranks ({sim.par.describe()})" if sim.par is not None else ""
         if stats:
@@ -183,7 +183,7 @@ def _compile_parallel_entry_points(sim):
     from .thermal.heat import cross_rates
     st = sim.state
     sim.warmup()
-    K.outside(st.position, sim.lo, sim.hi, sim.periodic, st.n_owned)
+    K.outside(st.position, sim.state.lo, sim.state.hi, sim.state.periodic, st.n_owned)
     cross_rates(st.n_owned, st.inv_heat_capacity, st.nb, st.nnb, st.Hd, st.Hi, st.work)
 
 

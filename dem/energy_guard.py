@@ -117,18 +117,20 @@ def _spring_energy(model, delta, rstar, mstar, estar, gstar, mu, lin_kn, vchar, 
     return en + 0.5 * min(st * h2, (mu * fn) ** 2 / st)
 
 
-def inputs_of(sim):
-    """Why the system is not closed (a list of reasons; empty: the guard applies)."""
+def inputs_of(world):
+    """Why the system is not closed (a list of reasons; empty: the guard applies); ``world``:
+    dem.world.World."""
     why = []
-    if not sim.scene.simulation["mechanics"]:
+    st = world.state
+    if not world.scene.simulation["mechanics"]:
         why.append("mechanics frozen")
-    nw = sim.nwalls
-    if nw and (np.any(sim.wf[:nw, VX:VX + 3] != 0.0) or np.any(sim.wf[:nw, OX:OX + 3] != 0.0)):
+    nw = world.nwalls
+    if nw and (np.any(st.wf[:nw, VX:VX + 3] != 0.0) or np.any(st.wf[:nw, OX:OX + 3] != 0.0)):
         why.append("a wall moves or turns")
-    g = np.asarray(sim.fp[1:4])
-    if np.any(sim.periodic & (g != 0.0)):
+    g = np.asarray(st.fp[1:4])
+    if np.any(st.periodic & (g != 0.0)):
         why.append("gravity along a periodic axis")
-    if sim.state.features.get("fluid"):
+    if st.features.get("fluid"):
         why.append("fluid forces")
     return why
 
@@ -139,7 +141,7 @@ class EnergyGuard:
     def __init__(self, sim, tolerance=None):
         self.sim = sim
         self.tolerance = GAIN_TOLERANCE if tolerance is None else tolerance
-        self.why_off = inputs_of(sim)
+        self.why_off = inputs_of(sim.world)
         self.max_ratio = -math.inf  # largest gain / scale seen (for measuring the tolerance)
         self.prev = None
         if not self.why_off:
@@ -158,7 +160,7 @@ class EnergyGuard:
         out = np.zeros((nown, 3))
         P, C, W, TB, prm = st.bundles()
         el = particle_energies(P, C, W, TB, prm, nown, s.time, out)
-        g = float(np.linalg.norm(s.fp[K.F_GX:K.F_GZ + 1]))
+        g = float(np.linalg.norm(st.fp[K.F_GX:K.F_GZ + 1]))
         tot = np.array([out[:, 0].sum(), out[:, 1].sum(), el, float(np.sum(st.mass[:nown])) * g])
         if s.par is not None:
             tot = s.par.allsum(tot)
@@ -169,8 +171,8 @@ class EnergyGuard:
         """Compare with the previous check; raise SimulationError on a gain above tolerance."""
         if not self.active:
             return
-        if inputs_of(self.sim):  # fluid forces were set since (a coupled run): not closed any more
-            self.why_off = inputs_of(self.sim)
+        if inputs_of(self.sim.world):  # fluid forces were set since (a coupled run): not closed any more
+            self.why_off = inputs_of(self.sim.world)
             return
         cur = self._measure()
         s0, t0, ids0, e0, tot0 = self.prev
@@ -183,13 +185,13 @@ class EnergyGuard:
         moving = max(tot0[0] + tot0[2], tot1[0] + tot1[2])
         scale = moving + abs(tot1[1] - tot0[1])
         sim = self.sim
-        floor = ROUNDOFF * (tot1[3] * float(np.max(sim.hi - sim.lo)) + moving) + 1e-300
+        floor = ROUNDOFF * (tot1[3] * float(np.max(sim.state.hi - sim.state.lo)) + moving) + 1e-300
         gain = E1 - E0
         ratio = gain / max(scale, floor)
         self.max_ratio = max(self.max_ratio, ratio)
         if gain <= self.tolerance * scale + floor:
             return
-        from .simulation import SimulationError
+        from .errors import SimulationError
         raise SimulationError(self._message(gain, scale, s0, t0, s1, t1, ids0, e0, ids1, e1))
 
     def _message(self, gain, scale, s0, t0, s1, t1, ids0, e0, ids1, e1):

@@ -142,7 +142,7 @@ def check_insertion(v, key, region, count, rmax, force):
 def check_scene(scene):
     """Raise SceneError when the estimated memory of ``scene`` exceeds the available memory
     (unless simulation.force = true). Returns the estimate (scene_bytes)."""
-    from .scene import SceneError
+    from .errors import SceneError
     est = scene_bytes(scene)
     if est["grid"] > est["particles"]:
         what = (f"neighbour grid {fmt(est['grid'])}: {est['cells']:.3g} cells of the "

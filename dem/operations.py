@@ -418,7 +418,7 @@ def execute(sim, operations, end_step):
     the FAIL operations and is raised again. Returns the :class:`Run`."""
     from .chunks import ChunkClock, agree
     from .interrupt import StopRequested, StopSignals
-    from .simulation import SimulationError
+    from .errors import SimulationError
     run = Run(sim, operations, end_step)
     for op in run.operations:
         op.start(run)

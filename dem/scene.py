@@ -10,14 +10,8 @@ import tomllib
 import numpy as np
 
 from .contact.registry import CONTACT_MODELS, ROLLING_MODELS, DAMPING_MODELS
-
-
-class SceneError(ValueError):
-    """Invalid scene: ``file: key.path: message``."""
-
-    def __init__(self, file, path, message):
-        self.file, self.path, self.message = file, path, message
-        super().__init__(f"{file}: {path}: {message}" if path else f"{file}: {message}")
+from .errors import SceneError
+from .parcels import parcel_factors
 
 
 _NUM = (int, float)
@@ -189,13 +183,6 @@ class Scene:
 
     def __init__(self, **kw):
         self.__dict__.update(kw)
-
-
-def parcel_factors(sc):
-    """The coarse-graining factor of each particle of scene ``sc`` (issue 15), or None when every
-    one is 1: no parcels, and the run is exactly the one without the key."""
-    cg = getattr(sc, "coarse_graining", None)
-    return cg if cg is not None and np.any(cg != 1.0) else None
 
 
 def _read_particle_file(v, fname, path, base_dir):

@@ -178,7 +178,7 @@ def _falling_sphere(added_mass: bool, dt: float, t_end: float):
     beta = 3 * math.pi * mu * d
     sim.set_fluid(force=np.array([[0.0, 0.0, rho_f * vp * 9.81]]), drag=np.array([beta]),
                   added_mass=np.array([C_VM * rho_f * vp]) if added_mass else None)
-    sim._advance(0)   # the forces of time 0 with the fluid force
+    sim.step(0)   # the forces of time 0 with the fluid force
     ts, vs = [], []
     steps = int(round(t_end / dt))
     every = steps // 20

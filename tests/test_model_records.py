@@ -218,7 +218,7 @@ def test_byc_in_a_heat_scene_and_dem_check():
     sim = Simulation.from_dict(sc)
     runs = "\n".join(sim.check()["runs"])
     assert "direct conduction: bahrami_2006_rough_sphere (contact radius hertz_overlap" in runs
-    H = sim.Hd[sim.Hd > 0]
+    H = sim.state.Hd[sim.state.Hd > 0]
     assert H.size == 1
     rc = math.sqrt(0.5 * R * 2e-6)
     Es = 1.0 / (2 * (1 - 0.3 ** 2) / 2e9)

@@ -111,7 +111,7 @@ def test_two_particle_relaxation_discrete_formula():
     sim = Simulation.from_dict(sc)
     st = sim.state
     C = 1.0 / st.inv_heat_capacity
-    H = sim.Hd[sim.Hd > 0]
+    H = sim.state.Hd[sim.state.Hd > 0]
     assert H.size == 1
     sim.run(progress=False)
     n = sim.step_count

@@ -601,7 +601,7 @@ def _pressed_pair(thermal, real=None):
                          "temperature": 300.0}],
           "thermal": dict(thermal)}
     sim = Simulation.from_dict(sc)
-    return sim, float(sim.Hd[sim.Hd > 0][0])
+    return sim, float(sim.state.Hd[sim.state.Hd > 0][0])
 
 
 def test_correction_defaults_to_lu_2017_when_softened():

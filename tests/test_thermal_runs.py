@@ -36,7 +36,7 @@ def test_two_particles_exact_decay():
     sim = Simulation.from_dict(sc)
     st = sim.state
     C = 1.0 / st.inv_heat_capacity
-    H = sim.Hd[sim.Hd > 0]
+    H = sim.state.Hd[sim.state.Hd > 0]
     assert H.size == 1
     # the conductance is Batchelor & O'Brien's 4 k_eff r_c with r_c = sqrt(R* delta)
     rstar = R * 1.5 * R / (2.5 * R)
@@ -53,7 +53,7 @@ def test_two_particles_euler_converges():
               {"direct": "batchelor_obrien", "time_step": 0.01, "integrator": "euler"}, end=20.0)
     sim = Simulation.from_dict(sc)
     C = 1.0 / sim.state.inv_heat_capacity
-    H = sim.Hd[sim.Hd > 0][0]
+    H = sim.state.Hd[sim.state.Hd > 0][0]
     sim.run(progress=False)
     lam = H * (2 / C[0])
     exact = math.exp(-lam * sim.time)
@@ -177,7 +177,7 @@ def test_line_linear_steady_profile(integrator, tol):
     assert np.allclose(steps, steps.mean(), rtol=tol)
     # series network: H_w (Tw_h - T1) = H (T_k - T_k+1) = H_w (T10 - Tw_c); here H_w = 2 H (k_wall
     # in series with k_p halves the pair conductivity), so each wall gap takes half a pair step
-    H = sim.Hd[sim.Hd > 0][0]
+    H = sim.state.Hd[sim.state.Hd > 0][0]
     Hw = sim.state.Hw[sim.state.Hw > 0]
     q = H * (-steps.mean())
     assert Hw[0] * (400.0 - T[0]) == pytest.approx(q, rel=tol)

@@ -67,7 +67,7 @@ def two_particles(quick):
                 sim = Simulation.from_dict(scene(parts, {"direct": "batchelor_obrien", "time_step": 1.0},
                                                  domain=dom))
                 C = 1.0 / sim.state.inv_heat_capacity
-                H = float(sim.Hd[sim.Hd > 0][0])
+                H = float(sim.state.Hd[sim.state.Hd > 0][0])
                 c1, c2 = C[sim.state.radius < 1.2 * R][0], C[sim.state.radius > 1.2 * R][0]
                 tau = 1.0 / (H * (1 / c1 + 1 / c2))
             dt = f * tau
@@ -147,7 +147,7 @@ def line_of_ten(quick):
                                           walls=walls, domain=dom))
     sim = make(1.0, "euler")
     C = 1.0 / sim.state.inv_heat_capacity[0]
-    H = float(sim.Hd[sim.Hd > 0][0])
+    H = float(sim.state.Hd[sim.state.Hd > 0][0])
     Hw = float(sim.state.Hw[sim.state.Hw > 0][0])
     K = np.zeros((n, n))
     b = np.zeros(n)
@@ -392,7 +392,7 @@ def softening(quick):
                             "correction": corr}, mats=[mat])
                 t0 = time.perf_counter()
                 sim = Simulation.from_dict(sc)
-                H = float(sim.Hd.max())
+                H = float(sim.state.Hd.max())
                 setup = time.perf_counter() - t0
                 if ref is None:
                     ref = H
@@ -429,10 +429,10 @@ def porosity(quick):
         ids = (st.id - st.id.min()).astype(int)
         pairs = {}
         for i in range(st.n):
-            for s_ in range(sim.nnb[i]):
-                j = sim.nb[i, s_]
-                if sim.Hi[i, s_] > 0:
-                    pairs[tuple(sorted((int(ids[i]), int(ids[j]))))] = sim.Hi[i, s_]
+            for s_ in range(sim.state.nnb[i]):
+                j = sim.state.nb[i, s_]
+                if sim.state.Hi[i, s_] > 0:
+                    pairs[tuple(sorted((int(ids[i]), int(ids[j]))))] = sim.state.Hi[i, s_]
         porv = np.empty(st.n)
         porv[ids] = sim.state.por
         pos = np.empty((st.n, 3))
@@ -501,7 +501,7 @@ def quadrature(quick):
         for tol in QUAD_TOLS:
             sim = build(tol)
             wall = timed_run(sim, steps * dt)
-            H = sim.Hi
+            H = sim.state.Hi
             err = float(np.max(np.abs(H[mask] / Href[mask] - 1.0))) if H.shape == Href.shape else math.inf
             rows.append(dict(model=model, tol=tol, setting=f"tolerance {tol:g}", steps=sim.step_count, wall=wall,
                              err=err, sum_err=abs(float(H.sum() / Href.sum() - 1.0)), pairs=int(mask.sum())))

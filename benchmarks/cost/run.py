@@ -214,7 +214,7 @@ def measure_variants(vs, steps, rounds, cap):
         per = min(c) / k
         rows.append(dict(key=v.key, mechanism=v.mechanism, model=v.model, n=n, steps=k, cpu=c, wall=w,
                          per_step=per, pps=n / per, pps_wall=n * k / min(w),
-                         pairs=float(sim.nnb[:n].sum()) / n))
+                         pairs=float(sim.state.nnb[:n].sum()) / n))
     t_mech = next(r["per_step"] for r in rows if r["key"] == "mechanics")
     t_dir = next(r["per_step"] for r in rows if r["key"] == "direct")
     for r in rows:

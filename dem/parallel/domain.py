@@ -25,15 +25,15 @@ class ParallelError(RuntimeError):
 
 
 class ParallelDomain:
-    def __init__(self, comm, sim):
+    def __init__(self, comm, world):
         self.comm = comm
         self.rank = comm.Get_rank()
         self.size = comm.Get_size()
-        cfg = sim.scene.parallel
+        cfg = world.scene.parallel
         self.cfg = cfg
-        self.dec = Decomposition(self.size, sim.lo, sim.hi, sim.periodic, cfg["decomposition"],
+        self.dec = Decomposition(self.size, world.state.lo, world.state.hi, world.state.periodic, cfg["decomposition"],
                                  cfg["slab_axis"])
-        self.key_base = int(comm.allreduce(int(sim.state.id.max(initial=0)), op=_mpi().MAX)) + 1
+        self.key_base = int(comm.allreduce(int(world.state.id.max(initial=0)), op=_mpi().MAX)) + 1
         self.sends = []  # (rank, rows, shift)
         self.recvs = []  # (rank, first ghost row, count)
         self.neigh = []
@@ -78,13 +78,13 @@ class ParallelDomain:
         for name, a in list(self._moving(st)):
             setattr(st, name, np.ascontiguousarray(a[rows]))
 
-    def select_initial(self, sim):
+    def select_initial(self, world):
         """Every rank holds every particle of the scene at start-up: cut the boxes on a
         disjoint split (row % size) and keep the owned rows (possibly none)."""
-        st = sim.state
+        st = world.state
         x = st.position
         part = np.arange(self.rank, st.n, self.size)
-        halo = sim.halo()
+        halo = world.halo()
         self.dec.build(self.comm, x[part], np.ones(part.size), halo)
         own = np.nonzero(self.dec.owner(x) == self.rank)[0]
         self._take(st, own)
@@ -93,14 +93,14 @@ class ParallelDomain:
         self.neigh = self.dec.neighbours(self.rank, halo)
 
     # ------------------------------------------------------------------ exchange
-    def exchange(self, sim, rec, weights=None):
+    def exchange(self, world, rec, weights=None):
         """Drop ghosts, re-balance if needed, migrate, sort if asked, send ghosts.
         ``rec``: contact records of this rank (dem.parallel.records); returns the records
         this rank needs after the exchange. Any rank may own no particle before or after.
         A failure on one rank reaches every rank through the next collective of the
         exchange, and all of them raise the same SimulationError (no rank is left waiting)."""
-        st = sim.state
-        halo = sim.halo()
+        st = world.state
+        halo = world.halo()
         err = None
         cost = 0.0
         try:
@@ -110,17 +110,17 @@ class ParallelDomain:
                 weights = np.ones(st.n_owned)
             cost = float(weights.sum())
         except Exception as exc:  # noqa: BLE001 - shared below, raised on every rank
-            err = self._error_text(sim, exc, "dropping the ghosts")
+            err = self._error_text(world, exc, "dropping the ghosts")
         costs = self.comm.allgather((cost, err))
         _raise_shared([e for _, e in costs])
-        self._rebalance(sim, np.array([c for c, _ in costs]), weights, halo)
-        rec = self._migrate(sim, rec)
-        self._send_ghosts(sim, halo)
+        self._rebalance(world, np.array([c for c, _ in costs]), weights, halo)
+        rec = self._migrate(world, rec)
+        self._send_ghosts(world, halo)
         self.exchanges += 1
         self._bufs = {}
         return rec
 
-    def _rebalance(self, sim, costs, weights, halo):
+    def _rebalance(self, world, costs, weights, halo):
         """Re-cut the boxes (collective) when the largest rank cost exceeds the mean by more
         than [parallel] balance_threshold. Every cut is legal (decomposition.py), so the new
         cuts are always taken."""
@@ -129,15 +129,15 @@ class ParallelDomain:
         if self.imbalance <= self.cfg["balance_threshold"]:
             return
         before = [list(n) for n in self.dec.nodes]
-        self.dec.build(self.comm, sim.state.position, weights, halo)
+        self.dec.build(self.comm, world.state.position, weights, halo)
         if self.dec.nodes != before:
             self.rebalances += 1
         self.neigh = self.dec.neighbours(self.rank, halo)
 
-    def _migrate(self, sim, rec):
+    def _migrate(self, world, rec):
         """Send the particles that left this rank's box to their owners, with their contact
         records; take in the particles that arrive."""
-        st = sim.state
+        st = world.state
         out = [None] * self.size
         leave = np.zeros(0, bool)
         try:
@@ -149,7 +149,7 @@ class ParallelDomain:
                 pkg["__records"] = R.involving(rec, st.id[rows]) if rec is not None else None
                 out[q] = pkg
         except Exception as exc:  # noqa: BLE001
-            out = [{"__error": self._error_text(sim, exc, "packing the migrating particles")}] * self.size
+            out = [{"__error": self._error_text(world, exc, "packing the migrating particles")}] * self.size
         inc = self.comm.alltoall(out)
         _raise_shared([p.get("__error") if p is not None else None for p in inc])
         inc = [p for p in inc if p is not None]
@@ -163,14 +163,14 @@ class ParallelDomain:
         st.n_owned = st.id.shape[0]
         if self.sort_pending:  # spatial sort of the owned rows (cache locality)
             from ..neighbors import sort_permutation
-            self._take(st, sort_permutation(st.position, sim.lo, sim.hi, sim.halo()))
+            self._take(st, sort_permutation(st.position, world.state.lo, world.state.hi, world.halo()))
             self.sort_pending = False
         return rec
 
-    def _send_ghosts(self, sim, halo):
+    def _send_ghosts(self, world, halo):
         """Send every neighbour rank this rank's particles within one halo of its box
         (shifted by the periodic image nearest to it); append the ghosts received."""
-        st = sim.state
+        st = world.state
         nown = st.n_owned
         self.sends = []
         out = [None] * self.size
@@ -183,7 +183,7 @@ class ParallelDomain:
                 self.sends.append((q, rows, sh))
                 out[q] = {name: (a[rows] + sh if name == "position" else a[rows]) for name, a in ghost.items()}
         except Exception as exc:  # noqa: BLE001
-            out = [{"__error": self._error_text(sim, exc, "packing the ghosts")}] * self.size
+            out = [{"__error": self._error_text(world, exc, "packing the ghosts")}] * self.size
         inc = self.comm.alltoall(out)
         _raise_shared([p.get("__error") if p is not None else None for p in inc])
         self.recvs = []
@@ -203,27 +203,27 @@ class ParallelDomain:
             setattr(st, name, np.ascontiguousarray(np.concatenate(parts)))
         st.n_ghost = off - nown
 
-    def _error_text(self, sim, exc, doing):
-        return (f"rank {self.rank} failed while {doing} at t = {sim.time:.9g} s (step {sim.step_count}): "
+    def _error_text(self, world, exc, doing):
+        return (f"rank {self.rank} failed while {doing} at t = {world.time:.9g} s (step {world.step_count}): "
                 f"{type(exc).__name__}: {exc}")
 
-    def grid_box(self, sim):
+    def grid_box(self, world):
         """Cell-grid box of this rank: the domain on periodic axes the box spans (the grid
         wraps there), else the extent of its owned particles and ghosts."""
-        x = sim.state.position
-        spans = self.dec.spans(self.rank) & sim.periodic
-        glo = np.where(spans, sim.lo, x.min(axis=0) if x.shape[0] else sim.lo)
-        ghi = np.where(spans, sim.hi, x.max(axis=0) if x.shape[0] else sim.hi)
-        pad = 1e-9 * np.maximum(sim.hi - sim.lo, 1e-300)
+        x = world.state.position
+        spans = self.dec.spans(self.rank) & world.state.periodic
+        glo = np.where(spans, world.state.lo, x.min(axis=0) if x.shape[0] else world.state.lo)
+        ghi = np.where(spans, world.state.hi, x.max(axis=0) if x.shape[0] else world.state.hi)
+        pad = 1e-9 * np.maximum(world.state.hi - world.state.lo, 1e-300)
         ghi = np.maximum(ghi, glo + pad)
         return np.ascontiguousarray(glo, float), np.ascontiguousarray(ghi + pad, float), \
             np.ascontiguousarray(spans, np.bool_)
 
     # ------------------------------------------------------------------ forward
-    def forward(self, sim, motion=True, temperature=False, porosity=False, rate=False):
+    def forward(self, world, motion=True, temperature=False, porosity=False, rate=False):
         """Copy the owners' current values into the ghost rows."""
         from mpi4py import MPI
-        st = sim.state
+        st = world.state
         key = (motion, temperature, porosity, rate)
         b = st.bundles()  # the same object until an array of the state is replaced
         cache = self.__dict__.get("_cols")
@@ -282,11 +282,11 @@ class ParallelDomain:
     def describe(self):
         return self.dec.describe()
 
-    def stats(self, sim):
+    def stats(self, world):
         """Run totals over the ranks (collective): ghosts, forward-communication bytes and
         messages per step, exchanges, migrations, re-balancings, current imbalance."""
-        st = sim.state
-        loc = np.array([st.n_ghost, self.halo_bytes(sim.thermal is not None), len(self.sends),
+        st = world.state
+        loc = np.array([st.n_ghost, self.halo_bytes(world.thermal is not None), len(self.sends),
                         self.migrated], float)
         tot = self.allsum(loc)
         own = np.array(self.comm.allgather(st.n_owned), float)
@@ -305,5 +305,5 @@ def _raise_shared(errors):
     message everywhere, so that the run stops on all ranks at the same point)."""
     msg = next((e for e in errors if e), None)
     if msg is not None:
-        from ..simulation import SimulationError
+        from ..errors import SimulationError
         raise SimulationError(msg)

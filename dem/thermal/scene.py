@@ -275,7 +275,7 @@ CG_REFUSED = {}   # every model of the catalogue has its scaling
 
 def _check_coarse_graining(v, sc, th):
     """Coarse-grained groups (issue 15): refuse what has no derived scaling, naming the model."""
-    from ..scene import parcel_factors
+    from ..parcels import parcel_factors
     cg = parcel_factors(sc)
     if cg is None:
         return

@@ -1,0 +1,190 @@
+"""The checkpointer: writes, verifies and loads checkpoints of a running simulation.
+
+    ck = Checkpointer(sim)      # the Simulation: its world, stepper and writers, and the scene
+    ck.write(path); ck.prepare(path); ck.load(path)
+
+Owns what a checkpoint holds (every array declared with a ``checkpoint`` key in dem.schema,
+the run totals and the clock), the serial layout (the neighbour list and its history slots:
+a bit-exact continuation) and the portable layout (per-particle arrays by id and the contact
+history as id-keyed records: any number of ranks continues it), and the restart with an edited
+scene (dem.checkpoint: format, validation and the plan of the edits).
+"""
+import os
+
+import numpy as np
+
+from . import schema as S
+from . import step as K
+from .errors import SimulationError
+from .writers import by_id
+
+
+class Checkpointer:
+    def __init__(self, sim):
+        self.sim = sim
+        self.world = sim.world
+        self.state = sim.world.state
+        self.stepper = sim.stepper
+        self.writers = sim.writers
+        self.par = sim.stepper.par
+        self._ready = None               # (path, arrays, record, plan) of prepare()
+        self._recompute = False          # an older checkpoint lacked a conductance
+        self.applied = []                # the scene edits the last restart applied
+
+    def _checkpointed(self, owner):
+        """The enabled arrays of ``owner`` with a checkpoint key (dem.schema)."""
+        return [f for f in S.of(owner) if f.checkpoint and S.enabled(f, self.state.features)]
+
+    # ------------------------------------------------------------------ writing
+    def arrays(self):
+        """Everything needed to continue the run, as declared in dem.schema. A serial
+        checkpoint holds the neighbour list and its history slots (bit-exact restart); every
+        checkpoint also holds the per-particle arrays ordered by id and the contact history as
+        id-keyed records, so that any number of ranks can continue it (collective; None off
+        the root)."""
+        from .parallel import records
+        st = self.state
+        w = self.world
+        n = st.n_owned
+        rec = records.extract(st)
+        rec = {f"rec_{k}": v for k, v in rec.items() if v is not None}
+        common = dict(fp_tbuild=np.float64(st.fp[K.F_TBUILD]), step_count=np.int64(w.step_count),
+                      dt=np.float64(w.dt), forces_ready=np.bool_(self.stepper.forces_ready),
+                      scene_file=np.str_(os.path.abspath(w.scene.file)),
+                      ranks=np.int64(1 if self.par is None else self.par.size))
+        totals = {f.checkpoint: getattr(st, f.name) for f in self._checkpointed("wall") + self._checkpointed("param")
+                  if w.thermal is not None}
+        if self.par is None:
+            arr = {f.checkpoint: getattr(st, f.name) for f in self._checkpointed("particle") + self._checkpointed("pair")}
+            arr.update(**common, **rec, **totals)
+            return arr
+        local = {f.checkpoint: getattr(st, f.name)[:n] for f in self._checkpointed("particle")}
+        local["id"] = st.id[:n]
+        parts = self.par.gather((local, rec))  # records travel beside, not ordered by id
+        totals = {k: self.par.allsum(v) for k, v in totals.items()}
+        if parts is None:
+            return None
+        arr = by_id([p[0] for p in parts])
+        arr.pop("id")
+        rkeys = sorted(set().union(*(p[1] for p in parts)))  # a rank owning no particle has no
+        for k in rkeys:                                      # record, nor the optional fields
+            arr[k] = np.concatenate([p[1][k] for p in parts if k in p[1]])
+        if "rec_a" in arr:  # a pair across ranks was recorded by both: keep one
+            _, first = np.unique(arr["rec_a"] * self.par.key_base + arr["rec_b"], return_index=True)
+            for k in rkeys:
+                arr[k] = arr[k][first]
+        arr.update(**common, **totals)
+        return arr
+
+    def write(self, path):
+        """Write a checkpoint (collective): :meth:`arrays` with a format version, the scene's
+        record and a checksum (dem.checkpoint)."""
+        from . import checkpoint as ckpt
+        arr = self.arrays()
+        if arr is not None:
+            record = ckpt.scene_record(self.sim)
+            self.writers.root_write(lambda: ckpt.write(path, arr, record))
+
+    # ------------------------------------------------------------------ loading
+    def prepare(self, path):
+        """Read and verify a checkpoint and plan the restart with this scene: raises
+        dem.errors.SceneError (bad file, or a refused scene edit) before any output is written
+        or any kernel compiled. :meth:`load` uses the result."""
+        from . import checkpoint as ckpt
+        arrays, record = ckpt.read(path)
+        ckpt.validate(path, arrays, record)
+        plan = ckpt.plan_restart(self.sim, path, arrays, record)
+        self._ready = (os.fspath(path), arrays, record, plan)
+        return plan
+
+    def load(self, path):
+        """Continue from a checkpoint. Unchanged scene: the serial layout restarts bit-exact.
+        Edited scene: the changes of dem.checkpoint.plan_restart are applied to the checkpoint's
+        arrays and listed on stdout ("restart: applied ...")."""
+        from . import checkpoint as ckpt
+        if self._ready is None or self._ready[0] != os.fspath(path):
+            self.prepare(path)
+        _, arrays, record, plan = self._ready
+        self._ready = None
+        ckpt.apply_edits(arrays, plan, self.sim)
+        z = ckpt.ArrayView(arrays)
+        self._recompute = False
+        if self.par is not None or int(z["ranks"]) != 1 or "nb" not in z.files or plan.rebuild:
+            self._load_portable(path, z)
+        else:
+            self._load_serial(z)
+        if plan.recompute_forces or self._recompute:
+            self.stepper.recompute_forces_keeping_history()
+        self.applied = plan.applied
+        if self.writers.is_root:
+            for line in plan.applied:
+                print(f"restart: applied {line}", flush=True)
+
+    def _load_array(self, f, z, rows, path=None):
+        """Set the declared array ``f`` from the checkpoint (the given rows); False when an
+        older checkpoint lacks it (dem.checkpoint.ADDED_LATER)."""
+        from .checkpoint import ADDED_LATER
+        if f.checkpoint not in z.files:
+            if f.checkpoint not in ADDED_LATER:
+                where = f"{path}: " if path is not None else ""
+                raise SimulationError(f"{where}checkpoint lacks {f.checkpoint!r} (thermal or contact settings "
+                                      f"changed?)")
+            if f.owner == "particle":  # a conductance among them: recompute forces and conductances
+                self._recompute = True
+            return False
+        a = z[f.checkpoint]
+        setattr(self.state, f.name, np.ascontiguousarray(a if rows is None else a[rows], f.dtype))
+        return True
+
+    def _load_clock(self, z):
+        self.world.set_step(int(z["step_count"]))
+        self.stepper.forces_ready = bool(z["forces_ready"])
+
+    def _load_serial(self, z):
+        """The serial layout: every checkpointed array as written (bit-exact continuation)."""
+        st = self.state
+        for f in self._checkpointed("particle") + self._checkpointed("pair"):
+            self._load_array(f, z, None)
+        st.allocate()  # what an older checkpoint lacks (dem.checkpoint.ADDED_LATER)
+        self._load_totals(z, root=True)
+        st.fp[K.F_TBUILD] = float(z["fp_tbuild"])
+        self._load_clock(z)
+
+    def _load_totals(self, z, root):
+        """Run totals (heat per mechanism and per wall): on the root only, zero elsewhere."""
+        if self.world.thermal is None:
+            return
+        st = self.state
+        for f in self._checkpointed("wall") + self._checkpointed("param"):
+            getattr(st, f.name)[:] = z[f.checkpoint] if root and f.checkpoint in z.files else 0.0
+
+    def _load_portable(self, path, z):
+        """Continue from a checkpoint written on any number of ranks: per-particle arrays by
+        id, the neighbour list rebuilt here, the contact history restored from its records."""
+        from .parallel import records
+        st = self.state
+        w = self.world
+        pos = z["state_position"]
+        if self.par is not None:
+            rows = np.nonzero(self.par.dec.owner(pos) == self.par.rank)[0]
+        else:
+            rows = np.arange(pos.shape[0])
+        st.enable(fluid=False)  # the coupling sets the fluid data again
+        for f in self._checkpointed("particle"):
+            self._load_array(f, z, rows, path)
+        st.n_owned = rows.size
+        st.n_ghost = 0
+        st.allocate()  # the arrays a checkpoint does not hold (scratch), sized for these rows
+        st.ip[K.I_NOWN] = rows.size
+        rec = {k: (z[f"rec_{k}"] if f"rec_{k}" in z.files else None) for k in records.FIELDS}
+        if rec["a"] is None:
+            rec = None
+        self._load_clock(z)
+        self._load_totals(z, root=self.writers.is_root)
+        self.stepper.restore_neighbors(rec)
+        th = w.thermal
+        if th is not None:
+            th.update_porosity(w.time)
+            self.stepper.forward_porosity()
+            if not w.scene.simulation["mechanics"]:
+                self.stepper.compute_forces()  # the frozen packing's conductances

@@ -1,0 +1,294 @@
+"""The stepper: advances the world with the compiled step (dem.step.advance), serial or MPI
+behind one interface.
+
+    stepper = Stepper(world)                 # one process
+    stepper = ParallelStepper(world, par)    # mpirun -np N: par is a dem.parallel.ParallelDomain
+    stepper.init_neighbors(); stepper.advance(nsteps); stepper.compute_forces()
+
+Owns the neighbour set-up and rebuilds, the force evaluation without a step, the advance
+(serial: whole chunks in one compiled call; MPI: the phases one step at a time with the ghost
+messages between them), the spatial sort, the instability messages, and the contact counts
+of the last step. The coupled inputs (dem.fluid) are one more set of declared arrays that the
+step reads like any other.
+"""
+import numpy as np
+
+from . import schema as S
+from . import step as K
+from .errors import SimulationError
+from .neighbors import build_half_list, sort_permutation
+
+
+class Stepper:
+    """One process: the whole domain, chunks of steps in one compiled call."""
+
+    def __init__(self, world):
+        self.world = world
+        self.state = world.state
+        self.par = None
+        self.forces_ready = False
+        self.pair_count = 0      # contacts x 2 of the last force evaluation (a half list counts each twice)
+        self.last_contacts = 0
+        self._entry = None       # (bundles, heat switch, compiled entry point) of the last call
+
+    # ------------------------------------------------------------------ compiled calls
+    @property
+    def hon(self):
+        """The kernels' heat switch as a type: True with a [thermal] section, None without, so
+        that Numba compiles a mechanics-only specialisation with the heat code removed
+        (docs/benchmarks.md, "Cost of each mechanism": a run-time flag alone cost ~5 %)."""
+        return True if self.world.thermal is not None else None
+
+    def phases(self, phases, nsteps=1, s0=None):
+        """dem.step.advance over ``nsteps`` steps from step number s0 (by default the step in
+        progress: a force evaluation alone is at the current time), the given phases only."""
+        st = self.state
+        b = st.bundles()
+        s0 = self.world.step_count - 1 if s0 is None else s0
+        hon = self.hon
+        ent = self._entry
+        if ent is not None and ent[0] is b and ent[1] is hon:
+            # the compiled form found for these very bundles: called without the dispatcher's type
+            # resolution of the ~60 arrays (25 us -> 12 us a call; an MPI step makes 2-3 calls)
+            return ent[2](nsteps, s0, st.n, st.n_owned, *b, hon, phases)
+        args = (nsteps, s0, st.n, st.n_owned, *b, hon, phases)
+        res = K.advance(*args)
+        self._entry = (b, hon, K.advance.get_overload(tuple(K.advance.typeof_pyval(a) for a in args)))
+        return res
+
+    def set_pairs(self, C):
+        """Adopt the pair bundle a compiled call returned (a rebuild may reallocate it)."""
+        st = self.state
+        for name, a in zip(C._fields, C):
+            setattr(st, name, a)
+
+    def compute_forces(self):
+        """The interact phase at the current time (no step): forces, torques and (with heat)
+        the conductances; the heat totals are left as they were. Returns the largest overlap."""
+        st = self.state
+        saved = st.heat_totals()  # the initial force evaluation exchanges no heat
+        _, _, i, j, maxov, nc, _, _ = self.phases(K.PH_FORCES)
+        st.restore_heat_totals(saved)
+        self._count(nc)
+        return maxov
+
+    def _count(self, nc):
+        self.pair_count = nc
+        self.last_contacts = nc // 2
+
+    def recompute_forces_keeping_history(self):
+        """Forces at the current time with edited physics (masses, tables, walls, gravity); the
+        contact springs, ages and temperatures stay as they are so that the next step increments
+        them once, as an uninterrupted run does (collective in a parallel run: the ghosts were
+        exchanged by the caller)."""
+        st = self.state
+        keep = [(f.name, getattr(st, f.name).copy()) for f in S.FIELDS
+                if f.record or f.name in ("whist", "wrhist", "temperature", "heat_rate")]
+        self.compute_forces()
+        for name, a in keep:
+            getattr(st, name)[...] = a
+        self.forces_ready = True
+
+    def _ready(self):
+        if not self.forces_ready:
+            self.compute_forces()
+            self.forces_ready = True
+
+    # ------------------------------------------------------------------ neighbours
+    def rebuild(self, step, glo, ghi, gwrap, initial=False):
+        """The rebuild phase (dem.step.rebuild) from Python at the time of step number
+        ``step``, with the history starting empty (restored by the caller): the half list over
+        the cell grid [glo, ghi] (wrapped on ``gwrap``), then dem.step.after_build (advance's
+        PH_AFTER_BUILD). A first build sizes the slots tightly (the largest count + 2)."""
+        st = self.state
+        slots = 12 if initial else st.nb.shape[1]
+        empty = [f.empty() for f in S.of("pair") if f.name in ("nb", "nnb") or f.record]
+        for _ in range(2):
+            nb, nnb, hist, rhist, age, maxc = build_half_list(
+                st.position, st.radius, st.n, st.n_owned, st.lo, st.hi, st.periodic, glo, ghi, gwrap,
+                self.world.reach, st.fp[K.F_SKIN], slots, *empty)
+            if not initial or maxc + 2 >= slots:
+                break
+            slots = maxc + 2
+        self.set_pairs(S.Pairs(nb, nnb, hist, rhist, age, st.Hd, st.Hi, st.rnear))
+        self.set_pairs(self.phases(K.PH_AFTER_BUILD, s0=step - 1)[-1])
+
+    def init_neighbors(self):
+        """The first neighbour build of the run (and of a restart with its own records)."""
+        st = self.state
+        self.rebuild(self.world.step_count, st.lo, st.hi, st.periodic, initial=True)
+
+    def restore_neighbors(self, rec):
+        """Neighbours built here and the contact history restored from its id-keyed records
+        (a checkpoint written on any number of ranks)."""
+        from .parallel import records
+        self.init_neighbors()
+        records.restore(rec, self.state, int(self.state.id.max(initial=0)) + 1)
+
+    def forward_porosity(self):
+        """Send the owned particles' porosity to the ghosts (nothing to do in one process)."""
+
+    def sort(self):
+        """Reorder particles by cell for cache locality; every sorted array of dem.schema
+        follows (neighbour rows renumbered), so the physics is unchanged."""
+        st = self.state
+        w = self.world
+        cell = 2 * float(st.radius.max()) + w.reach + st.fp[K.F_SKIN]
+        st.permute(sort_permutation(st.position, st.lo, st.hi, cell))
+        if w.thermal is not None and w.thermal.voronoi and w.scene.simulation["mechanics"]:
+            w.thermal.update_porosity(w.time)
+
+    # ------------------------------------------------------------------ stepping
+    def advance(self, nsteps):
+        """``nsteps`` steps in one compiled call; raises SimulationError on an instability."""
+        w = self.world
+        self._ready()
+        phases = K.PH_STEP if w.mechanics else K.PH_HEAT  # frozen packing: heat on fixed conductances
+        done, status, who, other, value, nc, nreb, C = self.phases(phases, nsteps, w.step_count)
+        self.set_pairs(C)
+        w.set_step(w.step_count + done)
+        if w.mechanics:  # frozen packings keep the contact count of their set-up
+            self._count(nc)
+        if status != K.OK:
+            raise SimulationError(self.instability_message(status, who, other, value))
+        return done
+
+    def instability_message(self, status, i, j, value):
+        """What went wrong with particle row ``i`` (and ``j``: a particle row, or -1 - wall),
+        when, and what to change."""
+        st = self.state
+        w = self.world
+        dt = w.dt
+        pid = int(st.id[i])
+        where = f"at t = {w.time:.9g} s (step {w.step_count})"
+        pos = np.array2string(st.position[i], precision=6)
+        if status == K.OVERLAP:
+            other = f"wall {w.scene.walls[-1 - j]['name']}" if j < 0 else f"particle id {int(st.id[j])}"
+            return (f"particle id {pid} at {pos} and {other} overlap by {value:.3g} of the radius {where}, "
+                    f"beyond simulation.max_overlap_ratio = {st.fp[K.F_MAXOV]:g}. Lower time_step "
+                    f"(now {dt:g} s), raise youngs_modulus, or lower the impact speeds")
+        if status == K.NONFINITE:
+            return (f"particle id {pid} got a non-finite velocity {where}: the run is unstable. "
+                    f"Lower time_step (now {dt:g} s; see `dem check`), or check forces and properties")
+        if status == K.BAD_TEMPERATURE:
+            integ = w.thermal.cfg["integrator"] if w.thermal is not None else "euler"
+            advice = ("use thermal.integrator = \"exponential\" or a step below the network and "
+                      "radiation limits printed by `dem check`" if integ == "euler" else
+                      "lower the thermal step: heat sources, fixed wall fluxes or friction heat are "
+                      "explicit and outrun the particle's heat capacity")
+            return (f"particle id {pid} reached temperature {value:.6g} K {where}: the heat step "
+                    f"({integ}, dt = {dt:g} s) is unstable; {advice}")
+        return (f"particle id {pid} left the domain {where} at {pos} (domain {st.lo.tolist()} to "
+                f"{st.hi.tolist()}). Add walls, enlarge [domain], or make the axis periodic")
+
+
+class ParallelStepper(Stepper):
+    """One rank of an MPI run: the rank's box and its ghosts (dem.parallel.domain), the phases
+    of dem.step.advance one step at a time with the ghost messages between them."""
+
+    def __init__(self, world, par):
+        super().__init__(world)
+        self.par = par
+        self._pending = None  # (code, message) of an instability found on this rank
+
+    def init_neighbors(self):
+        self._exchange_rebuild(self.world.step_count, initial=True)
+
+    def restore_neighbors(self, rec):
+        self._exchange_rebuild(self.world.step_count, rec=rec, weights_from_list=False)
+
+    def forward_porosity(self):
+        self.par.forward(self.world, motion=False, porosity=True)
+
+    def sort(self):
+        self.par.sort_pending = True  # done at the next exchange with the other ranks
+
+    def _exchange_rebuild(self, step, initial=False, rec=None, weights_from_list=True):
+        """Exchange particles and ghosts with the other ranks, then the rebuild phase
+        (dem.step.rebuild, the same as a serial run's) and the contact history brought back
+        from its id-keyed records (dem.parallel.records)."""
+        from .parallel import records
+        par = self.par
+        st = self.state
+        w = self.world
+        th = w.thermal
+        weights = None
+        if not initial:
+            nown = st.n_owned
+            i, k = K.outside(st.position, st.lo, st.hi, st.periodic, nown)
+            if i >= 0 and self._pending is None:
+                self._pending = (K.LEFT_DOMAIN, self.instability_message(K.LEFT_DOMAIN, int(i), -1,
+                                                                         float(st.position[i, k])))
+            if rec is None:
+                rec = records.extract(st)
+            if weights_from_list:
+                weights = 1.0 + w.scene.parallel["pair_weight"] * st.nnb[:nown]
+        resort_vor = par.sort_pending and th is not None and th.voronoi
+        rec = par.exchange(w, rec, weights)
+        glo, ghi, gwrap = par.grid_box(w)
+        self.rebuild(step, glo, ghi, gwrap, initial=initial)
+        records.restore(rec, st, par.key_base)
+        st.ip[K.I_NOWN] = st.n_owned
+        if th is not None and not initial:
+            from .thermal.heat import TI_LOCALPOR
+            if th.thi[TI_LOCALPOR] == 1:
+                self.forward_porosity()
+            elif resort_vor:
+                th.update_porosity(w.time)
+                self.forward_porosity()
+
+    def _note(self, status, who, other, value):
+        if status != K.OK and self._pending is None:
+            self._pending = (status, self.instability_message(status, who, other, value))
+
+    def _agree(self, need):
+        """One Allreduce: the rebuild decision and any rank's instability (raised on every rank)."""
+        code, need = self.par.flags(self._pending[0] if self._pending else 0.0, need)
+        if code:
+            msgs = self.par.comm.allgather(self._pending[1] if self._pending else None)
+            raise SimulationError(next(m for m in msgs if m))
+        return need
+
+    def advance(self, nsteps):
+        """The phases of dem.step.advance (drift, rebuild, interact, kick + guards, heat),
+        one step at a time with the ghost messages between them (one Allreduce per step
+        carries the rebuild decision and the previous step's stability status)."""
+        from .thermal.heat import cross_rates, TI_INTEG
+        par = self.par
+        st = self.state
+        w = self.world
+        heat = w.thermal is not None
+        expo_cross = heat and w.thermal.thi[TI_INTEG] != 0
+        self._ready()
+        mech = w.mechanics
+        done = 0
+        for _ in range(nsteps):
+            need = 0.0
+            if mech:
+                need = 1.0 if self.phases(K.PH_DRIFT, s0=w.step_count)[1] == K.REBUILD_DUE else 0.0
+            need = self._agree(need)
+            fused = False
+            if mech:
+                if need:
+                    self._exchange_rebuild(w.step_count + 1)
+                else:
+                    par.forward(w, motion=True, temperature=heat)
+                # without the exponential update's cross-rank rates the heat phase needs no message
+                # first: one call for interact, kick and heat
+                fused = heat and not expo_cross
+                ph = K.PH_FORCES | K.PH_KICK | (K.PH_HEAT if fused else 0)
+                _, status, who, other, value, nc, _, _ = self.phases(ph, s0=w.step_count)
+                self.pair_count = nc
+                self._note(status, who, other, value)
+            elif heat:
+                par.forward(w, motion=False, temperature=True)
+            if heat and not fused:
+                if expo_cross:
+                    cross_rates(st.n_owned, st.inv_heat_capacity, st.nb, st.nnb, st.Hd, st.Hi, st.work)
+                    par.forward(w, motion=False, rate=True)
+                _, status, who, _, value, _, _, _ = self.phases(K.PH_HEAT, s0=w.step_count)
+                self._note(status, who, -1, value)
+            w.set_step(w.step_count + 1)
+            done += 1
+        self._agree(0.0)
+        return done

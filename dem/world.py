@@ -1,0 +1,162 @@
+"""The world of a run: what the scene builds and every other part reads.
+
+    world = World(scene)     # state, pair tables, walls, parameters, the thermal model, the clock
+
+Owns the declared state (dem.state.State with its tables, walls and kernel parameters), the
+thermal model (dem.thermal.kernel.ThermalModel, or None), the time step and end time, and the
+clock (``step_count``, ``time``). It computes nothing per step: the stepper advances the clock,
+the checkpointer sets it on a restart (:meth:`World.set_step`).
+"""
+import math
+
+import numpy as np
+
+from .contact.damping import damping_factor, mixed_tables
+from .contact.registry import CONTACT_MODELS, ROLLING_MODELS, DAMPING_MODELS
+from .contact import walls as W
+from .parcels import parcel_factors
+from .state import State
+from . import step as K
+
+
+class World:
+    def __init__(self, scene):
+        from .memory import check_scene
+        check_scene(scene)  # refuse a scene larger than the available memory before allocating
+        self.scene = scene
+        sim = scene.simulation
+        self.dt = sim["time_step"]
+        if scene.thermal is not None and scene.thermal["time_step"] is not None:
+            self.dt = scene.thermal["time_step"]  # frozen packing: the thermal step
+        self.step_count = 0
+        self.time = 0.0
+        self.end_time = sim["end_time"]
+        mats = scene.materials
+        self.state = st = State(scene.id, scene.position, scene.velocity, scene.angular_velocity,
+                                scene.radius, scene.material, scene.group, [m["density"] for m in mats],
+                                walls=len(scene.walls))
+        cgs = parcel_factors(scene)
+        if cgs is not None:   # cg = 1 everywhere: exactly the run without
+            st.enable(coarse_graining=True)
+            st.cg[:] = cgs
+        st.lo = np.ascontiguousarray(scene.domain["min"], float)
+        st.hi = np.ascontiguousarray(scene.domain["max"], float)
+        st.periodic = np.array(scene.domain["periodic"], np.bool_)
+        L = st.hi - st.lo
+        for k in range(3):  # wrap periodic axes
+            if st.periodic[k]:
+                st.position[:, k] = st.lo[k] + np.mod(st.position[:, k] - st.lo[k], L[k])
+        st.tab, self.pair_tables = pair_tables(scene)
+        st.wf, st.wi = wall_tables(scene.walls)
+        self.nwalls = len(scene.walls)
+        st.enable(epsd=ROLLING_MODELS[scene.contact["rolling"]] == 2)
+        self.wall_speed = max([float(np.linalg.norm(w["velocity"])) for w in scene.walls], default=0.0)
+        st.ip, st.fp = self._params()
+        self.thermal = None
+        if scene.thermal is not None:
+            from .thermal.kernel import ThermalModel
+            self.thermal = ThermalModel(scene, st)
+        else:
+            from .thermal.kernel import no_heat_tables
+            no_heat_tables(st)
+        self.reach = self.thermal.reach if self.thermal is not None else 0.0
+        st.fp[K.F_REACH] = self.reach
+        self.rmax = float(st.radius.max(initial=0.0))
+        self.n_total = st.n_owned  # every rank holds the whole scene at this point
+
+    def _params(self):
+        sc = self.scene
+        ip = np.zeros(K.NIP, np.int64)
+        ip[K.I_CONTACT] = CONTACT_MODELS[sc.contact["model"]]
+        ip[K.I_ROLLING] = ROLLING_MODELS[sc.contact["rolling"]]
+        ip[K.I_NWALLS] = self.nwalls
+        ip[K.I_MECH] = 1 if sc.simulation["mechanics"] else 0
+        ip[K.I_NOWN] = self.state.n_owned
+        fp = np.zeros(K.NFP)
+        fp[K.F_DT] = self.dt
+        fp[K.F_GX:K.F_GZ + 1] = sc.simulation["gravity"]
+        fp[K.F_SKIN] = sc.simulation["neighbor_skin"]
+        fp[K.F_VCHAR] = self.characteristic_velocity()
+        fp[K.F_KTRATIO] = sc.contact["tangential_stiffness_ratio"]
+        fp[K.F_LINKN] = sc.contact["normal_stiffness"]
+        fp[K.F_ETAR] = sc.contact["rolling_damping"]
+        fp[K.F_MAXOV] = sc.simulation["max_overlap_ratio"]
+        fp[K.F_VWALL] = self.wall_speed
+        return ip, fp
+
+    def characteristic_velocity(self):
+        """Impact velocity used for the Hertz time and the linear stiffness: the scene's
+        [contact] characteristic_velocity, else the largest of the initial speeds, the
+        wall surface speeds and the free-fall speed over the domain height."""
+        c = self.scene.contact["characteristic_velocity"]
+        if c:
+            return c
+        st = self.state
+        g = np.linalg.norm(self.scene.simulation["gravity"])
+        h = float(np.max(st.hi - st.lo))
+        v0 = float(np.max(np.linalg.norm(st.velocity, axis=1), initial=0.0))
+        vw = 0.0
+        for w in self.scene.walls:
+            vw = max(vw, float(np.linalg.norm(w["velocity"])))
+            om = float(np.linalg.norm(w["angular_velocity"]))
+            if om > 0:
+                vw = max(vw, om * (w.get("radius") or float(np.max(st.hi - st.lo))))
+        return max(v0, vw, math.sqrt(2 * g * h), 1e-3)
+
+    def halo(self):
+        """Ghost layer width: the longest pair reach 2 r_max + reach + skin."""
+        return 2.0 * self.rmax + self.reach + self.state.fp[K.F_SKIN]
+
+    def set_step(self, step_count):
+        """Set the clock to step number ``step_count`` (the time follows: step_count x dt)."""
+        self.step_count = int(step_count)
+        self.time = self.step_count * self.dt
+
+    @property
+    def mechanics(self):
+        """False for a frozen packing (simulation.mechanics = false)."""
+        return bool(self.state.ip[K.I_MECH])
+
+
+def pair_tables(scene):
+    """(tab[NTAB, n_mat, n_mat], the mixed material tables) of the scene's materials."""
+    t = mixed_tables(scene.materials)
+    nm = t["n"]
+    model = CONTACT_MODELS[scene.contact["model"]]
+    damping = DAMPING_MODELS[scene.contact["damping"]]
+    tab = np.zeros((K.NTAB, nm, nm))
+    tab[K.T_ESTAR] = t["estar"]
+    tab[K.T_GSTAR] = t["gstar"]
+    tab[K.T_MU] = t["friction"]
+    tab[K.T_MUR] = t["rolling_friction"]
+    for a in range(nm):
+        for b in range(nm):
+            tab[K.T_DAMP, a, b] = damping_factor(t["restitution"][a, b], model, damping)
+    return np.ascontiguousarray(tab), t
+
+
+def wall_tables(walls):
+    """(wf[n, NWF], wi[n, NWI]) of the scene's walls (one empty row without walls)."""
+    nw = len(walls)
+    wf = np.zeros((max(nw, 1), W.NWF))
+    wi = np.zeros((max(nw, 1), W.NWI), np.int64)
+    for k, w in enumerate(walls):
+        wf[k, W.PX:W.PX + 3] = w["point"]
+        wf[k, W.VX:W.VX + 3] = w["velocity"]
+        wf[k, W.OX:W.OX + 3] = w["angular_velocity"]
+        wf[k, W.CX:W.CX + 3] = w["rotation_center"]
+        wi[k, W.WMAT] = w["material"]
+        if w["type"] == "plane":
+            wi[k, W.WTYPE] = W.PLANE
+            wf[k, W.NX:W.NX + 3] = w["normal"]
+            wf[k, W.UX:W.UX + 3] = w["u_axis"]
+            ext = w["extent"]
+            wf[k, W.EU] = math.inf if ext is None else ext[0]
+            wf[k, W.EV] = math.inf if ext is None else ext[1]
+        else:
+            wi[k, W.WTYPE] = W.CYLINDER
+            wf[k, W.NX:W.NX + 3] = w["axis"]
+            wf[k, W.RAD] = w["radius"]
+            wf[k, W.EU] = w["length"] / 2
+            wf[k, W.SIDE] = 1.0 if w["inside"] else -1.0
+    return wf, wi

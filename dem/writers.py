@@ -1,0 +1,171 @@
+"""The writers: what a run reports and writes, from the declared state (dem.schema).
+
+    out = Writers(world, stepper)
+    out.history_row(); out.write_vtk(vtk); out.final_arrays(); out.wall_heat_totals()
+
+Owns the rows of history.csv (sums, minima and maxima over the ranks), the wall heat totals,
+the per-particle output fields (every array declared with an ``output`` name), gathering the
+owned rows of every rank ordered by id, and the root's writes: under MPI a write that fails on
+the root is held (the other ranks are on their way to the next collective call) until
+:meth:`settle_writes` raises it on every rank.
+"""
+import math
+
+import numpy as np
+
+from . import schema as S
+from .output import OutputError
+from .thermal.kernel import MECHANISMS as THERMAL_MECHANISMS
+
+
+class Writers:
+    def __init__(self, world, stepper):
+        self.world = world
+        self.state = world.state
+        self.stepper = stepper
+        self.par = stepper.par
+        self.hold = False           # inside a run under MPI: hold the root's write failures
+        self._failure = None
+
+    @property
+    def is_root(self):
+        """True on the rank that writes files (always in a serial run)."""
+        return self.par is None or self.par.rank == 0
+
+    # ------------------------------------------------------------------ root writes
+    def root_write(self, write):
+        """A write done by the root alone. Inside run() under MPI an OutputError is held until
+        :meth:`settle_writes` raises it on every rank; elsewhere it is raised at once."""
+        try:
+            write()
+        except OutputError as exc:
+            if self.par is None or not self.hold:
+                raise
+            if self._failure is None:
+                self._failure = exc
+
+    def settle_writes(self):
+        """Raise the held OutputError of the root on every rank (collective under MPI)."""
+        if self.par is None:
+            return
+        msg = self.par.comm.bcast(str(self._failure) if self._failure else None, root=0)
+        if msg:
+            self._failure = None
+            self.hold = False
+            raise OutputError(message=msg)
+
+    def begin(self):
+        """A run starts: no failure held yet, failures held from now on."""
+        self._failure = None
+        self.hold = True
+
+    # ------------------------------------------------------------------ history
+    def history_columns(self):
+        cols = ["time", "kinetic_energy", "rotational_energy", "contacts", "max_overlap_ratio"]
+        if self.world.thermal is not None:
+            cols += self.world.thermal.history_columns()
+        return cols
+
+    def history_row(self):
+        """One row of history.csv (collective in a parallel run: sums, minima, maxima)."""
+        w = self.world
+        st = self.state
+        th = w.thermal
+        et, er = st.kinetic_energy()
+        maxov = self._overlap_stats()
+        if self.par is None:
+            row = dict(time=w.time, kinetic_energy=et, rotational_energy=er,
+                       contacts=self.stepper.last_contacts, max_overlap_ratio=maxov)
+            if th is not None:
+                row.update(th.history_row())
+            return row
+        p = self.par
+        n = st.n_owned
+        vals = [et, er, float(self.stepper.pair_count), float(n)]
+        if th is not None:
+            T = st.temperature[:n]
+            vals += [float(np.sum(T / st.inv_heat_capacity[:n])), float(T.sum())]
+            vals += list(th.tot[:len(THERMAL_MECHANISMS)]) + list(th.wtot[:len(w.scene.walls)])
+        tot = p.allsum(np.array(vals))
+        row = dict(time=w.time, kinetic_energy=tot[0], rotational_energy=tot[1],
+                   contacts=int(tot[2]) // 2, max_overlap_ratio=p.allmax(maxov))
+        if th is not None:
+            T = st.temperature[:n]
+            tmin = p.allmin(float(T.min()) if n else math.inf)
+            tmax = p.allmax(float(T.max()) if n else -math.inf)
+            row.update(thermal_energy=tot[4], T_mean=tot[5] / max(tot[3], 1), T_min=tmin, T_max=tmax)
+            k = 6
+            for m in THERMAL_MECHANISMS:
+                row[f"E_{m}"] = tot[k]
+                k += 1
+            for wall in w.scene.walls:
+                row[f"E_wall_{wall['name']}"] = tot[k]
+                k += 1
+        return row
+
+    def _overlap_stats(self):
+        from .stats import max_overlap_ratio
+        st = self.state
+        return max_overlap_ratio(st.n, st.position, st.radius, st.nb, st.nnb, st.lo, st.hi,
+                                 st.periodic, st.wf, st.wi, self.world.nwalls, self.world.time)
+
+    def wall_heat_totals(self):
+        """Heat through each wall since the start (J), summed over the ranks (collective):
+        [n_walls, 3] of (all paths, across the gas gap, by radiation); None without heat or
+        walls."""
+        nw = len(self.world.scene.walls)
+        if self.world.thermal is None or nw == 0:
+            return None
+        st = self.state
+        a = np.c_[st.wtot[:nw], st.wgap[:nw], st.wrad[:nw]].astype(float)
+        if self.par is not None:
+            a = np.asarray(self.par.allsum(a.ravel()), float).reshape(nw, 3)
+        return a
+
+    # ------------------------------------------------------------------ per-particle output
+    def output_arrays(self):
+        """The owned rows of every enabled array declared with an output name (dem.schema)."""
+        st = self.state
+        n = st.n_owned
+        return {f.output: getattr(st, f.name)[:n] for f in S.FIELDS
+                if f.output and f.owner == "particle" and S.enabled(f, st.features)}
+
+    def particle_fields(self):
+        """Per-particle fields of the VTK output (float64; the position goes apart)."""
+        f = {k: (a if a.dtype == np.float64 else a.astype(np.float64))
+             for k, a in self.output_arrays().items() if k != "position"}
+        if self.par is not None:
+            f["rank"] = np.full(self.state.n_owned, float(self.par.rank))
+        return f
+
+    def gather_by_id(self, arrays):
+        """Owned rows of every rank, concatenated and ordered by particle id, on the root
+        (None elsewhere); a serial run just orders its rows."""
+        parts = [arrays] if self.par is None else self.par.gather(arrays)
+        return None if parts is None else by_id(parts)
+
+    def final_arrays(self):
+        """Per-particle results ordered by id (collective; None on ranks other than the root)."""
+        out = self.gather_by_id(self.output_arrays())
+        if out is not None:
+            out["time"] = np.float64(self.world.time)
+        return out
+
+    def write_vtk(self, vtk, **extra):
+        """One VTK output of the owned particles of every rank (collective; ``vtk`` is the
+        root's VTKSeries, None elsewhere); ``extra``: more per-particle fields."""
+        st = self.state
+        w = self.world
+        f = dict(self.particle_fields(), **extra)
+        f["position"] = st.position[:st.n_owned]
+        f = self.gather_by_id(f)
+        if vtk is not None:
+            pos = f.pop("position")
+            self.root_write(lambda: vtk.write(w.time, w.step_count, pos, f))
+
+
+def by_id(parts):
+    """Dicts of per-particle arrays (one per rank, each with an ``id``) as one, ordered by id."""
+    out = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+    order = np.argsort(out["id"], kind="stable")
+    return {k: np.ascontiguousarray(v[order]) for k, v in out.items()}
