@@ -44,6 +44,6 @@ def __getattr__(name):  # lazy: importing dem.thermal must not pull in the solve
         from .simulation import Simulation
         return Simulation
     if name in ("SceneError",):
-        from .scene import SceneError
+        from .errors import SceneError
         return SceneError
     raise AttributeError(name)

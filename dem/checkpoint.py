@@ -28,7 +28,8 @@ import os
 
 import numpy as np
 
-from .scene import SceneError, parcel_factors
+from .errors import SceneError
+from .parcels import parcel_factors
 
 FORMAT = "thermodem-checkpoint"
 FORMAT_VERSION = 1

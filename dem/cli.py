@@ -224,7 +224,7 @@ def _main(argv=None):
                                                "file the tool did not write")
     d.add_argument("--color", default=None, help="field to colour by (default temperature or velocity)")
     args = ap.parse_args(argv)
-    from .scene import SceneError
+    from .errors import SceneError
     from .simulation import SimulationError
     from .parallel.domain import ParallelError
     from .parallel import launched_rank

@@ -30,7 +30,7 @@ import json
 import os
 import shutil
 
-from .scene import SceneError
+from .errors import SceneError
 
 MANIFEST = ".thermodem-manifest.json"
 # every temporary file this tool writes starts with this prefix (hidden, and ours alone), so

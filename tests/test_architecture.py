@@ -1,0 +1,153 @@
+"""The code's shape (issue 25), read from the sources with ast: no import circle in dem/ or
+coupling/, no function outside the scalar model laws with more than 12 parameters, no
+``range(...)`` index-constant tuples, and a Simulation that wires its parts (no attribute
+forwarding, under 300 lines)."""
+import ast
+import pathlib
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+PACKAGES = ("dem", "coupling")
+MAX_PARAMETERS = 12
+# the scalar model laws: one contact's physics, named after its authors, whose inputs are the
+# scalars of the paper's equation (docs/models.md); a record would only hide them
+SCALAR_LAWS = {
+    ("dem/contact/hertz_mindlin.py", "hertz_mindlin"),
+    ("dem/contact/linear.py", "linear_spring_dashpot"),
+    ("dem/contact/rolling.py", "epsd"),
+    ("dem/thermal/direct.py", "beaulieu_2020_network"),
+    ("dem/thermal/indirect.py", "_cheng_a_pp"),
+    ("dem/thermal/indirect.py", "_cheng_b_pp"),
+    ("dem/thermal/indirect.py", "_gan_a_pp"),
+    ("dem/thermal/indirect.py", "_chen_b_pp"),
+    ("dem/thermal/indirect.py", "_rong_horio_pp"),
+    ("dem/thermal/indirect.py", "_musser_pp"),
+    ("dem/thermal/indirect.py", "_vargas_pp"),
+}
+
+
+def _sources():
+    for pkg in PACKAGES:
+        for p in sorted((ROOT / pkg).rglob("*.py")):
+            yield p, ast.parse(p.read_text(), filename=str(p))
+
+
+def _module_name(p):
+    parts = list(p.relative_to(ROOT).with_suffix("").parts)
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def import_graph():
+    """module -> the modules of dem/coupling it imports (at module level or inside functions);
+    ``from pkg import mod`` counts as importing ``pkg.mod``."""
+    trees = {_module_name(p): (p, t) for p, t in _sources()}
+    graph = {m: set() for m in trees}
+    for m, (p, tree) in trees.items():
+        pkg = m.split(".") if p.name == "__init__.py" else m.split(".")[:-1]
+        for node in ast.walk(tree):
+            if isinstance(node, ast.ImportFrom):
+                base = pkg[:len(pkg) - node.level + 1] if node.level else []
+                target = ".".join(base + (node.module.split(".") if node.module else []))
+                names = [f"{target}.{a.name}" if f"{target}.{a.name}" in trees else target for a in node.names]
+            elif isinstance(node, ast.Import):
+                names = [a.name for a in node.names]
+            else:
+                continue
+            graph[m].update(n for n in names if n in trees and n != m)
+    return graph
+
+
+def cycles(graph):
+    """The strongly connected groups of more than one module (Tarjan)."""
+    index, low, stack, on, found = {}, {}, [], set(), []
+
+    def visit(v):
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on.add(v)
+        for w in sorted(graph[v]):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            group = []
+            while True:
+                w = stack.pop()
+                on.discard(w)
+                group.append(w)
+                if w == v:
+                    break
+            if len(group) > 1:
+                found.append(sorted(group))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return found
+
+
+def test_no_import_circles():
+    graph = import_graph()
+    assert "dem.simulation" in graph and "coupling.run" in graph  # the walk found the packages
+    assert cycles(graph) == []
+
+
+def test_cycle_finder_finds_a_cycle():
+    assert cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
+
+
+def _parameters(fn):
+    a = fn.args
+    n = len(a.posonlyargs) + len(a.args) + len(a.kwonlyargs) + (a.vararg is not None) + (a.kwarg is not None)
+    if a.args and a.args[0].arg in ("self", "cls"):
+        n -= 1
+    return n
+
+
+def test_no_long_parameter_lists():
+    long = []
+    for p, tree in _sources():
+        rel = p.relative_to(ROOT).as_posix()
+        for node in ast.walk(tree):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) and (rel, node.name) not in SCALAR_LAWS:
+                if _parameters(node) > MAX_PARAMETERS:
+                    long.append(f"{rel}:{node.lineno} {node.name} ({_parameters(node)})")
+    assert long == []
+
+
+def test_no_range_index_tuples():
+    """``A, B, C = range(3)``: slots known by position only; declare them by name instead."""
+    found = []
+    for p, tree in _sources():
+        for node in ast.walk(tree):
+            if (isinstance(node, ast.Assign) and isinstance(node.targets[0], ast.Tuple)
+                    and isinstance(node.value, ast.Call) and getattr(node.value.func, "id", "") == "range"):
+                found.append(f"{p.relative_to(ROOT).as_posix()}:{node.lineno}")
+    assert found == []
+
+
+def test_simulation_wires_parts():
+    src = (ROOT / "dem" / "simulation.py").read_text()
+    tree = ast.parse(src)
+    cls = next(n for n in tree.body if isinstance(n, ast.ClassDef) and n.name == "Simulation")
+    methods = {n.name for n in cls.body if isinstance(n, ast.FunctionDef)}
+    assert not methods & {"__getattr__", "__setattr__", "__getattribute__"}
+    assert len(src.splitlines()) < 300
+
+
+PARTS = ("simulation", "world", "stepper", "writers", "checkpointer", "reports", "fluid")
+NAMEDTUPLE_API = {"_fields", "_replace", "_asdict", "_make"}
+
+
+def test_parts_use_each_other_through_public_members():
+    """No part reads or sets another object's private member (``other._x``)."""
+    reached = []
+    for name in PARTS:
+        p = ROOT / "dem" / f"{name}.py"
+        for node in ast.walk(ast.parse(p.read_text())):
+            if (isinstance(node, ast.Attribute) and node.attr.startswith("_") and not node.attr.startswith("__")
+                    and node.attr not in NAMEDTUPLE_API
+                    and not (isinstance(node.value, ast.Name) and node.value.id == "self")):
+                reached.append(f"dem/{name}.py:{node.lineno} .{node.attr}")
+    assert reached == []
