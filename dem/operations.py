@@ -34,7 +34,7 @@ raises the same OutputError). :func:`standard` composes the list in this fixed o
     5. VTKWriter     the same steps, when output.vtk
     6. FinalState    at the end: final.npz
     7. FailedState   on a SimulationError: failed_state.npz (the state that failed)
-    8. Checkpointer  every checkpoint_interval, at the end and on a stop (checkpoint.npz)
+    8. CheckpointWriter every checkpoint_interval, at the end and on a stop (checkpoint.npz)
     9. ProgressBar   after every chunk
 
 ``start`` hooks run in that order before the first chunk (the writers write the initial
@@ -314,7 +314,7 @@ class FailedState(Operation):
             save_npz(self.path, **fa)
 
 
-class Checkpointer(Operation):
+class CheckpointWriter(Operation):
     """checkpoint.npz every ``n`` steps (n = 0: only) at the end and on a stop."""
 
     def __init__(self, path, n):
@@ -357,7 +357,7 @@ class Run:
     def __init__(self, sim, operations, end_step):
         self.sim, self.operations, self.end_step = sim, list(operations), int(end_step)
         self.wall_seconds = None
-        self.checkpoint = next((op.path for op in self.operations if isinstance(op, Checkpointer)), None)
+        self.checkpoint = next((op.path for op in self.operations if isinstance(op, CheckpointWriter)), None)
 
     def fire(self, event):
         step = self.sim.step_count
@@ -393,7 +393,7 @@ def standard(sim, end_step, out_dir=None, restarted=False, progress=None, log=No
         if sim.scene.output["vtk"]:
             ops.append(VTKWriter(out_dir, out_every, initial))
         ops += [FinalState(out_dir), FailedState(out_dir),
-                Checkpointer(os.path.join(out_dir, "checkpoint.npz"), ck_every)]
+                CheckpointWriter(os.path.join(out_dir, "checkpoint.npz"), ck_every)]
     ops.append(ProgressBar(end_step, progress, log or sys.stderr))
     return ops
 
@@ -456,5 +456,5 @@ def execute(sim, operations, end_step):
 
 __all__ = ["Trigger", "Every", "At", "EachPause", "AtEnd", "OnStop", "OnFailure", "AnyOf", "Operation",
            "EnergyCheck", "Sorter", "HistoryWriter", "VTKWriter", "FinalState", "FailedState",
-           "Checkpointer", "ProgressBar", "Run", "standard", "open_output", "execute", "next_pause",
+           "CheckpointWriter", "ProgressBar", "Run", "standard", "open_output", "execute", "next_pause",
            "intervals", "PAUSE", "END", "STOP", "FAIL"]
