@@ -144,7 +144,7 @@ def test_tight_and_huge_box_agree_to_round_off():
     tight = Simulation.from_dict(settle_scene(0.01))
     huge = Simulation.from_dict(settle_scene(20.0))
     for i in range(tight.state.n):
-        assert sorted(tight.nb[i, :tight.nnb[i]]) == sorted(huge.nb[i, :huge.nnb[i]])
+        assert sorted(tight.state.nb[i, :tight.state.nnb[i]]) == sorted(huge.state.nb[i, :huge.state.nnb[i]])
     tight.run(progress=False)
     huge.run(progress=False)
     a, b = tight.final_arrays(), huge.final_arrays()

@@ -496,7 +496,7 @@ def quadrature(quick):
             return Simulation.from_dict(sc)
         ref = build(QUAD_REF)
         ref.run(end_time=steps * dt, progress=False)
-        Href = ref.Hi.copy()
+        Href = ref.state.Hi.copy()
         mask = Href > 1e-9 * Href.max()
         for tol in QUAD_TOLS:
             sim = build(tol)
