@@ -24,6 +24,8 @@ from typing import Iterable, Mapping
 
 import numpy as np
 
+from .errors import CaseError, FoamError  # noqa: F401 - raised here, importable from here
+
 ROOT = Path(__file__).resolve().parent.parent
 SCRIPTS = ROOT / "scripts"
 TEMPLATES = ROOT / "openfoam_cases"
@@ -52,18 +54,6 @@ __all__ = [
 SIMULATION_TYPES = ("laminar", "RAS", "LES")
 # fields of the turbulence models checked for boundary conditions when present in 0/
 TURBULENCE_FIELDS = ("nut", "k", "epsilon", "omega", "nuTilda")
-
-
-class CaseError(ValueError):
-    """A problem with an OpenFOAM case; the message names the offending file."""
-
-    def __init__(self, path, message: str):
-        self.path = Path(path)
-        super().__init__(f"{self.path}: {message}")
-
-
-class FoamError(RuntimeError):
-    """An OpenFOAM command failed."""
 
 
 # --------------------------------------------------------------------------- environment
