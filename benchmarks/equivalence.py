@@ -31,8 +31,12 @@ import tempfile
 
 import numpy as np
 
-HERE = os.path.dirname(os.path.abspath(__file__))
-ROOT = os.path.dirname(HERE)
+# the tree under test: this file's, or the current folder's when the file was copied out of a
+# tree (to fingerprint an older checkout with this version: cd OLD && python /tmp/equivalence.py)
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+if not os.path.isdir(os.path.join(ROOT, "dem")):
+    ROOT = os.getcwd()
+HERE = os.path.join(ROOT, "benchmarks")
 sys.path.insert(0, ROOT)
 
 
