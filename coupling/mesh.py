@@ -48,6 +48,7 @@ import gzip
 import os
 import re
 import time
+from collections import namedtuple
 from dataclasses import dataclass
 
 import numpy as np
@@ -559,9 +560,20 @@ def _max_violation(x0, x1, x2, c, cf_off, cf_centre, cf_normal):
     return dmax, kbest
 
 
+# The tables the compiled location reads, one record (a named tuple of arrays: one compiled
+# signature): the per-cell face table (CSR offsets, face centres, outward unit normals, cell
+# across each face), the cells' bounding boxes and the cell buckets (PolyMesh.buckets).
+Locator = namedtuple("Locator", "cf_off cf_centre cf_normal cf_nbr cell_lo cell_hi "
+                                "b_origin b_h b_dims b_off b_cells")
+
+
 @njit(cache=True, error_model="numpy")
-def _locate_one(x0, x1, x2, hint, cf_off, cf_centre, cf_normal, cf_nbr,
-                cell_lo, cell_hi, b_origin, b_h, b_dims, b_off, b_cells, tol, max_walk):
+def _locate_one(x0, x1, x2, hint, L, tol, max_walk):
+    """Cell of point x (-1 outside): the walk from ``hint`` across the faces it lies beyond,
+    else the exact test of the cells of its bucket (L: the mesh's Locator)."""
+    cf_off, cf_centre, cf_normal, cf_nbr = L.cf_off, L.cf_centre, L.cf_normal, L.cf_nbr
+    cell_lo, cell_hi, b_origin, b_h, b_dims, b_off, b_cells = (L.cell_lo, L.cell_hi, L.b_origin, L.b_h,
+                                                                L.b_dims, L.b_off, L.b_cells)
     # 1. hint + walk
     c = hint
     if c >= 0:
@@ -600,14 +612,11 @@ def _locate_one(x0, x1, x2, hint, cf_off, cf_centre, cf_normal, cf_nbr,
 
 
 @njit(cache=True, parallel=True)
-def _locate_many(pts, hint, cf_off, cf_centre, cf_normal, cf_nbr, cell_lo, cell_hi,
-                 b_origin, b_h, b_dims, b_off, b_cells, tol, max_walk):
+def _locate_many(pts, hint, L, tol, max_walk):
     n = pts.shape[0]
     out = np.empty(n, np.int64)
     for p in prange(n):
-        out[p] = _locate_one(pts[p, 0], pts[p, 1], pts[p, 2], hint[p], cf_off, cf_centre,
-                             cf_normal, cf_nbr, cell_lo, cell_hi, b_origin, b_h, b_dims,
-                             b_off, b_cells, tol, max_walk)
+        out[p] = _locate_one(pts[p, 0], pts[p, 1], pts[p, 2], hint[p], L, tol, max_walk)
     return out
 
 
@@ -714,6 +723,7 @@ class PolyMesh:
         #: both cells; the first one found is returned)
         self.tol = 1e-12 * L
         self._buckets = None
+        self._locator = None
         self.lsq_inv = None  # least-squares matrices of the gradient interpolation (coupling.interpolate)
         self._uniform = "unset"
         self._point_nbrs = None
@@ -815,6 +825,13 @@ class PolyMesh:
             self._buckets = (lo.copy(), h, target, off, cells)
         return self._buckets
 
+    def locator(self) -> Locator:
+        """The location tables as one record for the compiled kernels (built once)."""
+        if self._locator is None:
+            self._locator = Locator(self.cf_off, self.cf_centre, self.cf_normal, self.cf_nbr,
+                                    self.cell_lo, self.cell_hi, *self.buckets())
+        return self._locator
+
     def locate(self, points, hint=None, method="auto", max_walk=64):
         """Cell index of each point (-1 outside the mesh).
 
@@ -844,10 +861,7 @@ class PolyMesh:
             if hint.shape != (n,):
                 raise ValueError("hint must have one entry per point")
             hint = np.where(hint < self.n_cells, hint, -1)
-        o, h, d, boff, bcells = self.buckets()
-        return _locate_many(pts, hint, self.cf_off, self.cf_centre, self.cf_normal,
-                            self.cf_nbr, self.cell_lo, self.cell_hi, o, h, d, boff,
-                            bcells, self.tol, max_walk)
+        return _locate_many(pts, hint, self.locator(), self.tol, max_walk)
 
     def locate_brute_force(self, points):
         """(cell, number_of_cells_containing) by testing every cell (tests)."""
