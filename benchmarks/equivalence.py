@@ -13,7 +13,7 @@ than --rtol (default 1e-12: round-off of a reordered sum, nothing more).
 Runs (about 4 minutes on 2 cores): the three examples to their end time, the shared 10k bed
 with heat for 2,000 steps (mean temperatures of the hot and cold halves), and
 tests/scenes/par_settle.toml on 2 MPI ranks (the parallel step). The coupled main case
-(``coupling run openfoam_cases/fluidized_bed_heating --end-time 0.01``: 20 coupling steps with
+(``coupling run openfoam_cases/fluidized_bed_heating --end-time 0.05``: 100 coupling steps with
 thermoDemFoam, about a minute) is fingerprinted by its final.npz, history.csv, coupling.csv
 (without the wall-clock column) and the gas fields of the last time folder (U, T, p, eps,
 ...: a sha256 of each file and its internal field's values). ``--only dem|coupled`` runs one
@@ -65,7 +65,7 @@ def _dem_run(args, out, mpi=0):
 
 
 COUPLED_CASE = "fluidized_bed_heating"
-COUPLED_END_TIME = "0.01"
+COUPLED_END_TIME = "0.05"
 GAS_FIELDS = ("U", "T", "p", "p_rgh", "eps", "alpha", "Ksl")
 
 
