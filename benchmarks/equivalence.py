@@ -12,7 +12,12 @@ than --rtol (default 1e-12: round-off of a reordered sum, nothing more).
 
 Runs (about 4 minutes on 2 cores): the three examples to their end time, the shared 10k bed
 with heat for 2,000 steps (mean temperatures of the hot and cold halves), and
-tests/scenes/par_settle.toml on 2 MPI ranks (the parallel step).
+tests/scenes/par_settle.toml on 2 MPI ranks (the parallel step). The coupled main case
+(``coupling run openfoam_cases/fluidized_bed_heating --end-time 0.05``: 100 coupling steps with
+thermoDemFoam, about a minute) is fingerprinted by its final.npz, history.csv, coupling.csv
+(without the wall-clock column) and the gas fields of the last time folder (U, T, p, eps,
+...: a sha256 of each file and its internal field's values). ``--only dem|coupled`` runs one
+part alone (the coupled part needs OpenFOAM and the thermoDemFoam build of scripts/setup.sh).
 """
 import argparse
 import csv
@@ -26,8 +31,12 @@ import tempfile
 
 import numpy as np
 
-HERE = os.path.dirname(os.path.abspath(__file__))
-ROOT = os.path.dirname(HERE)
+# the tree under test: this file's, or the current folder's when the file was copied out of a
+# tree (to fingerprint an older checkout with this version: cd OLD && python /tmp/equivalence.py)
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+if not os.path.isdir(os.path.join(ROOT, "dem")):
+    ROOT = os.getcwd()
+HERE = os.path.join(ROOT, "benchmarks")
 sys.path.insert(0, ROOT)
 
 
@@ -55,8 +64,67 @@ def _dem_run(args, out, mpi=0):
     subprocess.run(cmd, check=True, env=env, cwd=ROOT, stdout=subprocess.DEVNULL)
 
 
-def collect(quick=False):
+COUPLED_CASE = "fluidized_bed_heating"
+COUPLED_END_TIME = "0.05"
+GAS_FIELDS = ("U", "T", "p", "p_rgh", "eps", "alpha", "Ksl")
+
+
+def _table(path, drop=()):
+    """A CSV file as (columns, rows of exact floats) without the columns in ``drop``."""
+    cols, rows = _history(path)
+    keep = [i for i, c in enumerate(cols) if c not in drop]
+    return [cols[i] for i in keep], [[r[i] for i in keep] for r in rows]
+
+
+def _gas_fields(out):
+    """sha256 of every gas field file of the last time folder and its internal field's values."""
+    from coupling.foam_case import read_internal_field
+    times = sorted((float(p.name), p.name) for p in os.scandir(out) if p.is_dir() and _is_time(p.name))
+    last = os.path.join(out, times[-1][1])
+    sha, values = {}, {}
+    for name in GAS_FIELDS:
+        path = os.path.join(last, name)
+        if not os.path.isfile(path):
+            continue
+        with open(path, "rb") as fh:
+            sha[f"gas_{name}"] = hashlib.sha256(fh.read()).hexdigest()
+        values[f"gas_{name}"] = np.asarray(read_internal_field(path), float).ravel().tolist()
+    return times[-1][1], sha, values
+
+
+def _is_time(name):
+    try:
+        return float(name) > 0
+    except ValueError:
+        return False
+
+
+def coupled():
+    """The coupled main case to COUPLED_END_TIME: one fingerprint (history = coupling.csv rows)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        out = os.path.join(tmp, COUPLED_CASE)
+        env = dict(os.environ, PYTHONPATH=ROOT + os.pathsep + os.environ.get("PYTHONPATH", ""))
+        subprocess.run([sys.executable, "-m", "coupling.run", "run", os.path.join(ROOT, "openfoam_cases", COUPLED_CASE),
+                        "--out", out, "--end-time", COUPLED_END_TIME, "--quiet"],
+                       check=True, env=env, cwd=ROOT, stdout=subprocess.DEVNULL)
+        res = _fingerprint(out)
+        ccols, crows = _table(os.path.join(out, "coupling.csv"), drop=("wall",))
+        res["columns"] = res["columns"] + ccols
+        res["history"] = res["history"] + crows
+        last, sha, values = _gas_fields(out)
+        res["sha"].update(sha)
+        res["final"].update(values)
+    name = f"{COUPLED_CASE} (coupled, to {COUPLED_END_TIME} s)"
+    print(f"{name}: {len(crows)} coupling.csv rows, gas fields of t = {last}: {sorted(sha)}", flush=True)
+    return {name: res}
+
+
+def collect(quick=False, only=None):
     res = {}
+    if only != "dem":
+        res.update(coupled())
+    if only == "coupled":
+        return res
     with tempfile.TemporaryDirectory() as tmp:
         for path in sorted(glob.glob(os.path.join(ROOT, "examples", "*.toml"))):
             name = os.path.basename(path)
@@ -97,10 +165,11 @@ def _rel(a, b):
     return float(np.max(np.abs(a - b) / np.maximum(scale, np.max(np.abs(a)) * 1e-300 + 1e-300)))
 
 
-def compare(ref, new, rtol):
+def compare(ref, new, rtol, only=None):
+    """Every run of ``ref`` (with ``only``: those of ``ref`` this run made) against ``new``."""
     worst = 0.0
     ok = True
-    for name in ref:
+    for name in (n for n in ref if not only or n in new):
         if name not in new:
             print(f"{name}: missing in the new run")
             ok = False
@@ -128,15 +197,16 @@ def main():
     ap.add_argument("--compare")
     ap.add_argument("--rtol", type=float, default=1e-12)
     ap.add_argument("--quick", action="store_true", help="examples to 0.05 s, shared bed 500 steps")
+    ap.add_argument("--only", choices=["dem", "coupled"], help="run only the DEM runs or only the coupled case")
     a = ap.parse_args()
-    res = collect(a.quick)
+    res = collect(a.quick, a.only)
     if a.save:
         with open(a.save, "w") as fh:
             json.dump(res, fh)
     if a.compare:
         with open(a.compare) as fh:
             ref = json.load(fh)
-        return 0 if compare(ref, res, a.rtol) else 1
+        return 0 if compare(ref, res, a.rtol, a.only) else 1
     return 0
 
 

@@ -59,6 +59,7 @@ from pathlib import Path
 import numpy as np
 
 from . import foam_case as fc
+from .errors import CaseConfigError  # noqa: F401 - raised here, importable from here
 from .drag import DRAG_MODELS, drag_coefficients, drag_model_id
 from .forces import LIFT_MODELS, TORQUE_MODELS
 from .interface import GasProperties
@@ -74,14 +75,6 @@ GAS_CFL = (0.5, 1.0)
 RELAXATION_RATIO = 1.0           # CFD deltaT / (m / beta_imp): a warning (accuracy of transients)
 CELL_DIAMETERS = 3.0             # warn when the cell size is below this many diameters
 CLIPPED_VOLUME = 0.05            # refuse when eps_min clipping hides more of the particle volume
-
-
-class CaseConfigError(fc.CaseError):
-    """Invalid coupled case; the message names the file (and the key)."""
-
-    def __init__(self, path, message: str, key: str | None = None):
-        super().__init__(path, f"{key}: {message}" if key else message)
-        self.key = key
 
 
 @dataclass

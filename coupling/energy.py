@@ -46,6 +46,8 @@ import math
 
 import numpy as np
 
+from .errors import CaseConfigError, CouplingError
+
 AREA_RTOL = 0.03          # tied pair: |A_patch / A_wall - 1| allowed beyond the chord loss
 TIE_KEYS = ("dem", "patch", "tolerance")
 
@@ -54,7 +56,6 @@ TIE_KEYS = ("dem", "patch", "tolerance")
 
 def parse_ties(path, raw) -> list[dict]:
     """coupling.toml [[walls]] -> [{dem, patch, tolerance}]; CaseConfigError naming the key."""
-    from .case import CaseConfigError
     if not isinstance(raw, list) or not all(isinstance(t, dict) for t in raw):
         raise CaseConfigError(path, "must be an array of tables [[walls]] with dem = \"<DEM wall name>\" and "
                                     "patch = \"<gas patch name>\"", "walls")
@@ -86,7 +87,6 @@ def check_tie_names(case) -> None:
     """Before anything is written: each tied DEM wall exists in dem.toml and each patch in the
     gas case (constant/polyMesh/boundary or system/blockMeshDict)."""
     from . import foam_case as fc
-    from .case import CaseConfigError
     ties = case.config.walls
     if not ties:
         return
@@ -119,7 +119,6 @@ def _gas_condition(case, patch):
 def _check_condition(case, k, t, w):
     """A tied wall is one wall: the gas patch's temperature condition (0/T) must be the DEM
     wall's (the same fixed temperature, or adiabatic on both sides)."""
-    from .case import CaseConfigError
     spec = w.get("thermal") or {"condition": "adiabatic"}
     cond = spec.get("condition", "adiabatic")
     gas = _gas_condition(case, t["patch"])
@@ -205,7 +204,6 @@ def tie_walls(case, mesh) -> dict[int, int]:
     boundary's order, the ledger's)}. CaseConfigError naming both when a pair does not
     coincide."""
     from dem.thermal.wall_heat import wall_area
-    from .case import CaseConfigError
     ties = case.config.walls
     if not ties:
         return {}
@@ -279,7 +277,6 @@ class EnergyLedger:
 
     def check(self, scalars, step):
         """The ledger of a received frame must have this mesh's size and be finite."""
-        from .exchange import CouplingError
         s = np.asarray(scalars)
         if s.size != self.size:
             raise CouplingError(f"the frame's energy ledger has {s.size} entries; this mesh's "

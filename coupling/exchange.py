@@ -51,6 +51,8 @@ from typing import Mapping
 
 import numpy as np
 
+from .errors import CouplingError  # noqa: F401 - raised here, importable from here
+
 __all__ = [
     "CouplingError",
     "FileExchange",
@@ -87,16 +89,6 @@ TO_DEM_FIELDS: tuple[tuple[str, int], ...] = (
 )
 _LAYOUT = {KIND_TO_CFD: TO_CFD_FIELDS, KIND_TO_DEM: TO_DEM_FIELDS}
 _SIDES = {"dem": (KIND_TO_CFD, KIND_TO_DEM), "cfd": (KIND_TO_DEM, KIND_TO_CFD)}
-
-
-class CouplingError(RuntimeError):
-    """Failure of the coupling exchange; the message names the peer and the step."""
-
-    def __init__(self, message: str, *, peer: str = "CFD", step: int | None = None):
-        self.peer = peer
-        self.step = step
-        where = f" [peer: {peer}, coupling step {step}]" if step is not None else f" [peer: {peer}]"
-        super().__init__(message + where)
 
 
 # --------------------------------------------------------------------------- frames

@@ -18,11 +18,14 @@ import os
 import re
 import shutil
 import subprocess
+from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
 from typing import Iterable, Mapping
 
 import numpy as np
+
+from .errors import CaseError, FoamError  # noqa: F401 - raised here, importable from here
 
 ROOT = Path(__file__).resolve().parent.parent
 SCRIPTS = ROOT / "scripts"
@@ -52,18 +55,6 @@ __all__ = [
 SIMULATION_TYPES = ("laminar", "RAS", "LES")
 # fields of the turbulence models checked for boundary conditions when present in 0/
 TURBULENCE_FIELDS = ("nut", "k", "epsilon", "omega", "nuTilda")
-
-
-class CaseError(ValueError):
-    """A problem with an OpenFOAM case; the message names the offending file."""
-
-    def __init__(self, path, message: str):
-        self.path = Path(path)
-        super().__init__(f"{self.path}: {message}")
-
-
-class FoamError(RuntimeError):
-    """An OpenFOAM command failed."""
 
 
 # --------------------------------------------------------------------------- environment
@@ -274,18 +265,34 @@ FoamFile
 """
 
 
-def write_coupling_dict(case, transport: str = "file", *, timeout: float = 60,
-                        connect_timeout: float | None = None, directory: str = "coupling",
-                        poll_interval: float = 0.002, keep_files: bool = False,
-                        port: int | None = None, path: str | None = None,
-                        host: str = "127.0.0.1", role: str = "client",
-                        send_velocity: str = "cell", tied: dict | None = None) -> Path:
+@dataclass(frozen=True)
+class LinkOptions:
+    """The rest of system/couplingDict's transport settings (the defaults are the coupled
+    run's): ``connect_timeout`` (s; None: ``timeout``), the file transport's ``directory``,
+    ``poll_interval`` (s) and ``keep_files``, the socket's ``path`` (a Unix socket instead of
+    a port), ``host`` and the solver's ``role`` (client: it connects to the DEM)."""
+
+    connect_timeout: float | None = None
+    directory: str = "coupling"
+    poll_interval: float = 0.002
+    keep_files: bool = False
+    path: str | None = None
+    host: str = "127.0.0.1"
+    role: str = "client"
+
+
+def write_coupling_dict(case, transport: str = "file", *, timeout: float = 60, port: int | None = None,
+                        send_velocity: str = "cell", tied: dict | None = None,
+                        options: LinkOptions = LinkOptions()) -> Path:
     """Write ``system/couplingDict`` (transport file | socket | none).
 
-    ``send_velocity``: "cell" (momentum velocity, default) or "flux" (reconstructed from
+    ``port``: the socket transport's TCP port (or ``options.path``). ``send_velocity``: "cell" (momentum velocity, default) or "flux" (reconstructed from
     the face fluxes, exact mass flow). ``tied``: {patches, fixed_flux, fluxes} of the walls
     tied to DEM walls (coupling.energy.FluxSplit): two frame columns each (the particles'
     contact and gas-gap heat per cell), and a fixed-flux one gives the gas the rest of q_w."""
+    o = options
+    connect_timeout, directory, poll_interval, keep_files = o.connect_timeout, o.directory, o.poll_interval, o.keep_files
+    path, host, role = o.path, o.host, o.role
     if send_velocity not in ("cell", "flux"):
         raise ValueError("send_velocity must be cell or flux")
     if transport not in ("file", "socket", "none"):

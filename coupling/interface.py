@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections import namedtuple
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -301,14 +302,14 @@ class CouplingInterface:
             # the particle velocity the gas of this frame responded to: Us of the last frame at the
             # particle (its own velocity at the first frame)
             up = vel if self.us_sent is None else _gather_vector(pw.cells, pw.weights, self.us_sent, vel)
-            force, beta, bimp, fexp = _particle_forces(self.drag_id, self.model_type == "B", rad, st.cg[:n],
-                                                       vel, uf, gradp,
-                                                       eps_p, self.gas.rho, self.gas.mu, self.gravity, cells, up,
-                                                       self.drag_mode)
+            at = AtParticles(rad, vel, uf, cells)
+            force, beta, bimp, fexp = _particle_forces(self.drag_id, self.model_type == "B", self.drag_mode, at,
+                                                       st.cg[:n], gradp, eps_p, up, self.gas.rho, self.gas.mu,
+                                                       self.gravity)
             tframe = None
             if extra:
                 fadd, texp, krot, madd, tframe = _extra_terms(
-                    self.torque_id, self.lift_id, self.virtual_mass, rad, vel, st.angular_velocity[:n], uf, cells,
+                    self.torque_id, self.lift_id, self.virtual_mass, at, st.angular_velocity[:n],
                     G, acc, self.gas.rho, self.gas.mu, C_VM)
                 # lift and the Du_f/Dt part of the virtual mass: explicit, held over the interval
                 fexp += fadd
@@ -409,8 +410,13 @@ def _gather_vector(scells, sweights, field, own):
     return out
 
 
+# What the force kernels read of each particle at the frame, one record (a named tuple of
+# arrays): radius, velocity, gas velocity at the particle, centre cell (-1: outside the mesh).
+AtParticles = namedtuple("AtParticles", "rad vel uf cells")
+
+
 @njit(cache=True, error_model="numpy")
-def _particle_forces(model_id, model_b, rad, cg, vel, uf, gradp, eps_p, rho, mu, g, cells, up, mode):
+def _particle_forces(model_id, model_b, mode, at, cg, gradp, eps_p, up, rho, mu, g):
     """beta_p (drag law; /eps for model B) and the fluid force on each particle at the frame:
     A: beta (u_f - u_p) - V_p grad p;  B: beta (u_f - u_p) - rho V_p g.
     A parcel (cg: its coarse-graining factor; empty without coarse graining) takes the drag of its
@@ -432,7 +438,8 @@ def _particle_forces(model_id, model_b, rad, cg, vel, uf, gradp, eps_p, rho, mu,
     * explicit: beta_imp = 0, F_exp = force (held over the coupling step).
 
     In every mode the force at the frame's velocities is the frame force, so the terminal
-    velocity of any step is the drag law's."""
+    velocity of any step is the drag law's. ``at``: the particles' AtParticles."""
+    rad, vel, uf, cells = at.rad, at.vel, at.uf, at.cells
     n = rad.shape[0]
     force = np.zeros((n, 3))
     fexp = np.zeros((n, 3))
@@ -498,7 +505,7 @@ def _material_derivative(U, G, u_prev, dt):
 
 
 @njit(cache=True, error_model="numpy")
-def _extra_terms(torque_id, lift_id, vm, rad, vel, angvel, uf, cells, G, acc, rho, mu, cvm):
+def _extra_terms(torque_id, lift_id, vm, at, angvel, G, acc, rho, mu, cvm):
     """Fluid torque, lift and virtual mass of each particle at the frame (coupling.forces),
     from the gas velocity uf at the particle and the gradient G of its cell (vorticity
     om = curl u_f, Omega_f = om / 2). Returns
@@ -507,7 +514,9 @@ def _extra_terms(torque_id, lift_id, vm, rad, vel, angvel, uf, cells, G, acc, rh
     * texp, krot: the explicit part k_rot Omega_f of the torque and k_rot, for the DEM's
       implicit angular kick (torque k_rot (Omega_f - omega));
     * madd: the added mass C_vm rho_f V_p (the DEM's kick takes -madd dv/dt implicitly);
-    * tframe: the torque k_rot (Omega_f - omega_p) at the frame (for the record)."""
+    * tframe: the torque k_rot (Omega_f - omega_p) at the frame (for the record).
+    ``at``: the particles' AtParticles."""
+    rad, vel, uf, cells = at.rad, at.vel, at.uf, at.cells
     n = rad.shape[0]
     fadd = np.zeros((n, 3))
     texp = np.zeros((n, 3))

@@ -164,8 +164,9 @@ class ParticleWeights:
 
 
 @njit(cache=True, error_model="numpy")
-def _divided_kernel(pos, rad, cc, sat, cf_off, cf_centre, cf_normal, cf_nbr, cell_lo,
-                    cell_hi, b_origin, b_h, b_dims, b_off, b_cells, tol, max_walk):
+def _divided_kernel(pos, rad, cc, sat, L, tol, max_walk):
+    """Satellite weights of each particle (L: the mesh's coupling.mesh.Locator)."""
+    cf_off, cf_centre, cf_normal = L.cf_off, L.cf_centre, L.cf_normal
     n = pos.shape[0]
     ns = sat.shape[0]
     cells = np.full((n, ns), -1, np.int64)
@@ -184,9 +185,7 @@ def _divided_kernel(pos, rad, cc, sat, cf_off, cf_centre, cf_normal, cf_nbr, cel
         n_in = 0
         for s in range(ns):
             c = _locate_one(pos[p, 0] + r * sat[s, 0], pos[p, 1] + r * sat[s, 1],
-                            pos[p, 2] + r * sat[s, 2], c0, cf_off, cf_centre, cf_normal,
-                            cf_nbr, cell_lo, cell_hi, b_origin, b_h, b_dims, b_off,
-                            b_cells, tol, max_walk)
+                            pos[p, 2] + r * sat[s, 2], c0, L, tol, max_walk)
             tmp[s] = c
             if c >= 0:
                 n_in += 1
@@ -354,10 +353,7 @@ def compute_weights(mesh: PolyMesh, positions, radii, model: str = "divided",
         sat = _SAT_CACHE.get(n_satellites)
         if sat is None:
             sat = _SAT_CACHE[n_satellites] = satellite_points(n_satellites)
-        o, h, d, boff, bcells = mesh.buckets()
-        cells, weights = _divided_kernel(pos, rad, cc, sat, mesh.cf_off, mesh.cf_centre,
-                                         mesh.cf_normal, mesh.cf_nbr, mesh.cell_lo,
-                                         mesh.cell_hi, o, h, d, boff, bcells, mesh.tol, 64)
+        cells, weights = _divided_kernel(pos, rad, cc, sat, mesh.locator(), mesh.tol, 64)
     else:
         off, nbrs, kmax, hh = _smoothed_tables(mesh, float(kernel_width))
         if (out is not None and out.model == "smoothed" and out.cells.shape == (n, kmax)

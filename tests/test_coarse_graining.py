@@ -115,7 +115,7 @@ def test_drag_is_the_real_particles_times_W(law):
     """beta of a parcel = cg^3 beta(d / cg) for every drag law, and the pressure-gradient force
     is on the parcel's whole volume."""
     from coupling.drag import DRAG_MODELS, drag_coefficient, drag_model_id
-    from coupling.interface import DRAG_EXPLICIT, _particle_forces
+    from coupling.interface import DRAG_EXPLICIT, AtParticles, _particle_forces
     assert sorted(DRAG_MODELS) == sorted(["di_felice_1994", "gidaspow_1994", "beetstra_2007",
                                           "huilin_gidaspow_2003"])   # every law of the catalogue
     mid = drag_model_id(law)
@@ -126,15 +126,15 @@ def test_drag_is_the_real_particles_times_W(law):
     gradp = np.tile([0.0, 0.0, -1.2e4], (3, 1))
     eps = np.array([0.5, 0.5, 0.5])
     cells = np.zeros(3, np.int64)
-    force, beta, bimp, fexp = _particle_forces(mid, False, rad, cg, vel, uf, gradp, eps, 1.2, 1.8e-5,
-                                               np.array([0.0, 0.0, -9.81]), cells, vel, DRAG_EXPLICIT)
+    force, beta, bimp, fexp = _particle_forces(mid, False, DRAG_EXPLICIT, AtParticles(rad, vel, uf, cells), cg,
+                                               gradp, eps, vel, 1.2, 1.8e-5, np.array([0.0, 0.0, -9.81]))
     b1 = drag_coefficient(mid, 2 * R, 0.5, 1.2, 1.8e-5, 0.8)
     assert beta == pytest.approx(cg ** 3 * b1, rel=1e-13)
     vp = 4 / 3 * math.pi * rad ** 3
     assert force[:, 2] == pytest.approx(beta * 0.8 + vp * 1.2e4, rel=1e-13)
     # without coarse graining (an empty cg), the law at the given diameter
-    _, b0, _, _ = _particle_forces(mid, False, rad[:1], np.zeros(0), vel[:1], uf[:1], gradp[:1], eps[:1], 1.2,
-                                   1.8e-5, np.array([0.0, 0.0, -9.81]), cells[:1], vel[:1], DRAG_EXPLICIT)
+    _, b0, _, _ = _particle_forces(mid, False, DRAG_EXPLICIT, AtParticles(rad[:1], vel[:1], uf[:1], cells[:1]),
+                                   np.zeros(0), gradp[:1], eps[:1], vel[:1], 1.2, 1.8e-5, np.array([0.0, 0.0, -9.81]))
     assert b0[0] == b1
 
 

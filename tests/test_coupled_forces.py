@@ -131,7 +131,7 @@ def test_interface_vorticity_and_material_derivative():
     """For a linear gas field U = A x + b the least-squares gradient is exact (interior and
     boundary cells of a hex mesh), so the interface's vorticity is curl U = the axial vector
     of A - A^T, and Du/Dt = (U - U_prev)/dt + A U."""
-    from coupling.interface import _extra_terms, _material_derivative
+    from coupling.interface import AtParticles, _extra_terms, _material_derivative
     from coupling.interpolate import cell_gradient
     mesh = _box_mesh()
     A = np.array([[0.1, 2.0, -0.5], [0.3, -0.2, 1.5], [0.7, -1.1, 0.1]])
@@ -149,7 +149,8 @@ def test_interface_vorticity_and_material_derivative():
     rad = np.full(n, 1e-4)
     vel = np.zeros((n, 3))
     om_p = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, -2.0, 5.0]])
-    fadd, texp, krot, madd, tfr = _extra_terms(1, 0, True, rad, vel, om_p, U[cells], cells, G, acc, RHO, MU, C_VM)
+    at = AtParticles(rad, vel, U[cells], cells)
+    fadd, texp, krot, madd, tfr = _extra_terms(1, 0, True, at, om_p, G, acc, RHO, MU, C_VM)
     d = 2e-4
     k = math.pi * MU * d ** 3
     assert np.allclose(krot, k, rtol=1e-14)

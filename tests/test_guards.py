@@ -149,7 +149,7 @@ def test_check_warns_impact_overlap():
 
 def test_gas_field_guard_messages():
     from coupling.exchange import CouplingError
-    from coupling.run import GasFieldError, check_gas_fields
+    from coupling.diagnostics import GasFieldError, check_gas_fields
     n = 6
     fluid = dict(U=np.zeros((n, 3)), T=np.full(n, 300.0), gradp=np.zeros((n, 3)), p=np.zeros(n))
     mesh = SimpleNamespace(cell_centres=np.arange(3 * n, dtype=float).reshape(n, 3) * 1e-3)
@@ -184,7 +184,7 @@ def test_gas_field_guard_messages():
 
 
 def test_run_watch_warns_once():
-    from coupling.run import RunWatch
+    from coupling.diagnostics import RunWatch
     lines = []
     mesh = SimpleNamespace(cell_centres=np.zeros((10, 3)))
     cfg = SimpleNamespace(smoothing_time=0.0, eps_min=0.3, void_fraction="centre")

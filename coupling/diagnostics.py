@@ -1,0 +1,346 @@
+"""What a coupled run reports: the output of an output step (history.csv, VTK, coupling.csv,
+wall_heat.csv and wall_heat_angle.csv: :class:`Outputs`; coupling.csv's rows:
+:class:`Diagnostics`), coupling.png (:func:`plot`), timings.json and the closing summary,
+the guard on every gas frame (:func:`check_gas_fields`, GasFieldError) and the run's
+warnings (:class:`RunWatch`: eps clipping, sudden void fraction changes, fast gas).
+"""
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from .errors import GasFieldError
+
+
+class Diagnostics:
+    """coupling.csv rows: energies, heat rate, pressure drop, bed height, timings."""
+
+    COLUMNS = ["time", "step", "T_particles", "T_gas", "E_particles", "E_gas", "Q_to_gas",
+               "E_conv_particles", "dp", "bed_height", "v_max", "n_outside", "eps_raw_min",
+               "eps_clipped_cells", "wall"]
+
+    def __init__(self, path, mesh, gas, keep_until=None, ledger=None):
+        from dem.output import History
+        from .energy import BALANCE_COLUMNS
+        self.ledger = ledger
+        self.hist = History(str(path), self.COLUMNS + (BALANCE_COLUMNS if ledger is not None else []), keep_until)
+        self.mesh = mesh
+        self.gas = gas
+        z = np.round(mesh.cell_centres[:, 2], 12)
+        self.zlev = np.unique(z)
+        self.bottom = np.flatnonzero(z == self.zlev[0])
+        self.top = np.flatnonzero(z == self.zlev[-1])
+
+    @staticmethod
+    def particle_records(sim):
+        """[E_particles, E_conv, E_walls, E_sources] (J) of the particles, summed over the ranks
+        (collective): their thermal energy sum(C T) and what they received since the DEM's start
+        by convection, through the walls, and by radiation, generation and sources."""
+        from dem.thermal.heat import E_CONV, E_GEN, E_RAD, E_SRC, E_WALL
+        a = np.zeros(4)
+        if sim.thermal is not None:
+            st, tot = sim.state, sim.thermal.tot
+            n = st.n_owned
+            a[:] = (float((st.temperature[:n] / st.inv_heat_capacity[:n]).sum()), tot[E_CONV], tot[E_WALL],
+                    tot[E_RAD] + tot[E_GEN] + tot[E_SRC])
+        if sim.par is not None:
+            a = np.asarray(sim.par.allsum(a), float)
+        return a
+
+    @staticmethod
+    def row_of(diag, t, step, sim, iface, fluid, frame, wall):
+        """Particle sums of this rank, summed over the ranks; rank 0 (diag) writes the row. The
+        particles' energy and convective heat are particle_records' (the balance's own)."""
+        st = sim.state
+        n = st.n_owned
+        loc = np.zeros(7)
+        if n:
+            loc[3] = float(st.position[:n, 2].sum())
+            loc[5] = float(np.sqrt((st.velocity[:n] ** 2).sum(1)).max())
+        loc[4] = n
+        loc[6] = iface.n_lost
+        if sim.thermal is not None:
+            loc[1] = float((1.0 / st.inv_heat_capacity[:n]).sum())
+        if sim.par is not None:
+            vmax = sim.par.allmax(loc[5])
+            loc = sim.par.allsum(loc)
+            loc[5] = vmax
+        precs = Diagnostics.particle_records(sim)
+        if diag is not None:
+            diag.row(t, step, sim, iface, fluid, frame, wall, loc, precs)
+
+    def row(self, t, step, sim, iface, fluid, frame, wall, sums, precs):
+        """One coupling.csv row: ``sums`` = [-, sum C, -, sum z, n, max |v|, n lost] over the
+        ranks, ``precs`` = particle_records."""
+        V = self.mesh.cell_volumes
+        g = self.gas
+        eps = frame["eps"]
+        T = fluid["T"]
+        if sim.thermal is not None:
+            Ep = float(precs[0])
+            Tp = float(precs[0] / sums[1])
+            Ec = float(precs[1])
+        else:
+            Tp = Ep = Ec = float("nan")
+        mg = g.rho * g.cp * eps * V
+        Eg = float((mg * T).sum())
+        Tg = float(Eg / mg.sum())
+        q = float(((frame["Sexp"] - frame["Simp"] * T) * V).sum())
+        p = fluid["p"]
+        dp = float(p[self.bottom].mean() - p[self.top].mean())
+        zb = float(sums[3] / sums[4]) if sums[4] else 0.0
+        row = dict(time=t, step=step, T_particles=Tp, T_gas=Tg, E_particles=Ep, E_gas=Eg,
+                   Q_to_gas=q, E_conv_particles=Ec, dp=dp, bed_height=zb, v_max=float(sums[5]),
+                   n_outside=int(sums[6]), eps_raw_min=iface.clip["eps_raw_min"],
+                   eps_clipped_cells=iface.clip["cells"], wall=wall)
+        if self.ledger is not None:
+            row.update(self.ledger.row(fluid["scalars"], precs))
+        self.hist.add(row)
+
+
+def plot(out: Path, title: str) -> Path | None:
+    """coupling.png: particle/gas temperature, heat rate, pressure drop, bed height."""
+    try:
+        import matplotlib
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        return None
+    f = out / "coupling.csv"
+    if not f.exists():
+        return None
+    d = np.atleast_1d(np.genfromtxt(f, delimiter=",", names=True))
+    if d.size < 2:
+        return None
+    fig, ax = plt.subplots(2, 2, figsize=(10, 7))
+    t = d["time"]
+    ax[0, 0].plot(t, d["T_particles"], label="particles (mass-weighted)")
+    ax[0, 0].plot(t, d["T_gas"], label="gas (eps rho cp V weighted)")
+    ax[0, 0].set_ylabel("T [K]")
+    ax[0, 0].legend()
+    ax[0, 1].plot(t, d["Q_to_gas"])
+    ax[0, 1].set_ylabel("heat to the gas [W]")
+    ax[1, 0].plot(t, d["dp"])
+    ax[1, 0].set_ylabel("p(bottom cells) - p(top cells) [Pa]")
+    ax[1, 1].plot(t, d["bed_height"])
+    ax[1, 1].set_ylabel("mean particle height [m]")
+    for a in ax.ravel():
+        a.set_xlabel("t [s]")
+        a.grid(alpha=0.3)
+    fig.suptitle(title)
+    fig.tight_layout()
+    p = out / "coupling.png"
+    from dem.output import atomic_write
+    try:
+        atomic_write(str(p), lambda tmp: fig.savefig(tmp, dpi=110, format="png"))
+    finally:
+        plt.close(fig)
+    return p
+
+
+class Outputs:
+    """The writers of an output step (rank 0 writes; built before the first step):
+    history.csv, VTK, coupling.csv, and with heat and DEM walls wall_heat.csv (and
+    wall_heat_angle.csv when wanted). ``outputs(fluid, frame, t, step)`` writes one output
+    step (collective over the DEM ranks). ``keep``: the time up to which earlier rows are
+    kept (a restart), else None."""
+
+    def __init__(self, root, iface, case, ledger, out: Path, keep, t_wall0):
+        from dem.output import History, VTKSeries
+        sim = iface.sim
+        self.sim, self.iface, self.ledger, self.t_wall0 = sim, iface, ledger, t_wall0
+        self.hist = self.vtk = self.diag = self.walls = self.walls_by_angle = None
+        if not root:
+            return
+        self.hist = History(str(out / "history.csv"), sim.history_columns(), keep)
+        if sim.thermal is not None and sim.scene.walls:
+            from dem.thermal.wall_heat import WallAngleFile, WallHeatFile
+            self.walls = WallHeatFile(str(out / "wall_heat.csv"), sim.scene, keep)
+            if WallAngleFile.wanted(sim.scene):
+                self.walls_by_angle = WallAngleFile(str(out / "wall_heat_angle.csv"), sim.scene, keep)
+        self.vtk = VTKSeries(str(out)) if sim.scene.output["vtk"] else None
+        self.diag = Diagnostics(out / "coupling.csv", iface.mesh, case.gas, keep, ledger)
+
+    def __call__(self, fluid, frame, t, step):
+        sim, timer = self.sim, self.iface.timer
+        self._rows(fluid, frame, t, step)
+        totals = sim.wall_heat_totals()   # collective over the DEM ranks
+        from dem.thermal.wall_heat import WallAngleFile, cylinder_flux_by_angle
+        by_angle = cylinder_flux_by_angle(sim) if WallAngleFile.wanted(sim.scene) else None   # collective
+        with timer("output"):
+            if self.walls is not None:
+                self.walls.add(t, totals, gas=self.ledger.gas_wall_energy(len(sim.scene.walls)))
+            if self.walls_by_angle is not None:
+                self.walls_by_angle.add(t, by_angle)
+
+    def _rows(self, fluid, frame, t, step):
+        """history.csv, VTK and coupling.csv rows (collective over the DEM ranks; rank 0 writes)."""
+        sim, iface = self.sim, self.iface
+        with iface.timer("output"):
+            row = sim.history_row()
+            if self.hist is not None:
+                self.hist.add(row)
+            if sim.scene.output["vtk"]:
+                n = sim.state.n_owned
+                force = np.ascontiguousarray(iface.last.get("force", np.zeros((n, 3))))
+                sim.write_vtk(self.vtk, fluid_force=force)
+            Diagnostics.row_of(self.diag, t, step, sim, iface, fluid, frame, time.perf_counter() - self.t_wall0)
+
+
+# gas speed above which the (incompressible) gas solution is taken as diverged: the
+# speed of sound in air at 20 C (the model is invalid far below it, above Mach ~0.3)
+GAS_SPEED_LIMIT = 343.0
+
+
+class RunWatch:
+    """Runtime warnings of a coupled run, each printed once (rank 0), the worst values kept
+    for the summary: void fraction clipped at eps_min (solid volume the gas does not see),
+    a sudden change of the void fraction between two coupling steps (the gas must displace
+    that volume within one CFD step), a gas faster than Mach 0.3 (outside the
+    incompressible model)."""
+
+    EPS_CHANGE = 0.2          # void fraction change of a cell in one coupling step
+    CLIPPED = 1e-3            # fraction of the particle volume hidden by the eps_min clipping
+    GAS_SPEED = 100.0         # m/s, about Mach 0.3 in air
+
+    def __init__(self, mesh, cfg, log):
+        self.mesh, self.cfg, self.log = mesh, cfg, log
+        self.clip = None
+        self.eps_change = 0.0
+        self.gas_speed = 0.0
+        self._said = set()
+
+    def _at(self, c):
+        return f"cell {c} at {np.array2string(self.mesh.cell_centres[c], precision=6)}"
+
+    def after_prepare(self, iface, t):
+        c = iface.clip
+        if c["cells"]:
+            if c["fraction"] >= self.CLIPPED and "clip" not in self._said:
+                self._said.add("clip")
+                from .case import wider_void_fraction_models
+                alt = wider_void_fraction_models(self.cfg.void_fraction)
+                self.log(f"coupling: WARNING: at t = {t:.9g} s the void fraction of {c['cells']} cell(s) is below "
+                         f"coupling.eps_min = {self.cfg.eps_min:g} (lowest 1 - V_solid/V_cell = "
+                         f"{c['eps_raw_min']:.3g} in {self._at(c['cell'])}) and is clipped: "
+                         f"{100 * c['fraction']:.3g} % of the particle volume is not seen by the gas (drag and "
+                         f"pressure drop too low there). Use cells of at least 3 particle diameters, "
+                         + (f"void_fraction = {alt} (now '{self.cfg.void_fraction}'), " if alt else "")
+                         + "or a lower eps_min for a really dense bed")
+            if self.clip is None:
+                self.clip = dict(cells=0, fraction=0.0, eps_raw_min=1.0, first_time=t)
+            self.clip["cells"] = max(self.clip["cells"], c["cells"])
+            self.clip["fraction"] = max(self.clip["fraction"], c["fraction"])
+            self.clip["eps_raw_min"] = min(self.clip["eps_raw_min"], c["eps_raw_min"])
+        de, cell = iface.eps_change
+        self.eps_change = max(self.eps_change, de)
+        if de > self.EPS_CHANGE and "eps" not in self._said:
+            self._said.add("eps")
+            self.log(f"coupling: WARNING: at t = {t:.9g} s the void fraction of {self._at(cell)} changes by "
+                     f"{de:.3g} in one coupling step: the gas must displace that volume within one CFD step "
+                     f"(pressure and velocity spikes). Set coupling.smoothing_time to a few CFD steps (now "
+                     f"{self.cfg.smoothing_time:g} s) or lower coupling_interval")
+
+    def after_receive(self, fluid, t):
+        u = np.asarray(fluid["U"])
+        s2 = (u * u).sum(axis=1)
+        c = int(np.argmax(s2)) if s2.size else -1
+        v = float(np.sqrt(s2[c])) if c >= 0 else 0.0
+        self.gas_speed = max(self.gas_speed, v)
+        if v > self.GAS_SPEED and "speed" not in self._said:
+            self._said.add("speed")
+            self.log(f"coupling: WARNING: at t = {t:.9g} s the gas speed is {v:.3g} m/s in {self._at(c)}, above "
+                     f"{self.GAS_SPEED:g} m/s (Mach 0.3): outside the incompressible gas model"
+                     + (f"; the void fraction changed by up to {self.eps_change:.3g} in one coupling step "
+                        f"(smoothing_time now {self.cfg.smoothing_time:g} s)" if self.eps_change > self.EPS_CHANGE
+                        else ""))
+
+    def summary(self):
+        return dict(eps_clipping=self.clip, eps_change_max=self.eps_change, gas_speed_max=self.gas_speed)
+
+
+def check_gas_fields(fluid, step, *, time_value=None, mesh=None, cfg=None, eps_change=None):
+    """Guard on every gas frame received from the solver (before the DEM sees it): U, T,
+    grad p and p finite, T > 0, |U| <= GAS_SPEED_LIMIT. Raises :class:`GasFieldError`
+    naming the field, the number of bad cells, the first one (index and centre), the time
+    and what to change."""
+    bad = None
+    for name, test, what in (
+            ("U", lambda a: ~np.isfinite(a).all(axis=1), "non-finite"),
+            ("T", lambda a: ~np.isfinite(a), "non-finite"),
+            ("gradp", lambda a: ~np.isfinite(a).all(axis=1), "non-finite"),
+            ("p", lambda a: ~np.isfinite(a), "non-finite"),
+            ("T", lambda a: a <= 0.0, "at or below 0 K"),
+            ("U", lambda a: (a * a).sum(axis=1) > GAS_SPEED_LIMIT ** 2,
+             f"faster than {GAS_SPEED_LIMIT:g} m/s (the speed of sound)")):
+        a = np.asarray(fluid[name])
+        with np.errstate(invalid="ignore", over="ignore"):
+            m = test(a)
+        if np.any(m):
+            cells = np.flatnonzero(m)
+            bad = (name, what, cells)
+            break
+    if bad is None:
+        return fluid
+    name, what, cells = bad
+    c = int(cells[0])
+    val = np.asarray(fluid[name])[c]
+    where = f"cell {c}"
+    if mesh is not None:
+        where += f" at {np.array2string(mesh.cell_centres[c], precision=6)}"
+    when = f"t = {time_value:.9g} s" if time_value is not None else f"coupling step {step}"
+    jump = eps_change is not None and eps_change[0] > RunWatch.EPS_CHANGE
+    cause = "the gas solution diverged"
+    smooth = (f"set coupling.smoothing_time to a few CFD steps (now {cfg.smoothing_time:g} s) so that eps and Ksl "
+              f"change gradually" if cfg is not None else "set coupling.smoothing_time > 0")
+    lower = ("lower deltaT in system/controlDict with coupling_interval (CFD step = coupling_interval x "
+             "DEM time_step)")
+    if jump:
+        cause = (f"the void fraction of cell {eps_change[1]} changed by {eps_change[0]:.3g} in the last coupling "
+                 f"step (the gas displaces that volume within one CFD step), or the gas solution diverged")
+        advice = f"{smooth}; if particles moved that far within one step, {lower}"
+    else:
+        advice = f"{lower}, or {smooth}"
+    if cfg is not None:
+        advice += f"; raise coupling.eps_min (now {cfg.eps_min:g})"
+        if cfg.void_fraction == "centre":
+            advice += " or use void_fraction = 'divided' or 'smoothed' (now 'centre')"
+    raise GasFieldError(
+        f"gas field {name} received from the solver is {what} in {cells.size} cell(s) (first: {where}, "
+        f"{name} = {np.array2string(np.atleast_1d(val), precision=6)}) at {when}: {cause}; the field is not "
+        f"passed to the particles. Check log.thermoDemFoam; {advice}",
+        peer="CFD solver", step=step)
+
+
+def timings(timer, t_wall0, sim, n_steps, k):
+    wall = time.perf_counter() - t_wall0
+    loop = sum(v for p, v in timer.total.items())
+    d = {"wall_total": wall, "loop": loop, "phases": dict(timer.total),
+         "coupling_steps": n_steps, "dem_steps": n_steps * k, "particles": sim.n_particles,
+         "dem_ranks": 1 if sim.par is None else sim.par.size}
+    d["particle_steps_per_s"] = sim.n_particles * n_steps * k / loop if loop > 0 else 0.0
+    return d
+
+
+def format_timings(s):
+    lines = [f"done: {s['coupling_steps']} coupling steps ({s['dem_steps']} DEM steps, "
+             f"{s['particles']} particles) to t = {s['time']:.6g} s in {s['wall_total']:.1f} s "
+             f"(loop {s['loop']:.1f} s, {s['particle_steps_per_s']:.3g} particle-steps/s)"]
+    for p, v in s["phases"].items():
+        lines.append(f"  {p:15s} {v:9.3f} s  {100 * v / max(s['loop'], 1e-12):5.1f} %")
+    lines.append(f"output in {s['out']}" + (f" (plot {s['png']})" if s.get("png") else ""))
+    return "\n".join(lines)
+
+
+def write_timings(path, timings, failing):
+    """timings.json, atomically (never a 0-byte file). While a run is already failing, a write
+    error here is dropped so that the first error, the one the user needs, is the one reported."""
+    from dem.output import OutputError, write_text
+    try:
+        write_text(str(path), json.dumps(timings, indent=1))
+    except OutputError:
+        if not failing:
+            raise

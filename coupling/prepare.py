@@ -1,0 +1,66 @@
+"""Preparing a coupled run's output folder (rank 0): the output-folder rule (dem.outdir: new,
+empty or an earlier output, never the case folder), the copy of the case's OpenFOAM part,
+its mesh (blockMesh), and the gas case the solver starts from: end time and write
+precision in controlDict, the initial void fraction (0/eps), the exchange and the
+solver's couplingDict (coupling.transport.open_exchange), the decomposition
+(``gas_processes > 1``), the case check and the solver build.
+"""
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+from . import foam_case as fc
+from .errors import CouplingRunError
+from .transport import open_exchange
+
+
+def output_rule(case_dir, *, restart: bool, overwrite: bool) -> dict:
+    """The output-folder rule of a coupled run (dem.outdir): --out new, empty or an earlier
+    output (continued with --restart, replaced with --overwrite), never the case folder, a
+    folder inside it or one holding it."""
+    return dict(restart=restart, overwrite=overwrite, protect=[Path(case_dir)])
+
+
+def prepare_output(case, out: Path, *, restart: bool, overwrite: bool = False) -> None:
+    """Claim --out (dem.outdir: refused unless new, empty or an earlier output of ours; with
+    --overwrite the earlier output's entries are removed, nothing else), copy the case's
+    OpenFOAM part into it and mesh it."""
+    from dem import outdir
+    rule = output_rule(case.dir, restart=restart, overwrite=overwrite)
+    if restart:
+        outdir.check(out, **rule)
+        if not (out / "system" / "controlDict").exists():
+            raise CouplingRunError(f"{out}: nothing to restart (no system/controlDict)")
+    outdir.claim_folder(out, command="coupling run", **rule)
+    if restart:
+        return
+    for sub in ("0", "constant", "system"):
+        outdir.claim(out / sub)
+        shutil.copytree(case.dir / sub, out / sub)
+    for f in ("dem.toml", "coupling.toml"):
+        outdir.claim(out / f)
+        shutil.copy2(case.dir / f, out / f)
+    if not (out / "constant" / "polyMesh" / "owner").exists():
+        outdir.claim(out / "log.blockMesh")
+        fc.block_mesh(out)
+
+
+def prepare_gas(out: Path, cfg, mesh, split, eps0, end: float, *, restart: bool, solver=None):
+    """The gas case in --out ready to start (rank 0); returns (exchange, solver executable).
+    ``eps0``: the initial void fraction (written on a fresh start), ``split``: the tied
+    walls (their couplingDict entries), ``end``: the run's end time (s)."""
+    from dem import outdir
+    ctl = out / "system" / "controlDict"
+    # 17 significant digits: a written time is a restart point that continues to round-off
+    fc.set_entries(ctl, {"endTime": repr(end), "startFrom": "latestTime", "writePrecision": 17})
+    if not restart:
+        fc.write_eps(out, eps0)
+    ex = open_exchange(out, cfg, mesh.n_cells, split.couplingdict_entries())
+    if cfg.gas_processes > 1 and not (restart and (out / "processor0").exists()):
+        for name in ["log.decomposePar"] + [f"processor{i}" for i in range(cfg.gas_processes)]:
+            outdir.claim(out / name)
+        fc.decompose(out, cfg.gas_processes)
+    fc.check_case(out)
+    exe = Path(solver) if solver else fc.build_solver()
+    return ex, exe
