@@ -129,6 +129,73 @@ def test_file_and_socket_bit_identical(tmp_path, solver):
     assert a["temperature"].max() > 300.0      # heat was exchanged
 
 
+class MeasuredLink:
+    """The worked example of a transport (docs/architecture.md, "A transport plugs in"): a link
+    that wraps today's rank-0 link and measures the bytes of every frame each way. It implements
+    the whole link interface of coupling/transport.py, passing each call on."""
+
+    def __init__(self, link):
+        self.link, self.sent, self.received, self.cells = link, [], [], []
+
+    @staticmethod
+    def _bytes(fields):
+        return sum(v.nbytes for v in fields.values() if isinstance(v, np.ndarray))
+
+    def own_stop(self):
+        return self.link.own_stop()
+
+    def first(self, i0, t_start, cstate):
+        return self.link.first(i0, t_start, cstate)
+
+    def send(self, step, frame, time_value, final):
+        self.sent.append(self._bytes(frame))
+        self.cells.append(frame["eps"].shape[0])
+        return self.link.send(step, frame, time_value, final)
+
+    def receive(self, step, t, eps_change, stop_sig):
+        fluid, final, peer = self.link.receive(step, t, eps_change, stop_sig)
+        self.received.append(self._bytes(fluid))
+        return fluid, final, peer
+
+    def finish(self, step):
+        return self.link.finish(step)
+
+    def fail(self, e):
+        return self.link.fail(e)
+
+    def explain(self, e, sim):
+        return self.link.explain(e, sim)
+
+    def close(self, status, write_timings):
+        return self.link.close(status, write_timings)
+
+
+def test_a_transport_plugs_in(tmp_path, solver, monkeypatch):
+    """A transport replaces coupling.transport.open_link and nothing else: the measured link runs
+    the fluidized bed to the same bits as the plain one, and what it measured is the frame of the
+    protocol, 5 fields of 9 doubles per cell each way (eps, Ksl, Us, Simp, Sexp out; U, T, p,
+    grad p, eps in: docs/coupling_protocol.md) for each of the 4 coupling steps."""
+    import coupling.run as crun
+    from coupling import transport
+    links = []
+
+    def open_measured(*a, **kw):
+        links.append(MeasuredLink(transport.open_link(*a, **kw)))
+        return links[-1]
+
+    plain = run_case(CASES / "fluidized_bed_heating", tmp_path / "plain", end_time=0.002, solver=solver, quiet=True)
+    monkeypatch.setattr(crun, "open_link", open_measured)
+    s = run_case(CASES / "fluidized_bed_heating", tmp_path / "measured", end_time=0.002, solver=solver, quiet=True)
+    a, b = np.load(Path(plain["out"]) / "final.npz"), np.load(Path(s["out"]) / "final.npz")
+    for k in ("position", "velocity", "temperature"):
+        assert np.array_equal(a[k].view(np.uint64), b[k].view(np.uint64)), k
+    (link,) = links
+    n = fc.read_internal_field(Path(s["out"]) / "0.002" / "eps").shape[0]   # the gas mesh's cells
+    assert len(link.sent) == 4 and len(set(link.sent)) == 1 and set(link.cells) == {n}
+    assert link.sent[0] == n * 8 * (1 + 1 + 3 + 1 + 1)      # eps, Ksl, Us (3), Simp, Sexp
+    assert len(link.received) == 4 and min(link.received) >= n * 8 * (3 + 1 + 1)   # U (3), T, p at least
+
+
 # --------------------------------------------------------------------------- energy
 
 CLOSED_BOX_DEM = """
