@@ -5,9 +5,10 @@
 
 Owns the rows of history.csv (sums, minima and maxima over the ranks), the wall heat totals,
 the per-particle output fields (every array declared with an ``output`` name), gathering the
-owned rows of every rank ordered by id, and the root's writes: under MPI a write that fails on
-the root is held (the other ranks are on their way to the next collective call) until
-:meth:`settle_writes` raises it on every rank.
+owned rows of every rank ordered by id (final.npz), the VTK frames (under MPI each rank writes
+its own piece: no rank gathers the particles of the others), and the writes of one rank: under
+MPI a write that fails on any rank is held (the other ranks are on their way to the next
+collective call) until :meth:`settle_writes` raises it on every rank, naming that rank.
 """
 import math
 
@@ -24,7 +25,7 @@ class Writers:
         self.state = world.state
         self.stepper = stepper
         self.par = stepper.par
-        self.hold = False           # inside a run under MPI: hold the root's write failures
+        self.hold = False           # inside a run under MPI: hold a rank's write failures
         self._failure = None
 
     @property
@@ -32,10 +33,12 @@ class Writers:
         """True on the rank that writes files (always in a serial run)."""
         return self.par is None or self.par.rank == 0
 
-    # ------------------------------------------------------------------ root writes
+    # ------------------------------------------------------------------ writes of one rank
     def root_write(self, write):
-        """A write done by the root alone. Inside run() under MPI an OutputError is held until
-        :meth:`settle_writes` raises it on every rank; elsewhere it is raised at once."""
+        """A write done by this rank alone (the root's files; under MPI also each rank's own VTK
+        piece). Inside run() under MPI an OutputError is held (the other ranks are on their way to
+        the next collective call) until :meth:`settle_writes` raises it on every rank; elsewhere it
+        is raised at once. Returns False when a failure was held."""
         try:
             write()
         except OutputError as exc:
@@ -43,16 +46,21 @@ class Writers:
                 raise
             if self._failure is None:
                 self._failure = exc
+            return False
+        return True
 
     def settle_writes(self):
-        """Raise the held OutputError of the root on every rank (collective under MPI)."""
+        """Raise a held OutputError of any rank on every rank, naming that rank (collective under
+        MPI: one Allreduce of a flag; the messages are gathered only when a write failed)."""
         if self.par is None:
             return
-        msg = self.par.comm.bcast(str(self._failure) if self._failure else None, root=0)
-        if msg:
-            self._failure = None
-            self.hold = False
-            raise OutputError(message=msg)
+        if not self.par.allmax(1.0 if self._failure is not None else 0.0):
+            return
+        msgs = self.par.comm.allgather(str(self._failure) if self._failure is not None else None)
+        rank = next(r for r, m in enumerate(msgs) if m)
+        self._failure = None
+        self.hold = False
+        raise OutputError(message=f"{msgs[rank]} [rank {rank} of {len(msgs)}]")
 
     def begin(self):
         """A run starts: no failure held yet, failures held from now on."""
@@ -151,17 +159,36 @@ class Writers:
             out["time"] = np.float64(self.world.time)
         return out
 
+    def vtk_series(self, out_dir):
+        """The VTK series of this rank (dem.output.VTKSeries: every rank writes its own piece
+        under MPI; the root the frame and the .pvd)."""
+        from .output import VTKSeries
+        return VTKSeries(out_dir, rank=0 if self.par is None else self.par.rank,
+                         ranks=1 if self.par is None else self.par.size)
+
     def write_vtk(self, vtk, **extra):
-        """One VTK output of the owned particles of every rank (collective; ``vtk`` is the
-        root's VTKSeries, None elsewhere); ``extra``: more per-particle fields."""
+        """One VTK output of the owned particles of every rank (collective; ``vtk``: this rank's
+        :meth:`vtk_series`); ``extra``: more per-particle fields. One process writes the frame
+        ordered by id; under MPI each rank writes its own rows as a piece (nothing is gathered
+        but one flag per rank on the root: which ranks wrote a piece)."""
         st = self.state
         w = self.world
         f = dict(self.particle_fields(), **extra)
-        f["position"] = st.position[:st.n_owned]
-        f = self.gather_by_id(f)
-        if vtk is not None:
+        pos = st.position[:st.n_owned]
+        if self.par is None:
+            f["position"] = pos
+            f = by_id([f])
             pos = f.pop("position")
             self.root_write(lambda: vtk.write(w.time, w.step_count, pos, f))
+            return
+        # 1: a piece written, 0: no particle here, -1: the piece could not be written
+        state = 0
+        if st.n_owned:
+            state = 1 if self.root_write(lambda: vtk.write_piece(w.step_count, pos, f)) else -1
+        states = self.par.comm.gather(state, root=0)
+        if self.is_root and -1 not in states:   # a frame never names a piece that is not there
+            pieces = [r for r, s in enumerate(states) if s == 1]
+            self.root_write(lambda: vtk.write_frame(w.time, w.step_count, pieces, f))
 
 
 def by_id(parts):
