@@ -199,6 +199,18 @@ def _components(a):
     return 1 if a.ndim == 1 else int(a.shape[1])
 
 
+def make_folder(path):
+    """Create the folder ``path``, recorded first in the manifest of the output folder that holds
+    it (dem.outdir.claim); a full or unwritable disk raises OutputError naming it."""
+    try:
+        claim(path)
+        os.makedirs(path, exist_ok=True)
+    except OSError as exc:
+        if exc.errno in DISK_ERRNOS:
+            raise OutputError(path, exc) from None
+        raise
+
+
 def write_vtu(path, points, fields):
     """Particles as vertices with per-point ``fields``, one .vtu file (atomic)."""
     import meshio

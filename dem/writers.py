@@ -161,10 +161,16 @@ class Writers:
 
     def vtk_series(self, out_dir):
         """The VTK series of this rank (dem.output.VTKSeries: every rank writes its own piece
-        under MPI; the root the frame and the .pvd)."""
-        from .output import VTKSeries
-        return VTKSeries(out_dir, rank=0 if self.par is None else self.par.rank,
-                         ranks=1 if self.par is None else self.par.size)
+        under MPI; the root the frame and the .pvd). Collective under MPI: the root creates the
+        vtk/ folder (recorded in the output folder's manifest) before any rank writes in it."""
+        from .output import VTKSeries, make_folder
+        if self.par is None:
+            return VTKSeries(out_dir)
+        vtk = VTKSeries(out_dir, rank=self.par.rank, ranks=self.par.size)
+        if self.is_root:
+            self.root_write(lambda: make_folder(vtk.dir))
+        self.par.comm.Barrier()
+        return vtk
 
     def write_vtk(self, vtk, **extra):
         """One VTK output of the owned particles of every rank (collective; ``vtk``: this rank's
