@@ -81,7 +81,7 @@ class Checkpointer:
         """Each rank writes its owned particles and contact records as a piece; the root writes
         the manifest after every piece is on disk (a gather of one (name, sha256, rows) per
         rank), then removes the pieces of earlier checkpoints. A rank that cannot write its
-        piece leaves the previous checkpoint as it was (the error reaches every rank)."""
+        piece stops every rank at once (naming it) and the previous checkpoint stays as it was."""
         from . import checkpoint as ckpt
         from .output import make_folder
         st = self.state
@@ -95,13 +95,15 @@ class Checkpointer:
         piece.update(self._records())
         name = ckpt.piece_name(self.world.step_count, par.rank)
         digest = []
-        ok = self.writers.root_write(lambda: digest.append(ckpt.write_piece(os.path.join(folder, name), piece)))
-        pieces = par.comm.gather((name, digest[0], n) if ok else None, root=0)
+        self.writers.each_rank_write(lambda: digest.append(ckpt.write_piece(os.path.join(folder, name), piece)))
+        pieces = par.comm.gather((name, digest[0], n), root=0)
         manifest = dict(**self._common(), **self._totals())   # collective sums, on every rank
-        if self.writers.is_root and None not in pieces:
+        if self.writers.is_root:
             arr = ckpt.manifest(manifest, pieces)
             record = ckpt.scene_record(self.sim)
-            if self.writers.root_write(lambda: ckpt.write(path, arr, record)):
+            written = []
+            self.writers.root_write(lambda: written.append(ckpt.write(path, arr, record)))
+            if written:
                 ckpt.remove_stale_pieces(folder, {p[0] for p in pieces})
 
     # ------------------------------------------------------------------ loading

@@ -35,10 +35,9 @@ class Writers:
 
     # ------------------------------------------------------------------ writes of one rank
     def root_write(self, write):
-        """A write done by this rank alone (the root's files; under MPI also each rank's own VTK
-        piece). Inside run() under MPI an OutputError is held (the other ranks are on their way to
+        """A write done by the root alone. Inside run() under MPI an OutputError is held (the other ranks are on their way to
         the next collective call) until :meth:`settle_writes` raises it on every rank; elsewhere it
-        is raised at once. Returns False when a failure was held."""
+        is raised at once."""
         try:
             write()
         except OutputError as exc:
@@ -46,8 +45,23 @@ class Writers:
                 raise
             if self._failure is None:
                 self._failure = exc
-            return False
-        return True
+
+    def each_rank_write(self, write):
+        """A write done by every rank, each its own file (collective under MPI): a failure on any
+        rank raises the same OutputError, naming that rank, on every rank at once (one Allreduce
+        of a flag; the messages are gathered only when a write failed)."""
+        if self.par is None:
+            write()
+            return
+        err = None
+        try:
+            write()
+        except OutputError as exc:
+            err = str(exc)
+        if self.par.allmax(1.0 if err is not None else 0.0):
+            msgs = self.par.comm.allgather(err)
+            rank = next(r for r, m in enumerate(msgs) if m)
+            raise OutputError(message=f"{msgs[rank]} [rank {rank} of {len(msgs)}]")
 
     def settle_writes(self):
         """Raise a held OutputError of any rank on every rank, naming that rank (collective under
@@ -187,13 +201,10 @@ class Writers:
             pos = f.pop("position")
             self.root_write(lambda: vtk.write(w.time, w.step_count, pos, f))
             return
-        # 1: a piece written, 0: no particle here, -1: the piece could not be written
-        state = 0
-        if st.n_owned:
-            state = 1 if self.root_write(lambda: vtk.write_piece(w.step_count, pos, f)) else -1
-        states = self.par.comm.gather(state, root=0)
-        if self.is_root and -1 not in states:   # a frame never names a piece that is not there
-            pieces = [r for r, s in enumerate(states) if s == 1]
+        self.each_rank_write(lambda: vtk.write_piece(w.step_count, pos, f) if st.n_owned else None)
+        wrote = self.par.comm.gather(st.n_owned > 0, root=0)   # one flag per rank, on the root
+        if self.is_root:
+            pieces = [r for r, has in enumerate(wrote) if has]
             self.root_write(lambda: vtk.write_frame(w.time, w.step_count, pieces, f))
 
 
