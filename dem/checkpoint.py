@@ -25,6 +25,7 @@ checkpoint's arrays for the new scene, and the change is listed) or refused with
 import hashlib
 import json
 import os
+import re
 
 import numpy as np
 
@@ -78,6 +79,117 @@ def write(path, arrays, record):
     """Write a checkpoint atomically (dem.output.save_npz)."""
     from .output import save_npz
     save_npz(path, durable=True, **with_meta(arrays, record))
+
+
+# ---------------------------------------------------------------------------- pieces (MPI)
+# An MPI run's checkpoint is a manifest (the .npz above, with the run's scalars, totals and the list
+# of pieces with their sha256) and one piece per rank in the folder beside it (pieces_folder):
+# that rank's particles and contact records. No rank gathers another's particles. The pieces of a
+# step are written first (each atomically and durably), the manifest last, and the pieces no
+# manifest names any more are removed after it: a kill -9 at any instant leaves the previous
+# manifest with every piece it names.
+PIECE_FORMAT = "thermodem-checkpoint-piece"
+PIECE_KEYS = ("pieces", "piece_sha256", "piece_rows")
+_PIECE_NAME = re.compile(r"step\d{10}_rank\d{5}\.npz")
+
+
+def pieces_folder(path):
+    """The folder of a checkpoint's pieces: ``checkpoint.npz`` -> ``checkpoint.pieces``."""
+    p = os.fspath(path)
+    return (p[:-4] if p.endswith(".npz") else p) + ".pieces"
+
+
+def piece_name(step, rank):
+    return f"step{step:010d}_rank{rank:05d}.npz"
+
+
+def write_piece(path, arrays):
+    """One rank's piece, atomically and durably; returns its sha256 (named in the manifest)."""
+    from .output import save_npz
+    out = dict(arrays)
+    out["format"] = np.str_(PIECE_FORMAT)
+    out["format_version"] = np.int64(FORMAT_VERSION)
+    digest = content_digest(out)
+    out["checksum"] = np.str_(digest)
+    save_npz(path, durable=True, **out)
+    return digest
+
+
+def manifest(arrays, pieces):
+    """The manifest's arrays: ``arrays`` (scalars and totals) and the pieces [(name, sha256, rows)]."""
+    out = dict(arrays)
+    out["pieces"] = np.array([p[0] for p in pieces], dtype=np.str_)
+    out["piece_sha256"] = np.array([p[1] for p in pieces], dtype=np.str_)
+    out["piece_rows"] = np.array([p[2] for p in pieces], dtype=np.int64)
+    return out
+
+
+def is_manifest(arrays):
+    return "pieces" in arrays
+
+
+def remove_stale_pieces(folder, keep):
+    """Remove the pieces in ``folder`` (our names only) that the manifest no longer names."""
+    for name in os.listdir(folder):
+        if _PIECE_NAME.fullmatch(name) and name not in keep:
+            try:
+                os.unlink(os.path.join(folder, name))
+            except OSError:
+                pass
+
+
+def _read_piece(path, name, digest):
+    """The arrays of piece ``name`` of the checkpoint ``path``, verified against the manifest."""
+    piece = os.path.join(pieces_folder(path), name)
+    try:
+        with np.load(piece, allow_pickle=False) as z:
+            arrays = {k: z[k] for k in z.files}
+    except FileNotFoundError:
+        raise CheckpointError(path, f"piece {piece} is missing (a checkpoint written on several ranks is "
+                                    f"the manifest and the folder of its pieces: copy both)") from None
+    except Exception as exc:  # noqa: BLE001  (BadZipFile, EOFError, OSError, zlib errors ...)
+        raise CheckpointError(path, f"piece {piece} is corrupted or truncated ({type(exc).__name__}: "
+                                    f"{_short(exc)})") from None
+    if str(arrays.get("format", "")) != PIECE_FORMAT or "checksum" not in arrays:
+        raise CheckpointError(path, f"piece {piece} is not a checkpoint piece")
+    if str(arrays["checksum"]) != digest or content_digest(arrays) != digest:
+        raise CheckpointError(path, f"piece {piece} is corrupted: its content does not match the sha256 "
+                                    f"the manifest names (changed after it was written)")
+    for k in ("format", "format_version", "checksum"):
+        arrays.pop(k)
+    return arrays
+
+
+def load_pieces(path, arrays, which):
+    """The manifest ``arrays`` with the particles and contact records of its pieces ``which``
+    (indices), every piece verified against its sha256: particle rows ordered by id, each contact
+    record once. With no piece to read (more ranks than pieces) the arrays have no row."""
+    names, sums = arrays["pieces"], arrays["piece_sha256"]
+    read = list(which) or [0]
+    parts = [_read_piece(path, str(names[k]), str(sums[k])) for k in read]
+    if not list(which):
+        parts = [{k: v[:0] for k, v in parts[0].items()}]
+    out = {k: v for k, v in arrays.items() if k not in PIECE_KEYS}
+    keys = sorted(set().union(*parts))
+    rows = {k: np.concatenate([p[k] for p in parts if k in p]) for k in keys}
+    order = np.argsort(rows["state_id"], kind="stable")
+    for k, v in rows.items():
+        if not k.startswith("rec_"):
+            out[k] = np.ascontiguousarray(v[order])
+    if "rec_a" in rows:  # a pair across two ranks is recorded in both pieces: keep one
+        _, first = np.unique(np.stack([rows["rec_a"], rows["rec_b"]], axis=1), axis=0, return_index=True)
+        for k, v in rows.items():
+            if k.startswith("rec_"):
+                out[k] = np.ascontiguousarray(v[first])
+    return out
+
+
+def load(path):
+    """(arrays, record) of a whole checkpoint, one file or a manifest with its pieces (verified)."""
+    arrays, record = read(path)
+    if is_manifest(arrays):
+        arrays = load_pieces(path, arrays, range(len(arrays["pieces"])))
+    return arrays, record
 
 
 # ---------------------------------------------------------------------------- reading
@@ -184,13 +296,14 @@ def _features(record):
     return {"heat": thermal, "epsd": record["contact"]["rolling"] == "epsd", "fluid": False}
 
 
-def validate(path, arrays, record):
+def validate(path, arrays, record, subset=False):
     """Every array declared in dem.schema with a checkpoint key: dtype and shape against the
     record (particles, walls, slots, the features the run enabled), and the indices the
-    kernels follow (neighbours, walls, materials, contact records) in range."""
+    kernels follow (neighbours, walls, materials, contact records) in range. ``subset``: the
+    arrays hold some of the particles (the pieces one rank reads of an MPI checkpoint)."""
     from . import schema as S
     try:
-        N = int(record["particles"]["n"])
+        N = int(record["particles"]["n"]) if not subset else int(arrays["state_id"].shape[0])
         nw = len(record["walls"])
         nmat = len(record["materials"])
         feats = _features(record)
@@ -270,7 +383,7 @@ def validate(path, arrays, record):
         need("rec_hist", F8, (M, 3))
         need("rec_rhist", F8, (M, 3), required=False)
         need("rec_age", F8, (M, 2), required=False)
-        if M and not (np.all(np.isin(a, ids)) and np.all(np.isin(b, ids))):
+        if M and not subset and not (np.all(np.isin(a, ids)) and np.all(np.isin(b, ids))):
             raise CheckpointError(path, "checkpoint is damaged: a contact record names an unknown particle")
 
 

@@ -15,8 +15,7 @@ import numpy as np
 
 from . import schema as S
 from . import step as K
-from .errors import SimulationError
-from .writers import by_id
+from .errors import SceneError, SimulationError
 
 
 class Checkpointer:
@@ -36,65 +35,110 @@ class Checkpointer:
         return [f for f in S.of(owner) if f.checkpoint and S.enabled(f, self.state.features)]
 
     # ------------------------------------------------------------------ writing
-    def arrays(self):
-        """Everything needed to continue the run, as declared in dem.schema. A serial
-        checkpoint holds the neighbour list and its history slots (bit-exact restart); every
-        checkpoint also holds the per-particle arrays ordered by id and the contact history as
-        id-keyed records, so that any number of ranks can continue it (collective; None off
-        the root)."""
-        from .parallel import records
+    def _common(self):
+        """The run's scalars a checkpoint holds beside the arrays."""
         st = self.state
         w = self.world
-        n = st.n_owned
-        rec = records.extract(st)
-        rec = {f"rec_{k}": v for k, v in rec.items() if v is not None}
-        common = dict(fp_tbuild=np.float64(st.fp[K.F_TBUILD]), step_count=np.int64(w.step_count),
-                      dt=np.float64(w.dt), forces_ready=np.bool_(self.stepper.forces_ready),
-                      scene_file=np.str_(os.path.abspath(w.scene.file)),
-                      ranks=np.int64(1 if self.par is None else self.par.size))
-        totals = {f.checkpoint: getattr(st, f.name) for f in self._checkpointed("wall") + self._checkpointed("param")
-                  if w.thermal is not None}
-        if self.par is None:
-            arr = {f.checkpoint: getattr(st, f.name) for f in self._checkpointed("particle") + self._checkpointed("pair")}
-            arr.update(**common, **rec, **totals)
-            return arr
-        local = {f.checkpoint: getattr(st, f.name)[:n] for f in self._checkpointed("particle")}
-        local["id"] = st.id[:n]
-        parts = self.par.gather((local, rec))  # records travel beside, not ordered by id
-        totals = {k: self.par.allsum(v) for k, v in totals.items()}
-        if parts is None:
-            return None
-        arr = by_id([p[0] for p in parts])
-        arr.pop("id")
-        rkeys = sorted(set().union(*(p[1] for p in parts)))  # a rank owning no particle has no
-        for k in rkeys:                                      # record, nor the optional fields
-            arr[k] = np.concatenate([p[1][k] for p in parts if k in p[1]])
-        if "rec_a" in arr:  # a pair across ranks was recorded by both: keep one
-            _, first = np.unique(arr["rec_a"] * self.par.key_base + arr["rec_b"], return_index=True)
-            for k in rkeys:
-                arr[k] = arr[k][first]
-        arr.update(**common, **totals)
+        return dict(fp_tbuild=np.float64(st.fp[K.F_TBUILD]), step_count=np.int64(w.step_count),
+                    dt=np.float64(w.dt), forces_ready=np.bool_(self.stepper.forces_ready),
+                    scene_file=np.str_(os.path.abspath(w.scene.file)),
+                    ranks=np.int64(1 if self.par is None else self.par.size))
+
+    def _totals(self):
+        """The run totals (heat per mechanism and per wall), summed over the ranks (collective)."""
+        st = self.state
+        if self.world.thermal is None:
+            return {}
+        totals = {f.checkpoint: getattr(st, f.name) for f in self._checkpointed("wall") + self._checkpointed("param")}
+        return totals if self.par is None else {k: self.par.allsum(v) for k, v in totals.items()}
+
+    def _records(self):
+        from .parallel import records
+        return {f"rec_{k}": v for k, v in records.extract(self.state).items() if v is not None}
+
+    def arrays(self):
+        """Everything needed to continue a serial run, as declared in dem.schema: the
+        per-particle arrays, the neighbour list and its history slots (bit-exact restart), the
+        contact history as id-keyed records (so that any number of ranks can continue it), the
+        totals and the clock."""
+        st = self.state
+        arr = {f.checkpoint: getattr(st, f.name) for f in self._checkpointed("particle") + self._checkpointed("pair")}
+        arr.update(**self._common(), **self._records(), **self._totals())
         return arr
 
     def write(self, path):
-        """Write a checkpoint (collective): :meth:`arrays` with a format version, the scene's
-        record and a checksum (dem.checkpoint)."""
+        """Write a checkpoint (collective): one process, :meth:`arrays` with a format version,
+        the scene's record and a checksum (dem.checkpoint); under MPI, one piece per rank and
+        the root's manifest (:meth:`_write_pieces`)."""
         from . import checkpoint as ckpt
+        if self.par is not None:
+            return self._write_pieces(path)
         arr = self.arrays()
-        if arr is not None:
+        record = ckpt.scene_record(self.sim)
+        self.writers.root_write(lambda: ckpt.write(path, arr, record))
+
+    def _write_pieces(self, path):
+        """Each rank writes its owned particles and contact records as a piece; the root writes
+        the manifest after every piece is on disk (a gather of one (name, sha256, rows) per
+        rank), then removes the pieces of earlier checkpoints. A rank that cannot write its
+        piece stops every rank at once (naming it) and the previous checkpoint stays as it was."""
+        from . import checkpoint as ckpt
+        from .output import make_folder
+        st = self.state
+        par = self.par
+        folder = ckpt.pieces_folder(path)
+        if self.writers.is_root:
+            self.writers.root_write(lambda: make_folder(folder))
+        par.comm.Barrier()   # the folder exists (and is recorded) before any rank writes in it
+        n = st.n_owned
+        piece = {f.checkpoint: getattr(st, f.name)[:n] for f in self._checkpointed("particle")}
+        piece.update(self._records())
+        name = ckpt.piece_name(self.world.step_count, par.rank)
+        digest = []
+        self.writers.each_rank_write(lambda: digest.append(ckpt.write_piece(os.path.join(folder, name), piece)))
+        pieces = par.comm.gather((name, digest[0], n), root=0)
+        manifest = dict(**self._common(), **self._totals())   # collective sums, on every rank
+        if self.writers.is_root:
+            arr = ckpt.manifest(manifest, pieces)
             record = ckpt.scene_record(self.sim)
-            self.writers.root_write(lambda: ckpt.write(path, arr, record))
+            written = []
+            self.writers.root_write(lambda: written.append(ckpt.write(path, arr, record)))
+            if written:
+                ckpt.remove_stale_pieces(folder, {p[0] for p in pieces})
 
     # ------------------------------------------------------------------ loading
     def prepare(self, path):
         """Read and verify a checkpoint and plan the restart with this scene: raises
         dem.errors.SceneError (bad file, or a refused scene edit) before any output is written
-        or any kernel compiled. :meth:`load` uses the result."""
+        or any kernel compiled. :meth:`load` uses the result. An MPI checkpoint (a manifest and
+        its pieces) is read piece by piece: one process reads every piece, each of N ranks every
+        N-th (the particles then travel to their owners); collective under MPI (a refusal on one
+        rank is raised on every rank)."""
+        from . import checkpoint as ckpt
+        if self.par is None:
+            return self._prepare(path)
+        err = None
+        try:
+            plan = self._prepare(path)
+        except SceneError as exc:
+            err = (exc.file, exc.path, exc.message)
+        errs = [e for e in self.par.comm.allgather(err) if e is not None]
+        if errs:
+            raise ckpt.CheckpointError(errs[0][0], errs[0][2], key=errs[0][1] or "")
+        return plan
+
+    def _prepare(self, path):
         from . import checkpoint as ckpt
         arrays, record = ckpt.read(path)
-        ckpt.validate(path, arrays, record)
+        subset = False
+        if ckpt.is_manifest(arrays):
+            n = len(arrays["pieces"])
+            which = range(n) if self.par is None else range(self.par.rank, n, self.par.size)
+            arrays = ckpt.load_pieces(path, arrays, which)
+            subset = self.par is not None
+        ckpt.validate(path, arrays, record, subset=subset)
         plan = ckpt.plan_restart(self.sim, path, arrays, record)
-        self._ready = (os.fspath(path), arrays, record, plan)
+        self._ready = (os.fspath(path), arrays, record, plan, subset)
         return plan
 
     def load(self, path):
@@ -104,13 +148,13 @@ class Checkpointer:
         from . import checkpoint as ckpt
         if self._ready is None or self._ready[0] != os.fspath(path):
             self.prepare(path)
-        _, arrays, record, plan = self._ready
+        _, arrays, record, plan, subset = self._ready
         self._ready = None
         ckpt.apply_edits(arrays, plan, self.sim)
         z = ckpt.ArrayView(arrays)
         self._recompute = False
         if self.par is not None or int(z["ranks"]) != 1 or "nb" not in z.files or plan.rebuild:
-            self._load_portable(path, z)
+            self._load_portable(path, z, subset)
         else:
             self._load_serial(z)
         if plan.recompute_forces or self._recompute:
@@ -158,14 +202,16 @@ class Checkpointer:
         for f in self._checkpointed("wall") + self._checkpointed("param"):
             getattr(st, f.name)[:] = z[f.checkpoint] if root and f.checkpoint in z.files else 0.0
 
-    def _load_portable(self, path, z):
+    def _load_portable(self, path, z, subset=False):
         """Continue from a checkpoint written on any number of ranks: per-particle arrays by
-        id, the neighbour list rebuilt here, the contact history restored from its records."""
+        id, the neighbour list rebuilt here, the contact history restored from its records.
+        ``subset``: this rank read some pieces of an MPI checkpoint; it takes all their rows and
+        the exchange that builds the neighbours sends each particle (with its records) to its owner."""
         from .parallel import records
         st = self.state
         w = self.world
         pos = z["state_position"]
-        if self.par is not None:
+        if self.par is not None and not subset:
             rows = np.nonzero(self.par.dec.owner(pos) == self.par.rank)[0]
         else:
             rows = np.arange(pos.shape[0])

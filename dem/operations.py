@@ -265,8 +265,8 @@ class WallHeatWriter(Operation):
 
 
 class VTKWriter(Operation):
-    """particles.pvd + vtk/ frames (collective gather; the root writes), on the steps of
-    the history rows."""
+    """particles.pvd + vtk/ frames (one .vtu; under MPI one piece per rank and a .pvtu), on the
+    steps of the history rows."""
 
     def __init__(self, out_dir, n, write_initial):
         self.out_dir, self.write_initial = out_dir, write_initial
@@ -274,9 +274,7 @@ class VTKWriter(Operation):
         self.vtk = None
 
     def start(self, run):
-        from .output import VTKSeries
-        if run.sim.is_root:
-            self.vtk = VTKSeries(self.out_dir)
+        self.vtk = run.sim.vtk_series(self.out_dir)   # every rank: each writes its own piece under MPI
         if self.write_initial:
             self.act(run, PAUSE)
 

@@ -136,32 +136,125 @@ def save_npz(path, durable=False, **arrays):
 
 
 class VTKSeries:
-    """One .vtu per output and a .pvd index that ParaView opens as a time series."""
+    """One frame per output and a .pvd index that ParaView opens as a time series.
 
-    def __init__(self, out_dir, name="particles"):
+    One process: a frame is ``vtk/<name>_<step>.vtu``. An MPI run (``ranks`` > 1): every rank
+    writes its own piece ``vtk/<name>_<step>_p<rank>.vtu`` (its owned particles: no rank gathers
+    the others'), and the root writes the frame ``vtk/<name>_<step>.pvtu`` naming the pieces
+    (ParaView and pyvista open it as one data set; :func:`read_frames` reads it back). Every rank
+    constructs the series; only the root reads and writes the .pvd."""
+
+    def __init__(self, out_dir, name="particles", rank=0, ranks=1):
         self.dir = os.path.join(out_dir, "vtk")
         self.name = name
+        self.rank, self.ranks = int(rank), int(ranks)
         self.entries = []
         self.pvd = os.path.join(out_dir, f"{name}.pvd")
-        if os.path.exists(self.pvd):  # continuing a run: keep earlier entries
-            import re
-            txt = open(self.pvd).read()
-            self.entries = [(float(t), f) for t, f in re.findall(r'timestep="([^"]+)"[^>]*file="([^"]+)"', txt)]
+        if self.rank == 0 and os.path.exists(self.pvd):  # continuing a run: keep earlier entries
+            self.entries = pvd_entries(self.pvd)
+
+    def piece_path(self, index, rank):
+        return os.path.join(self.dir, f"{self.name}_{index:06d}_p{rank:04d}.vtu")
 
     def write(self, time, index, points, fields):
-        import meshio
-        n = points.shape[0]
+        """The whole frame from one process (a serial run)."""
         fname = f"{self.name}_{index:06d}.vtu"
-        path = os.path.join(self.dir, fname)
-        mesh = meshio.Mesh(points, [("vertex", np.arange(n).reshape(-1, 1))],
-                           point_data={k: np.ascontiguousarray(v) for k, v in fields.items()})
-        atomic_write(path, lambda tmp: meshio.write(tmp, mesh, file_format="vtu"))
+        write_vtu(os.path.join(self.dir, fname), points, fields)
+        self._index(time, fname)
+
+    def write_piece(self, index, points, fields):
+        """This rank's piece of frame ``index`` (an MPI run; every rank with particles)."""
+        write_vtu(self.piece_path(index, self.rank), points, fields)
+
+    def write_frame(self, time, index, pieces, fields):
+        """The root: the .pvtu of frame ``index`` naming the pieces of the ranks ``pieces``
+        (those that own particles), with the arrays of ``fields`` (name -> an array of the
+        piece's dtype and components), and its entry in the .pvd."""
+        fname = f"{self.name}_{index:06d}.pvtu"
+        arrays = "".join(f'      <PDataArray type="Float64" Name="{k}" NumberOfComponents="{_components(a)}"/>\n'
+                         for k, a in fields.items())
+        sources = "".join(f'    <Piece Source="{os.path.basename(self.piece_path(index, r))}"/>\n' for r in pieces)
+        text = ('<?xml version="1.0"?>\n'
+                '<VTKFile type="PUnstructuredGrid" version="0.1" byte_order="LittleEndian">\n'
+                '  <PUnstructuredGrid GhostLevel="0">\n'
+                f'    <PPointData>\n{arrays}    </PPointData>\n'
+                '    <PPoints>\n      <PDataArray type="Float64" NumberOfComponents="3"/>\n    </PPoints>\n'
+                '    <PCells>\n      <PDataArray type="Int64" Name="connectivity"/>\n'
+                '      <PDataArray type="Int64" Name="offsets"/>\n'
+                '      <PDataArray type="UInt8" Name="types"/>\n    </PCells>\n'
+                f'{sources}  </PUnstructuredGrid>\n</VTKFile>\n')
+        write_text(os.path.join(self.dir, fname), text)
+        self._index(time, fname)
+
+    def _index(self, time, fname):
         self.entries = [e for e in self.entries if e[0] < time - 1e-15] + [(time, f"vtk/{fname}")]
         lines = ['<?xml version="1.0"?>',
                  '<VTKFile type="Collection" version="0.1" byte_order="LittleEndian">', "  <Collection>"]
         lines += [f'    <DataSet timestep="{t:.10g}" group="" part="0" file="{f}"/>' for t, f in self.entries]
         lines += ["  </Collection>", "</VTKFile>", ""]
         write_text(self.pvd, "\n".join(lines))
+
+
+def _components(a):
+    return 1 if a.ndim == 1 else int(a.shape[1])
+
+
+def make_folder(path):
+    """Create the folder ``path``, recorded first in the manifest of the output folder that holds
+    it (dem.outdir.claim); a full or unwritable disk raises OutputError naming it."""
+    try:
+        claim(path)
+        os.makedirs(path, exist_ok=True)
+    except OSError as exc:
+        if exc.errno in DISK_ERRNOS:
+            raise OutputError(path, exc) from None
+        raise
+
+
+def write_vtu(path, points, fields):
+    """Particles as vertices with per-point ``fields``, one .vtu file (atomic)."""
+    import meshio
+    n = points.shape[0]
+    mesh = meshio.Mesh(points, [("vertex", np.arange(n).reshape(-1, 1))],
+                       point_data={k: np.ascontiguousarray(v) for k, v in fields.items()})
+    atomic_write(path, lambda tmp: meshio.write(tmp, mesh, file_format="vtu"))
+
+
+def pvd_entries(pvd):
+    """[(time, file relative to the .pvd's folder)] of a .pvd series."""
+    import re
+    with open(pvd) as fh:
+        txt = fh.read()
+    return [(float(t), f) for t, f in re.findall(r'timestep="([^"]+)"[^>]*file="([^"]+)"', txt)]
+
+
+def read_frame(path):
+    """(points, point_data) of one frame: a .vtu, or a .pvtu whose pieces are concatenated."""
+    import re
+    import meshio
+    if not path.endswith(".pvtu"):
+        m = meshio.read(path)
+        return m.points, dict(m.point_data)
+    with open(path) as fh:
+        sources = re.findall(r'<Piece Source="([^"]+)"', fh.read())
+    parts = [meshio.read(os.path.join(os.path.dirname(path), s)) for s in sources]
+    if not parts:
+        return np.zeros((0, 3)), {}
+    points = np.concatenate([m.points for m in parts])
+    return points, {k: np.concatenate([m.point_data[k] for m in parts]) for k in parts[0].point_data}
+
+
+def read_frames(out_dir, name="particles"):
+    """[(time, frame path, points, point_data)] of every frame of a run's .pvd series, the rows of
+    each frame ordered by particle id (serial frames and MPI pieces alike)."""
+    pvd = os.path.join(out_dir, f"{name}.pvd")
+    out = []
+    for t, f in pvd_entries(pvd):
+        path = os.path.join(out_dir, f)
+        points, data = read_frame(path)
+        order = np.argsort(data["id"], kind="stable") if "id" in data else np.arange(points.shape[0])
+        out.append((t, path, points[order], {k: v[order] for k, v in data.items()}))
+    return out
 
 
 class History:

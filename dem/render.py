@@ -15,7 +15,7 @@ def render(out_dir, png=None, color=None):
     png = png or os.path.join(out_dir, "render.png")
     if not os.path.isdir(out_dir):
         raise OutputFolderError(f"{out_dir}: no such output folder (give the --out folder of a `dem run`)")
-    files = sorted(glob.glob(os.path.join(out_dir, "vtk", "*.vtu")))
+    files = _frames(out_dir)
     if not files:
         raise OutputFolderError(f"{out_dir}: no vtk/*.vtu output to render (a `dem run` with [output] vtk = true "
                                 f"writes them)")
@@ -43,6 +43,19 @@ def render(out_dir, png=None, color=None):
     pl.close()
     _write_png(png, img)
     return png
+
+
+def _frames(out_dir):
+    """The VTK frames of a run in time order: the .pvd's entries (a serial .vtu or an MPI .pvtu
+    with one piece per rank), else the vtk/*.vtu files."""
+    from .output import pvd_entries
+    pvd = os.path.join(out_dir, "particles.pvd")
+    if os.path.isfile(pvd):
+        files = [os.path.join(out_dir, f) for _, f in pvd_entries(pvd)]
+        files = [f for f in files if os.path.isfile(f)]
+        if files:
+            return files
+    return sorted(glob.glob(os.path.join(out_dir, "vtk", "*.vtu")))
 
 
 def _write_png(path, img):

@@ -173,8 +173,12 @@ class Simulation:
         """Per-particle results ordered by id (collective; None on ranks other than the root)."""
         return self.writers.final_arrays()
 
+    def vtk_series(self, out_dir):
+        """This rank's VTK series of ``out_dir`` (pieces per rank under MPI)."""
+        return self.writers.vtk_series(out_dir)
+
     def write_vtk(self, vtk, **extra):
-        """One VTK output of every rank's particles (collective; ``vtk``: the root's VTKSeries)."""
+        """One VTK output of every rank's particles (collective; ``vtk``: :meth:`vtk_series`)."""
         self.writers.write_vtk(vtk, **extra)
 
     def root_write(self, write):

@@ -5,9 +5,10 @@
 
 Owns the rows of history.csv (sums, minima and maxima over the ranks), the wall heat totals,
 the per-particle output fields (every array declared with an ``output`` name), gathering the
-owned rows of every rank ordered by id, and the root's writes: under MPI a write that fails on
-the root is held (the other ranks are on their way to the next collective call) until
-:meth:`settle_writes` raises it on every rank.
+owned rows of every rank ordered by id (final.npz), the VTK frames (under MPI each rank writes
+its own piece: no rank gathers the particles of the others), and the writes of one rank: under
+MPI a write that fails on any rank is held (the other ranks are on their way to the next
+collective call) until :meth:`settle_writes` raises it on every rank, naming that rank.
 """
 import math
 
@@ -24,7 +25,7 @@ class Writers:
         self.state = world.state
         self.stepper = stepper
         self.par = stepper.par
-        self.hold = False           # inside a run under MPI: hold the root's write failures
+        self.hold = False           # inside a run under MPI: hold a rank's write failures
         self._failure = None
 
     @property
@@ -32,10 +33,11 @@ class Writers:
         """True on the rank that writes files (always in a serial run)."""
         return self.par is None or self.par.rank == 0
 
-    # ------------------------------------------------------------------ root writes
+    # ------------------------------------------------------------------ writes of one rank
     def root_write(self, write):
-        """A write done by the root alone. Inside run() under MPI an OutputError is held until
-        :meth:`settle_writes` raises it on every rank; elsewhere it is raised at once."""
+        """A write done by the root alone. Inside run() under MPI an OutputError is held (the other ranks are on their way to
+        the next collective call) until :meth:`settle_writes` raises it on every rank; elsewhere it
+        is raised at once."""
         try:
             write()
         except OutputError as exc:
@@ -44,15 +46,35 @@ class Writers:
             if self._failure is None:
                 self._failure = exc
 
+    def each_rank_write(self, write):
+        """A write done by every rank, each its own file (collective under MPI): a failure on any
+        rank raises the same OutputError, naming that rank, on every rank at once (one Allreduce
+        of a flag; the messages are gathered only when a write failed)."""
+        if self.par is None:
+            write()
+            return
+        err = None
+        try:
+            write()
+        except OutputError as exc:
+            err = str(exc)
+        if self.par.allmax(1.0 if err is not None else 0.0):
+            msgs = self.par.comm.allgather(err)
+            rank = next(r for r, m in enumerate(msgs) if m)
+            raise OutputError(message=f"{msgs[rank]} [rank {rank} of {len(msgs)}]")
+
     def settle_writes(self):
-        """Raise the held OutputError of the root on every rank (collective under MPI)."""
+        """Raise a held OutputError of any rank on every rank, naming that rank (collective under
+        MPI: one Allreduce of a flag; the messages are gathered only when a write failed)."""
         if self.par is None:
             return
-        msg = self.par.comm.bcast(str(self._failure) if self._failure else None, root=0)
-        if msg:
-            self._failure = None
-            self.hold = False
-            raise OutputError(message=msg)
+        if not self.par.allmax(1.0 if self._failure is not None else 0.0):
+            return
+        msgs = self.par.comm.allgather(str(self._failure) if self._failure is not None else None)
+        rank = next(r for r, m in enumerate(msgs) if m)
+        self._failure = None
+        self.hold = False
+        raise OutputError(message=f"{msgs[rank]} [rank {rank} of {len(msgs)}]")
 
     def begin(self):
         """A run starts: no failure held yet, failures held from now on."""
@@ -151,17 +173,39 @@ class Writers:
             out["time"] = np.float64(self.world.time)
         return out
 
+    def vtk_series(self, out_dir):
+        """The VTK series of this rank (dem.output.VTKSeries: every rank writes its own piece
+        under MPI; the root the frame and the .pvd). Collective under MPI: the root creates the
+        vtk/ folder (recorded in the output folder's manifest) before any rank writes in it."""
+        from .output import VTKSeries, make_folder
+        if self.par is None:
+            return VTKSeries(out_dir)
+        vtk = VTKSeries(out_dir, rank=self.par.rank, ranks=self.par.size)
+        if self.is_root:
+            self.root_write(lambda: make_folder(vtk.dir))
+        self.par.comm.Barrier()
+        return vtk
+
     def write_vtk(self, vtk, **extra):
-        """One VTK output of the owned particles of every rank (collective; ``vtk`` is the
-        root's VTKSeries, None elsewhere); ``extra``: more per-particle fields."""
+        """One VTK output of the owned particles of every rank (collective; ``vtk``: this rank's
+        :meth:`vtk_series`); ``extra``: more per-particle fields. One process writes the frame
+        ordered by id; under MPI each rank writes its own rows as a piece (nothing is gathered
+        but one flag per rank on the root: which ranks wrote a piece)."""
         st = self.state
         w = self.world
         f = dict(self.particle_fields(), **extra)
-        f["position"] = st.position[:st.n_owned]
-        f = self.gather_by_id(f)
-        if vtk is not None:
+        pos = st.position[:st.n_owned]
+        if self.par is None:
+            f["position"] = pos
+            f = by_id([f])
             pos = f.pop("position")
             self.root_write(lambda: vtk.write(w.time, w.step_count, pos, f))
+            return
+        self.each_rank_write(lambda: vtk.write_piece(w.step_count, pos, f) if st.n_owned else None)
+        wrote = self.par.comm.gather(st.n_owned > 0, root=0)   # one flag per rank, on the root
+        if self.is_root:
+            pieces = [r for r, has in enumerate(wrote) if has]
+            self.root_write(lambda: vtk.write_frame(w.time, w.step_count, pieces, f))
 
 
 def by_id(parts):

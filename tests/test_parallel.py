@@ -17,6 +17,8 @@ import sys
 import numpy as np
 import pytest
 
+from dem import checkpoint
+
 HERE = os.path.dirname(os.path.abspath(__file__))
 SCENES = os.path.join(HERE, "scenes")
 
@@ -119,7 +121,7 @@ def test_periodic_crossing_keeps_contacts_and_heat(tmp_path):
     assert hist[-1]["E_direct"] > 1e-4  # the pairs did conduct
     assert np.all(b["velocity"][:, 0] > 3.4)  # 35 mm in 10 ms: a full period
     ca = np.load(tmp_path / "one" / "checkpoint.npz")
-    cb = np.load(tmp_path / "three" / "checkpoint.npz")
+    cb, _ = checkpoint.load(tmp_path / "three" / "checkpoint.npz")   # the manifest and its 3 pieces
 
     def springs(c):
         pair = c["rec_b"] - c["rec_a"] == 1  # the bead-bead contacts (ids 2k+1, 2k+2)
@@ -132,7 +134,7 @@ def test_periodic_crossing_keeps_contacts_and_heat(tmp_path):
     assert np.abs(sa - sb).max() <= 1e-12 * np.abs(sa).max() + 1e-18
 
 
-@pytest.mark.parametrize("first,second", [(2, 1), (1, 2)])
+@pytest.mark.parametrize("first,second", [(2, 1), (1, 2), (2, 3)])
 def test_restart_across_rank_counts(settle, tmp_path, first, second):
     """A checkpoint written on `first` ranks continues on `second` ranks and ends where the
     uninterrupted serial run ends."""
@@ -155,3 +157,53 @@ def test_slabs_thinner_than_the_halo_run(tmp_path):
     assert "error" not in p.stderr
     b = np.load(tmp_path / "thin" / "final.npz")
     assert_same(a, b, pos=1e-14, vel=1e-12, spin=1e-9, temp=1e-11)
+
+
+def test_each_rank_writes_its_own_checkpoint_piece(settle, tmp_path):
+    """An MPI checkpoint is a manifest (scalars, totals, the pieces and their sha256) and one piece
+    per rank holding that rank's particles: no rank gathers the others' (issue 26). The pieces
+    together hold every particle once; a second checkpoint removes the first one's pieces, and a
+    newer piece left by a run killed before its manifest was written is not read."""
+    out = tmp_path / "a"
+    mpirun(2, "run", os.path.join(SCENES, "par_settle.toml"), "--out", str(out), "--quiet", "--end-time", "0.004")
+    man, _ = checkpoint.read(out / "checkpoint.npz")
+    assert "state_position" not in man and man["pieces"].size == 2 and int(man["ranks"]) == 2
+    folder = out / "checkpoint.pieces"
+    step = int(man["step_count"])
+    assert sorted(os.listdir(folder)) == [checkpoint.piece_name(step, 0), checkpoint.piece_name(step, 1)]
+    whole, _ = checkpoint.load(out / "checkpoint.npz")
+    final = np.load(out / "final.npz")
+    assert int(man["piece_rows"].sum()) == final["id"].size and np.array_equal(whole["state_id"], final["id"])
+    assert np.array_equal(whole["state_position"], final["position"])
+    rows = [np.load(folder / str(n))["state_id"].size for n in man["pieces"]]
+    assert rows == man["piece_rows"].tolist() and min(rows) > 0      # each rank wrote its own share
+    # a piece of a later checkpoint that never got its manifest (a kill -9 between the two)
+    stray = folder / checkpoint.piece_name(step + 100, 0)
+    shutil.copy(folder / str(man["pieces"][0]), stray)
+    b = run(3, "par_settle.toml", tmp_path / "b", "--restart", str(out / "checkpoint.npz"))
+    ref = settle[1][0]
+    assert_same(ref, b)
+    mpirun(2, "run", os.path.join(SCENES, "par_settle.toml"), "--out", str(out), "--quiet", "--end-time", "0.006",
+           "--restart", str(out / "checkpoint.npz"))
+    man2, _ = checkpoint.read(out / "checkpoint.npz")
+    assert sorted(os.listdir(folder)) == sorted(str(n) for n in man2["pieces"])   # earlier and stray pieces gone
+
+
+def test_a_damaged_piece_is_refused_on_every_rank(tmp_path):
+    """A piece changed after it was written: every rank stops before anything runs, one line
+    naming the piece (exit 2), on another rank count too."""
+    out = tmp_path / "a"
+    mpirun(2, "run", os.path.join(SCENES, "par_settle.toml"), "--out", str(out), "--quiet", "--end-time", "0.002")
+    man, _ = checkpoint.read(out / "checkpoint.npz")
+    piece = out / "checkpoint.pieces" / str(man["pieces"][1])
+    data = dict(np.load(piece))
+    data["state_velocity"] = data["state_velocity"] * 1.01
+    with open(piece, "wb") as fh:
+        np.savez(fh, **data)
+    for n in (2, 3):
+        p = mpirun(n, "run", os.path.join(SCENES, "par_settle.toml"), "--out", str(tmp_path / f"b{n}"), "--quiet",
+                   "--restart", str(out / "checkpoint.npz"), check=False)
+        assert p.returncode == 2, p.stderr
+        assert "Traceback" not in p.stderr
+        errs = [s for s in p.stderr.splitlines() if s.startswith("error:")]   # (mpirun adds its own banner)
+        assert len(errs) == 1 and str(piece) in errs[0] and "does not match the sha256" in errs[0], p.stderr

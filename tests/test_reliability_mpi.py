@@ -15,7 +15,6 @@ later state by what the physics fixes: heat conservation to 1e-9, bed height, co
 and heat taken from the floor to about ten times the spread between two serial runs.
 """
 import csv
-import glob
 import os
 import re
 import shutil
@@ -63,17 +62,10 @@ def run(n, scene, out, *extra):
 
 
 def snapshots(out):
-    """Every VTK output of a run, by step: arrays ordered by particle id."""
-    import meshio
-    snaps = {}
-    for f in sorted(glob.glob(os.path.join(str(out), "vtk", "*.vtu"))):
-        m = meshio.read(f)
-        d = m.point_data
-        o = np.argsort(d["id"])
-        snaps[int(re.findall(r"(\d+)\.vtu$", f)[0])] = dict(
-            id=d["id"][o], x=m.points[o], v=d["velocity"][o], T=d["temperature"][o],
-            rank=d["rank"][o] if "rank" in d else np.zeros(o.size))
-    return snaps
+    """Every VTK output of a run, by step: arrays ordered by particle id (a serial frame, or
+    the pieces every rank wrote)."""
+    from dem.parallel.compare import snapshots as read
+    return read(str(out))
 
 
 def history(out):
@@ -141,6 +133,40 @@ def test_settling_bed_drains_the_upper_rank(settle):
     peak = max(r["kinetic_energy"] for r in h)
     assert h[-1]["kinetic_energy"] < 0.005 * peak  # at rest (measured: 5e-4 of the peak left)
     assert h[-1]["contacts"] > 400
+
+
+@needs_mpi
+def test_each_rank_writes_its_own_vtk_piece(settle):
+    """Per-rank output (issue 26): every frame of a 3-rank run is a .pvtu naming one .vtu piece per
+    rank that owns particles, each piece holds that rank's particles only (no rank gathers the
+    others'), and pyvista opens the .pvd series and each frame as one data set holding every
+    particle once, the same ids and fields as the serial run's frames."""
+    import meshio
+    import pyvista as pv
+    out = settle[3][1]
+    vtk = os.path.join(str(out), "vtk")
+    frames = sorted(f for f in os.listdir(vtk) if f.endswith(".pvtu"))
+    whole = [f for f in os.listdir(vtk) if re.fullmatch(r"particles_\d{6}\.vtu", f)]
+    assert len(frames) == len(snapshots(settle[1][1])) and not whole
+    serial = pv.read(os.path.join(str(settle[1][1]), "vtk", "particles_000000.vtu"))
+    ranks_seen = set()
+    for f in frames:
+        sources = re.findall(r'<Piece Source="([^"]+)"', open(os.path.join(vtk, f)).read())
+        assert 1 <= len(sources) <= 3
+        for src in sources:
+            rank = int(re.fullmatch(r"particles_\d{6}_p(\d{4})\.vtu", src).group(1))
+            piece = meshio.read(os.path.join(vtk, src))
+            assert piece.points.shape[0] > 0 and np.all(piece.point_data["rank"] == rank)
+            ranks_seen.add(rank)
+        mesh = pv.read(os.path.join(vtk, f))
+        assert mesh.n_points == serial.n_points
+        assert np.array_equal(np.sort(mesh.point_data["id"]), np.sort(serial.point_data["id"]))
+        assert set(serial.point_data.keys()) <= set(mesh.point_data.keys())
+    assert ranks_seen == {0, 1, 2}
+    series = pv.get_reader(os.path.join(str(out), "particles.pvd"))
+    assert len(series.time_values) == len(frames)
+    series.set_active_time_value(series.time_values[-1])
+    assert series.read()[0].n_points == serial.n_points
 
 
 @needs_mpi

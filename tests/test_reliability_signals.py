@@ -318,7 +318,8 @@ def test_disk_full_names_the_file_and_keeps_the_checkpoint(small_disk, tmp_path)
 
 @pytest.mark.skipif(shutil.which("mpirun") is None, reason="needs Open MPI (mpirun)")
 def test_disk_full_under_mpirun_stops_every_rank(small_disk):
-    """The root cannot write a VTK file: every rank stops (no hang), exit 3, one line."""
+    """A rank cannot write its VTK piece (or the root its frame): every rank stops (no hang),
+    exit 3, one line naming the file and the rank."""
     out = small_disk / "out"
     fill(small_disk, 60_000)
     p = subprocess.run(["mpirun", "-np", "2"] + dem("run", SCENE, "--out", str(out), "--end-time", "0.004",
@@ -329,6 +330,7 @@ def test_disk_full_under_mpirun_stops_every_rank(small_disk):
     errs = [s for s in p.stderr.splitlines() if s.startswith("error:")]
     assert len(errs) == 1 and re.match(rf"error: cannot write {re.escape(str(out))}/\S+: the disk is full\. ",
                                        errs[0]), p.stderr
+    assert re.search(r"\[rank [01] of 2\]$", errs[0]), errs[0]   # which rank could not write
     files = [f for f in glob.glob(str(out / "**" / "*"), recursive=True) if os.path.isfile(f)]
     assert not [f for f in files if os.path.getsize(f) == 0]
     assert not glob.glob(str(out / "**" / ".tmp_*"), recursive=True)

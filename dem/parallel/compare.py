@@ -6,7 +6,6 @@ prints, for every VTK output both runs wrote, the largest difference of position
 velocity (m/s) and temperature (K) over the particles, and how many particles each rank
 owned in the second run (docs/reliability/mpi.md lists figures measured with it).
 """
-import glob
 import os
 import re
 import sys
@@ -15,18 +14,15 @@ import numpy as np
 
 
 def snapshots(out_dir):
-    """{step: dict(id, x, v, T, rank)} of every VTK output of a run, rows ordered by id."""
-    import meshio
+    """{step: dict(id, x, v, T, rank)} of every VTK output of a run (a serial frame or the pieces of
+    every rank), rows ordered by id."""
+    from ..output import read_frames
     snaps = {}
-    for f in sorted(glob.glob(os.path.join(out_dir, "vtk", "*.vtu"))):
-        m = meshio.read(f)
-        d = m.point_data
-        o = np.argsort(d["id"])
-        n = o.size
-        snaps[int(re.findall(r"(\d+)\.vtu$", f)[0])] = dict(
-            id=d["id"][o], x=m.points[o], v=d["velocity"][o],
-            T=d["temperature"][o] if "temperature" in d else np.zeros(n),
-            rank=d["rank"][o] if "rank" in d else np.zeros(n))
+    for _, path, x, d in read_frames(out_dir):
+        n = x.shape[0]
+        snaps[int(re.findall(r"_(\d+)\.p?vtu$", path)[0])] = dict(
+            id=d["id"], x=x, v=d["velocity"], T=d["temperature"] if "temperature" in d else np.zeros(n),
+            rank=d["rank"] if "rank" in d else np.zeros(n))
     return snaps
 
 
