@@ -142,17 +142,20 @@ def plot(out: Path, title: str) -> Path | None:
 
 
 class Outputs:
-    """The writers of an output step (rank 0 writes; built before the first step):
+    """The writers of an output step (rank 0 writes, every rank its VTK piece; built before the
+    first step, on every rank):
     history.csv, VTK, coupling.csv, and with heat and DEM walls wall_heat.csv (and
     wall_heat_angle.csv when wanted). ``outputs(fluid, frame, t, step)`` writes one output
     step (collective over the DEM ranks). ``keep``: the time up to which earlier rows are
     kept (a restart), else None."""
 
     def __init__(self, root, iface, case, ledger, out: Path, keep, t_wall0):
-        from dem.output import History, VTKSeries
+        from dem.output import History
         sim = iface.sim
         self.sim, self.iface, self.ledger, self.t_wall0 = sim, iface, ledger, t_wall0
         self.hist = self.vtk = self.diag = self.walls = self.walls_by_angle = None
+        if sim.scene.output["vtk"]:   # every rank: under MPI each writes its own piece (collective)
+            self.vtk = sim.vtk_series(str(out))
         if not root:
             return
         self.hist = History(str(out / "history.csv"), sim.history_columns(), keep)
@@ -161,7 +164,6 @@ class Outputs:
             self.walls = WallHeatFile(str(out / "wall_heat.csv"), sim.scene, keep)
             if WallAngleFile.wanted(sim.scene):
                 self.walls_by_angle = WallAngleFile(str(out / "wall_heat_angle.csv"), sim.scene, keep)
-        self.vtk = VTKSeries(str(out)) if sim.scene.output["vtk"] else None
         self.diag = Diagnostics(out / "coupling.csv", iface.mesh, case.gas, keep, ledger)
 
     def __call__(self, fluid, frame, t, step):
