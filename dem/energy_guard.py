@@ -33,7 +33,7 @@ from numba import njit
 
 from .contact.walls import wall_distance, OX, VX, WMAT
 from .neighbors import pair_distance
-from .step import I_CONTACT, F_LINKN, F_VCHAR, F_KTRATIO, F_GX, F_GZ, T_ESTAR, T_GSTAR, T_MU
+from .step import F_GX, F_GZ, contact_law, pair_material
 
 # relative energy gain between two checks that stops a run (see the module docstring)
 GAIN_TOLERANCE = 0.05
@@ -50,8 +50,7 @@ def particle_energies(P, C, W, TB, prm, nown, t, out):
     nb, nnb, hist, wnb, wnn, whist = C.nb, C.nnb, C.hist, P.wnb, P.wnn, P.whist
     wf, wi, tab, lo, hi, periodic = W.wf, W.wi, TB.tab, prm.lo, prm.hi, prm.periodic
     fp = prm.fp
-    model = prm.ip[I_CONTACT]
-    lin_kn, vchar, ktr = fp[F_LINKN], fp[F_VCHAR], fp[F_KTRATIO]
+    law = contact_law(prm.ip, fp)
     g = fp[F_GX:F_GZ + 1]
     el_tot = 0.0
     for i in range(nown):
@@ -70,9 +69,8 @@ def particle_energies(P, C, W, TB, prm, nown, t, out):
             delta = rs - dist
             rstar = r[i] * r[j] / rs
             mstar = m[i] * m[j] / (m[i] + m[j])
-            e = _spring_energy(model, delta, rstar, mstar, tab[T_ESTAR, mat[i], mat[j]],
-                               tab[T_GSTAR, mat[i], mat[j]], tab[T_MU, mat[i], mat[j]], lin_kn, vchar, ktr,
-                               hist[i, s, 0], hist[i, s, 1], hist[i, s, 2])
+            e = _spring_energy(law, pair_material(tab, mat[i], mat[j]), delta, rstar, mstar,
+                               (hist[i, s, 0], hist[i, s, 1], hist[i, s, 2]))
             el_tot += e if j < nown else 0.5 * e
             out[i, 2] += 0.5 * e
             if j < nown:
@@ -83,35 +81,39 @@ def particle_energies(P, C, W, TB, prm, nown, t, out):
             if dist >= r[i]:
                 continue
             mw = np.int32(wi[wl, WMAT])
-            e = _spring_energy(model, r[i] - dist, r[i], m[i], tab[T_ESTAR, mat[i], mw], tab[T_GSTAR, mat[i], mw],
-                               tab[T_MU, mat[i], mw], lin_kn, vchar, ktr, whist[i, wl, 0], whist[i, wl, 1],
-                               whist[i, wl, 2])
+            e = _spring_energy(law, pair_material(tab, mat[i], mw), r[i] - dist, r[i], m[i],
+                               (whist[i, wl, 0], whist[i, wl, 1], whist[i, wl, 2]))
             el_tot += e
             out[i, 2] += e
     return el_tot
 
 
 @njit(cache=True, error_model="numpy")
-def _spring_energy(model, delta, rstar, mstar, estar, gstar, mu, lin_kn, vchar, ktr, hx, hy, hz):
-    """Normal spring energy + the recoverable tangential spring energy of one contact.
+def _spring_energy(law, pm, delta, rstar, mstar, h):
+    """Normal spring energy + the recoverable tangential spring energy of one contact by the
+    run's law (dem.step.ContactLaw) for the material pair ``pm`` (dem.step.PairMaterial),
+    ``h`` the stored tangential spring (a 3-tuple).
 
     The tangential part is 1/2 S_t |xi|^2, capped at (mu F_n,el)^2 / (2 S_t): a spring held
     at the Coulomb limit while sliding stores xi = -(F_t + c_t v_t) / S_t (the damping part
     included), of which only what the Coulomb force can give back is recoverable."""
+    hx, hy, hz = h
+    estar, gstar, mu = pm.estar, pm.gstar, pm.mu
     h2 = hx * hx + hy * hy + hz * hz
-    if model == 0:  # Hertz-Mindlin
+    if law.model == 0:  # Hertz-Mindlin
         sq = math.sqrt(rstar * delta)
         en = 8.0 / 15.0 * estar * sq * delta * delta
         fn = 4.0 / 3.0 * estar * sq * delta
         st = 8.0 * gstar * sq
     else:
-        kn = lin_kn
+        kn = law.lin_kn
         if kn <= 0.0:
             sr = math.sqrt(rstar)
+            vchar = law.vchar
             kn = 16.0 / 15.0 * sr * estar * (15.0 * mstar * vchar * vchar / (16.0 * sr * estar)) ** 0.2
         en = 0.5 * kn * delta * delta
         fn = kn * delta
-        st = ktr * kn
+        st = law.kt_ratio * kn
     if st <= 0.0:
         return en
     return en + 0.5 * min(st * h2, (mu * fn) ** 2 / st)

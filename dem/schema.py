@@ -38,8 +38,10 @@ B1 = np.dtype(np.bool_)
 
 
 class Field(namedtuple("Field", "name owner dtype tail when ghost forward sort migrate checkpoint "
-                                "scratch output kernel record doc")):
-    """One declared array (see the module docstring)."""
+                                "scratch output kernel record doc",
+                       defaults=((), None, False, None, None, None, None, False, None, True, None, ""))):
+    """One declared array (see the module docstring); every column after ``dtype`` has a
+    default (sort and migrate: None = by owner, see :func:`_f`)."""
 
     def shape(self, rows, walls=1, slots=1):
         """Full shape for ``rows`` rows (per-wall / per-slot axes filled in)."""
@@ -51,15 +53,12 @@ class Field(namedtuple("Field", "name owner dtype tail when ghost forward sort m
         return np.zeros(self.shape(0), self.dtype)
 
 
-def _f(name, owner, dtype, tail=(), when=None, ghost=False, forward=None, sort=None, migrate=None,
-       checkpoint=None, scratch=False, output=None, kernel=True, record=None, doc=""):
-    rows = owner in ("particle", "pair")
-    if sort is None:
-        sort = rows
-    if migrate is None:
-        migrate = owner == "particle"
-    return Field(name, owner, np.dtype(dtype), tuple(tail), when, ghost, forward, sort, migrate,
-                 checkpoint, scratch, output, kernel, record, doc)
+def _f(name, owner, dtype, tail=(), **columns):
+    """One row of :data:`FIELDS`: the columns of :class:`Field` by keyword, their defaults
+    declared there; sort (None) = per-row arrays (particle, pair), migrate (None) = particle arrays."""
+    f = Field(name, owner, np.dtype(dtype), tuple(tail), **columns)
+    return f._replace(sort=owner in ("particle", "pair") if f.sort is None else f.sort,
+                      migrate=owner == "particle" if f.migrate is None else f.migrate)
 
 
 FIELDS = (

@@ -14,7 +14,7 @@ from . import scene as scene_mod
 from .contact.damping import damping_factor, mixed_tables, rayleigh_time, hertz_collision_time
 from .contact.registry import CONTACT_MODELS, ROLLING_MODELS, DAMPING_MODELS
 from .contact import walls as W
-from .neighbors import build_half_list, grid_bytes, sort_permutation
+from .neighbors import Box, build_half_list, grid_bytes, sort_permutation
 from .output import OutputError
 from .state import State
 from . import step as K
@@ -216,11 +216,11 @@ class Simulation:
         PH_AFTER_BUILD). A first build sizes the slots tightly (the largest count + 2)."""
         st = self.state
         slots = 12 if initial else st.nb.shape[1]
-        empty = [f.empty() for f in S.of("pair") if f.name in ("nb", "nnb") or f.record]
+        empty = S.Pairs(*[f.empty() for f in S.of("pair", kernel_only=True)])
         for _ in range(2):
             nb, nnb, hist, rhist, age, maxc = build_half_list(
-                st.position, st.radius, st.n, st.n_owned, self.lo, self.hi, self.periodic, glo, ghi, gwrap,
-                self.reach, self.fp[K.F_SKIN], slots, *empty)
+                st.position, st.radius, st.n, st.n_owned, Box(self.lo, self.hi, self.periodic), Box(glo, ghi, gwrap),
+                self.reach, self.fp[K.F_SKIN], slots, empty)
             if not initial or maxc + 2 >= slots:
                 break
             slots = maxc + 2

@@ -14,6 +14,8 @@ model, no wall loop without walls, no heat terms without a thermal section
 (see dem.thermal.kernel for the heat part).
 """
 import math
+from collections import namedtuple
+
 import numpy as np
 from numba import njit
 
@@ -21,7 +23,7 @@ from .contact.hertz_mindlin import hertz_mindlin
 from .contact.linear import linear_spring_dashpot
 from .contact.rolling import constant_torque, epsd
 from .contact.walls import wall_distance, wall_velocity, WMAT
-from .neighbors import build_half_list
+from .neighbors import build_half_list, Box
 from .schema import Pairs
 from .thermal.contact_radius import (contact_radius_pw, hertz_force, hertz_overlap, geometric_pp_inv,
                                      apply_correction, HERTZ_FORCE, HERTZ_OVERLAP)
@@ -51,18 +53,45 @@ PH_DRIFT, PH_REBUILD, PH_FORCES, PH_KICK, PH_HEAT, PH_AFTER_BUILD = 1, 2, 4, 8, 
 PH_STEP = PH_DRIFT | PH_REBUILD | PH_FORCES | PH_KICK | PH_HEAT
 
 
+# the run's contact-law constants, one record for every contact of a force evaluation
+ContactLaw = namedtuple("ContactLaw", "model dt lin_kn vchar kt_ratio")
+ContactLaw.__doc__ = ("Contact law (ip[I_CONTACT]: 0 Hertz-Mindlin, 1 linear), time step, linear normal stiffness "
+                      "(<= 0: Hertz-equivalent at vchar), characteristic velocity, tangential / normal stiffness.")
+# the material-pair constants of one contact (rows of the pair table ``tab``)
+PairMaterial = namedtuple("PairMaterial", "estar gstar damp mu")
+PairMaterial.__doc__ = "E*, G*, damping coefficient and friction coefficient of a material pair (dem.step T_*)."
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def contact_law(ip, fp):
+    """The :class:`ContactLaw` of the run's switches and parameters."""
+    return ContactLaw(ip[I_CONTACT], fp[F_DT], fp[F_LINKN], fp[F_VCHAR], fp[F_KTRATIO])
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def pair_material(tab, mi, mj):
+    """The :class:`PairMaterial` of materials mi and mj."""
+    return PairMaterial(tab[T_ESTAR, mi, mj], tab[T_GSTAR, mi, mj], tab[T_DAMP, mi, mj], tab[T_MU, mi, mj])
+
+
 @njit(cache=True, error_model="numpy", fastmath={"nsz", "arcp", "contract", "afn", "reassoc"})
-def _pair_law(model, delta, vn, vtx, vty, vtz, hx, hy, hz, rstar, mstar, estar, gstar,
-              damp, mu, dt, lin_kn, vchar, kt_ratio):
-    if model == 0:
+def _pair_law(law, pm, delta, vn, vt, h, rstar, mstar):
+    """Normal and tangential force of one contact by the run's law (``law``: :class:`ContactLaw`)
+    for the material pair ``pm`` (:class:`PairMaterial`): ``vt`` the tangential relative
+    velocity and ``h`` the stored tangential spring (3-tuples)."""
+    vtx, vty, vtz = vt
+    hx, hy, hz = h
+    estar = pm.estar
+    if law.model == 0:
         return hertz_mindlin(delta, vn, vtx, vty, vtz, hx, hy, hz,
-                             rstar, mstar, estar, gstar, damp, mu, dt)
-    kn = lin_kn
+                             rstar, mstar, estar, pm.gstar, pm.damp, pm.mu, law.dt)
+    kn = law.lin_kn
     if kn <= 0.0:  # Hertz-equivalent stiffness at the characteristic velocity
         sr = math.sqrt(rstar)
+        vchar = law.vchar
         kn = 16.0 / 15.0 * sr * estar * (15.0 * mstar * vchar * vchar / (16.0 * sr * estar)) ** 0.2
     return linear_spring_dashpot(delta, vn, vtx, vty, vtz, hx, hy, hz,
-                                 mstar, kn, kt_ratio, damp, mu, dt)
+                                 mstar, kn, law.kt_ratio, pm.damp, pm.mu, law.dt)
 
 
 @njit(cache=True, error_model="numpy")
@@ -171,9 +200,7 @@ def compute_forces(P, C, W, TB, prm, n, t, hon):
     dt = fp[F_DT]
     model = ip[I_CONTACT]
     rolling = ip[I_ROLLING]
-    lin_kn = fp[F_LINKN]
-    vchar = fp[F_VCHAR]
-    ktr = fp[F_KTRATIO]
+    law = contact_law(ip, fp)
     etar = fp[F_ETAR]
     gx = fp[F_GX]
     gy = fp[F_GY]
@@ -290,9 +317,7 @@ def compute_forces(P, C, W, TB, prm, n, t, hon):
             rstar = ri * rj / rs
             mstar = m[i] * m[j] / (m[i] + m[j])
             fn, ftx, fty, ftz, hx, hy, hz, kn = _pair_law(
-                model, delta, vn, vtx, vty, vtz, hx, hy, hz, rstar, mstar,
-                tab[T_ESTAR, mi, mj], tab[T_GSTAR, mi, mj], tab[T_DAMP, mi, mj],
-                tab[T_MU, mi, mj], dt, lin_kn, vchar, ktr)
+                law, pair_material(tab, mi, mj), delta, vn, (vtx, vty, vtz), (hx, hy, hz), rstar, mstar)
             hist[i, s, 0] = hx
             hist[i, s, 1] = hy
             hist[i, s, 2] = hz
@@ -456,9 +481,7 @@ def compute_forces(P, C, W, TB, prm, n, t, hon):
             vtz = vrz - vn * nz
             hx, hy, hz = _rotate_history(whist, i, wl, nx, ny, nz)
             fn, ftx, fty, ftz, hx, hy, hz, kn = _pair_law(
-                model, delta, vn, vtx, vty, vtz, hx, hy, hz, ri, m[i],
-                tab[T_ESTAR, mi, mw], tab[T_GSTAR, mi, mw], tab[T_DAMP, mi, mw],
-                tab[T_MU, mi, mw], dt, lin_kn, vchar, ktr)
+                law, pair_material(tab, mi, mw), delta, vn, (vtx, vty, vtz), (hx, hy, hz), ri, m[i])
             whist[i, wl, 0] = hx
             whist[i, wl, 1] = hy
             whist[i, wl, 2] = hz
@@ -593,14 +616,19 @@ def half_kick_angular_implicit(w, tq, inv_i, kr, i, h):
         w[i, k] = (w[i, k] + a * tq[i, k]) / den
 
 
-@njit(cache=True, error_model="numpy")
-def kick_drift(n, x, v, w, f, tq, inv_m, inv_i, beta, xb, lo, hi, periodic, dt, kr, inv_me):
-    """First half of velocity Verlet for rows [0, n): half kick, drift, periodic wrap.
-    Returns the largest squared displacement since the last neighbour build.
-    ``beta`` (a coupled run; else empty): drag coefficients taken implicitly (:func:`half_kick`);
-    ``kr`` (coupled, fluid torque; else empty): rotational drag taken implicitly
-    (:func:`half_kick_angular_implicit`); ``inv_me`` (coupled, virtual mass; else empty): the
+@njit(cache=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
+def kick_drift(P, prm, n, dt):
+    """First half of velocity Verlet for rows [0, n) of the particles ``P`` (dem.schema
+    Particles) in the domain of ``prm``: half kick, drift, periodic wrap.
+    Returns the largest squared displacement since the last neighbour build (P.x_build).
+    ``P.drag_beta`` (a coupled run; else empty): drag coefficients taken implicitly (:func:`half_kick`);
+    ``P.rot_drag`` (coupled, fluid torque; else empty): rotational drag taken implicitly
+    (:func:`half_kick_angular_implicit`); ``P.inv_mass_eff`` (coupled, virtual mass; else empty): the
     inverse effective mass m + C_vm rho_f V_p of the translational kick instead of 1/m."""
+    x, v, w, f, tq, inv_m, inv_i = P.position, P.velocity, P.angular_velocity, P.force, P.torque, P.inv_mass, \
+        P.inv_inertia
+    beta, xb, kr, inv_me = P.drag_beta, P.x_build, P.rot_drag, P.inv_mass_eff
+    lo, hi, periodic = prm.lo, prm.hi, prm.periodic
     half = 0.5 * dt
     L0 = hi[0] - lo[0]
     L1 = hi[1] - lo[1]
@@ -675,9 +703,7 @@ def drift(P, prm, nown, t):
     when the neighbour lists must be rebuilt before the forces at time t (a particle moved
     more than half the skin since the last build, counting the walls' motion)."""
     fp = prm.fp
-    maxd2 = kick_drift(nown, P.position, P.velocity, P.angular_velocity, P.force, P.torque, P.inv_mass,
-                       P.inv_inertia, P.drag_beta, P.x_build, prm.lo, prm.hi, prm.periodic, fp[F_DT],
-                       P.rot_drag, P.inv_mass_eff)
+    maxd2 = kick_drift(P, prm, nown, fp[F_DT])
     return math.sqrt(maxd2) + fp[F_VWALL] * (t - fp[F_TBUILD]) > 0.5 * fp[F_SKIN]
 
 
@@ -729,8 +755,7 @@ def after_build(P, C, W, prm, n, nown, t, carry):
     Hd, Hi, rnear = _slot_arrays(n, nb.shape[1], C, heat, thi)
     C = Pairs(nb, nnb, hist, rhist, age, Hd, Hi, rnear)
     if heat and thi[TI_LOCALPOR] == 1:
-        local_porosity(n, x, P.radius, nb, nnb, prm.lo, prm.hi, prm.periodic, fp[F_REACH], W.wf, W.wi, P.wnb,
-                       P.wnn, t, P.por, 0.2)
+        local_porosity(P, C, W, prm, n, fp[F_REACH], t, 0.2)
     xb = P.x_build
     for i in range(nown):
         for k in range(3):
@@ -745,9 +770,9 @@ def rebuild(P, C, W, prm, n, t):
     (dem.neighbors.build_half_list), then :func:`after_build`. A run on several ranks, and the
     first build, call the same two functions from dem.simulation around the exchange."""
     fp = prm.fp
-    nb, nnb, hist, rhist, age, _ = build_half_list(
-        P.position, P.radius, n, n, prm.lo, prm.hi, prm.periodic, prm.lo, prm.hi, prm.periodic, fp[F_REACH],
-        fp[F_SKIN], C.nb.shape[1], C.nb, C.nnb, C.hist, C.rhist, C.age)
+    dom = Box(prm.lo, prm.hi, prm.periodic)
+    nb, nnb, hist, rhist, age, _ = build_half_list(P.position, P.radius, n, n, dom, dom, fp[F_REACH], fp[F_SKIN],
+                                                   C.nb.shape[1], C)
     carry = C.nb.shape[0] == n  # the history was carried over (same rows); a run-time value, so that
     # after_build has one compiled form (a literal True would make a second one)
     return after_build(P, Pairs(nb, nnb, hist, rhist, age, C.Hd, C.Hi, C.rnear), W, prm, n, n, t, carry)

@@ -121,7 +121,7 @@ def wall_radiation_now(P, C, W, TB, prm, nown, t, k, out):
     wgt = np.zeros((nown, wth.shape[0]))
     aw0 = np.zeros(nown)
     aw1 = np.zeros(nown)
-    wall_radiation_weights(rad, nown, x, r, W.wf, W.wi, wth, wtab, t, prm.thf[TF_RADRANGE], wgt, aw0, aw1)
+    wall_radiation_weights(rad, nown, x, r, W, t, prm.thf[TF_RADRANGE], wgt, aw0, aw1)
     for i in range(nown):
         if wgt[i, k] <= 0.0:
             continue
@@ -132,10 +132,12 @@ def wall_radiation_now(P, C, W, TB, prm, nown, t, k, out):
 
 
 @njit(cache=True, error_model="numpy")
-def wall_radiation_weights(rad, m, x, r, wf, wi, wth, wtab, t, srange, wgt, aw0, aw1):
-    """The radiating walls in each sphere of influence (dem.thermal.radiation, walls): for rows
-    [0, m), wgt[i, w] the weight of wall w (fixed temperature, emissivity > 0, its surface within
-    srange r_i of the centre) and the wall accumulators (aw0, aw1) of particle i."""
+def wall_radiation_weights(rad, m, x, r, W, t, srange, wgt, aw0, aw1):
+    """The radiating walls ``W`` (dem.schema Walls) in each sphere of influence
+    (dem.thermal.radiation, walls): for rows [0, m), wgt[i, w] the weight of wall w (fixed
+    temperature, emissivity > 0, its surface within srange r_i of the centre) and the wall
+    accumulators (aw0, aw1) of particle i."""
+    wf, wi, wth, wtab = W.wf, W.wi, W.wth, W.wtab
     nw = wth.shape[0]
     for i in range(m):
         s = srange * r[i]
@@ -153,9 +155,11 @@ def wall_radiation_weights(rad, m, x, r, wf, wi, wth, wtab, t, srange, wgt, aw0,
 
 
 @njit(cache=True, error_model="numpy")
-def wall_radiation_parts(rad, eps_i, R_i, T_i, T_e, acc1_i, aw1_i, wgt_i, wth, wtab, t, scale, wtot, wrad):
+def wall_radiation_parts(rad, eps_i, R_i, T_i, T_e, acc1_i, aw1_i, wgt_i, W, t, scale):
     """Add each wall's part of particle i's radiation rate (radiation_wall_rate), times
-    ``scale``, to wtot and wrad; returns the sum of the parts (W, before the scale)."""
+    ``scale``, to the walls' totals W.wtot and W.wrad (``W``: dem.schema Walls); returns the
+    sum of the parts (W, before the scale)."""
+    wth, wtab, wtot, wrad = W.wth, W.wtab, W.wtot, W.wrad
     q = 0.0
     for w in range(wgt_i.shape[0]):
         g = wgt_i[w]
@@ -215,7 +219,7 @@ def heat_step(P, C, W, TB, prm, n, nown, dt, t):
     wnb, wnn, Hw, tf, uf, por, qgen, qsrc, work = P.wnb, P.wnn, P.Hw, P.tf, P.uf, P.por, P.qgen, P.qsrc, P.work
     nb, nnb, Hd, Hi, rnear = C.nb, C.nnb, C.Hd, C.Hi, C.rnear
     wth, wtab, wtot, tmat, gas = W.wth, W.wtab, W.wtot, TB.tmat, TB.gas
-    Hwg, wgap, wrad, cgv = P.Hwg, W.wgap, W.wrad, heat_cg(P.cg, prm.thi)
+    Hwg, wgap, cgv = P.Hwg, W.wgap, heat_cg(P.cg, prm.thi)
     has_wg = Hwg.shape[0] == n
     thi, tot, srcbox = prm.thi, prm.tot, prm.srcbox
     integ = thi[TI_INTEG]
@@ -252,9 +256,9 @@ def heat_step(P, C, W, TB, prm, n, nown, dt, t):
             _cross_exchange(nown, dt, T, cinv, nb, nnb, Hd, Hi, has_ind, work, tot)
     if not fused:
         if integ == 0:
-            _pair_sweep(nown, dt, T, cinv, Q, nb, nnb, Hd, Hi, has_ind, integ, fwd, tot)
+            _pair_sweep(nown, dt, T, cinv, Q, C, has_ind, integ, fwd, tot)
         else:
-            _pair_sweep(nown, 0.5 * dt, T, cinv, Q, nb, nnb, Hd, Hi, has_ind, integ, fwd, tot)
+            _pair_sweep(nown, 0.5 * dt, T, cinv, Q, C, has_ind, integ, fwd, tot)
     # ---- radiation environment (from the temperatures after the first pair half-sweep)
     if rad >= 0:
         acc0, acc1 = radiation_accumulators(rad, n, n, T, r, mat, tmat, nb, nnb, rnear)
@@ -264,7 +268,7 @@ def heat_step(P, C, W, TB, prm, n, nown, dt, t):
     aw0 = np.zeros(nown if wr else 0)
     aw1 = np.zeros(nown if wr else 0)
     if wr:
-        wall_radiation_weights(rad, nown, x, r, W.wf, W.wi, wth, wtab, t, prm.thf[TF_RADRANGE], wgt, aw0, aw1)
+        wall_radiation_weights(rad, nown, x, r, W, t, prm.thf[TF_RADRANGE], wgt, aw0, aw1)
     # ---- reservoir links: fixed-temperature walls, gas (convection), radiation environment.
     # Euler: explicit rates into Q. Exponential: all links of a particle together relax it
     # exactly towards their conductance-weighted temperature (steady state exact, bounded,
@@ -329,8 +333,7 @@ def heat_step(P, C, W, TB, prm, n, nown, dt, t):
                 Q[i] += qq
                 qw = 0.0   # the walls' parts go to their records, the rest to E_RAD
                 if walls_i:
-                    qw = wall_radiation_parts(rad, eps_i, r[i], T[i], te, acc1[i], aw1[i], wgt[i], wth, wtab, t,
-                                              dt, wtot, wrad)
+                    qw = wall_radiation_parts(rad, eps_i, r[i], T[i], te, acc1[i], aw1[i], wgt[i], W, t, dt)
                     tot[E_WALL] += qw * dt
                 er += (qq - qw) * dt
         tot[E_RAD] += er
@@ -363,13 +366,13 @@ def heat_step(P, C, W, TB, prm, n, nown, dt, t):
             if rad >= 0:
                 if wr and aw1[i] > 0.0:
                     qw = wall_radiation_parts(rad, own_emissivity(tmat, mat, cgv, i), r[i], ti, tenv[i], acc1[i], aw1[i],
-                                              wgt[i], wth, wtab, t, f, wtot, wrad)
+                                              wgt[i], W, t, f)
                     tot[E_WALL] += f * qw
                     tot[E_RAD] += f * (hrad[i] * (tenv[i] - ti) - qw)
                 else:
                     tot[E_RAD] += f * hrad[i] * (tenv[i] - ti)
     if not fused and expo:
-        _pair_sweep(nown, 0.5 * dt, T, cinv, Q, nb, nnb, Hd, Hi, has_ind, integ, -fwd, tot)
+        _pair_sweep(nown, 0.5 * dt, T, cinv, Q, C, has_ind, integ, -fwd, tot)
     # ---- explicit terms: generation, sources, fixed fluxes (Q)
     if expo:
         for i in range(nown):
@@ -475,7 +478,7 @@ def _implicit_step(P, C, W, TB, prm, m, dt, t, has_ind):
     qw = np.zeros((m if wr else 0, nw))
     om = np.zeros((m if wr else 0, nw))
     if wr:
-        wall_radiation_weights(rad, m, x, r, W.wf, W.wi, wth, wtab, t, prm.thf[TF_RADRANGE], wgt, aw0, aw1)
+        wall_radiation_weights(rad, m, x, r, W, t, prm.thf[TF_RADRANGE], wgt, aw0, aw1)
     if rad >= 0:
         for i in range(m):
             walls_i = wr and aw1[i] > 0.0
@@ -560,12 +563,14 @@ def _implicit_step(P, C, W, TB, prm, m, dt, t, has_ind):
 
 
 @njit(cache=True, error_model="numpy")
-def _pair_sweep(n, dt, T, cinv, Q, nb, nnb, Hd, Hi, has_ind, integ, direction, tot):
-    """Pair conduction over dt: Euler (into Q) or exact two-body exponential updates of T
+def _pair_sweep(n, dt, T, cinv, Q, C, has_ind, integ, direction, tot):
+    """Pair conduction over dt through the conductances of the pairs ``C`` (dem.schema Pairs:
+    Hd, and Hi when has_ind): Euler (into Q) or exact two-body exponential updates of T
     in particle order (direction 1) or reverse order (-1), over the rows [0, n) of owned
     particles. Pairs with a ghost (j >= n): Euler counts half their heat in the totals (the
     other rank counts the other half); the exponential update leaves them to the
     reservoir relaxation (_ghost_links)."""
+    nb, nnb, Hd, Hi = C.nb, C.nnb, C.Hd, C.Hi
     ed = 0.0
     ei = 0.0
     for k in range(n):
@@ -642,10 +647,15 @@ def _cross_exchange(nown, dt, T, cinv, nb, nnb, Hd, Hi, has_ind, work, tot):
 
 
 @njit(cache=True, error_model="numpy")
-def local_porosity(n, x, r, nb, nnb, lo, hi, periodic, reach, wf, wi, wnb, wnn, t, out, floor):
-    """Porosity in a measuring sphere of radius R_m = R_i + reach around each particle:
-    1 - (own volume + exact lens volumes of the neighbours inside) / (sphere volume minus
-    the caps cut off by plane walls). Floor applied (a measuring sphere that is mostly wall)."""
+def local_porosity(P, C, W, prm, n, reach, t, floor):
+    """Porosity in a measuring sphere of radius R_m = R_i + reach around each particle of
+    rows [0, n), into P.por: 1 - (own volume + exact lens volumes of the neighbours inside
+    (the half list of ``C``)) / (sphere volume minus the caps cut off by the plane walls of
+    ``W`` among each particle's candidates). Floor applied (a measuring sphere that is mostly
+    wall). P, C, W, prm: the bundles of dem.schema."""
+    x, r, wnb, wnn, out = P.position, P.radius, P.wnb, P.wnn, P.por
+    nb, nnb, wf, wi = C.nb, C.nnb, W.wf, W.wi
+    lo, hi, periodic = prm.lo, prm.hi, prm.periodic
     vs = np.zeros(n)
     for i in range(n):
         vs[i] += 4.0 / 3.0 * math.pi * r[i] ** 3

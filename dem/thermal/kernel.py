@@ -164,8 +164,8 @@ class ThermalModel:
         if not self.local_porosity:
             return
         st = self.state
-        local_porosity(st.n, st.position, st.radius, st.nb, st.nnb, st.lo, st.hi, st.periodic, self.reach,
-                       st.wf, st.wi, st.wnb, st.wnn, time, st.por, 0.2)
+        P, C, W, _, prm = st.bundles()
+        local_porosity(P, C, W, prm, st.n, self.reach, time, 0.2)
         if self.voronoi:
             from .voronoi import voronoi_porosity
             pv = voronoi_porosity(st.position, st.radius, st.lo, st.hi)
