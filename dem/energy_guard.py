@@ -31,9 +31,9 @@ import math
 import numpy as np
 from numba import njit
 
-from .contact.walls import wall_distance, OX, VX, WMAT
+from .contact.walls import wall_distance, WF, WI
 from .neighbors import pair_distance
-from .step import F_GX, F_GZ, contact_law, pair_material
+from .step import FP, contact_law, pair_material
 
 # relative energy gain between two checks that stops a run (see the module docstring)
 GAIN_TOLERANCE = 0.05
@@ -51,7 +51,7 @@ def particle_energies(P, C, W, TB, prm, nown, t, out):
     wf, wi, tab, lo, hi, periodic = W.wf, W.wi, TB.tab, prm.lo, prm.hi, prm.periodic
     fp = prm.fp
     law = contact_law(prm.ip, fp)
-    g = fp[F_GX:F_GZ + 1]
+    g = fp[FP.gx:FP.gz + 1]
     el_tot = 0.0
     for i in range(nown):
         ke = 0.5 * m[i] * (v[i, 0] * v[i, 0] + v[i, 1] * v[i, 1] + v[i, 2] * v[i, 2])
@@ -80,7 +80,7 @@ def particle_energies(P, C, W, TB, prm, nown, t, out):
             dist, nx, ny, nz = wall_distance(wf, wi, wl, x[i, 0], x[i, 1], x[i, 2], t)
             if dist >= r[i]:
                 continue
-            mw = np.int32(wi[wl, WMAT])
+            mw = np.int32(wi[wl, WI.mat])
             e = _spring_energy(law, pair_material(tab, mat[i], mw), r[i] - dist, r[i], m[i],
                                (whist[i, wl, 0], whist[i, wl, 1], whist[i, wl, 2]))
             el_tot += e
@@ -125,9 +125,9 @@ def inputs_of(sim):
     if not sim.scene.simulation["mechanics"]:
         why.append("mechanics frozen")
     nw = sim.nwalls
-    if nw and (np.any(sim.wf[:nw, VX:VX + 3] != 0.0) or np.any(sim.wf[:nw, OX:OX + 3] != 0.0)):
+    if nw and (np.any(sim.wf[:nw, WF.vx:WF.vx + 3] != 0.0) or np.any(sim.wf[:nw, WF.ox:WF.ox + 3] != 0.0)):
         why.append("a wall moves or turns")
-    g = np.asarray(sim.fp[1:4])
+    g = np.asarray(sim.fp[FP.gx:FP.gz + 1])
     if np.any(sim.periodic & (g != 0.0)):
         why.append("gravity along a periodic axis")
     if sim.state.features.get("fluid"):
@@ -160,7 +160,7 @@ class EnergyGuard:
         out = np.zeros((nown, 3))
         P, C, W, TB, prm = st.bundles()
         el = particle_energies(P, C, W, TB, prm, nown, s.time, out)
-        g = float(np.linalg.norm(s.fp[K.F_GX:K.F_GZ + 1]))
+        g = float(np.linalg.norm(s.fp[K.FP.gx:K.FP.gz + 1]))
         tot = np.array([out[:, 0].sum(), out[:, 1].sum(), el, float(np.sum(st.mass[:nown])) * g])
         if s.par is not None:
             tot = s.par.allsum(tot)

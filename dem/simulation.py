@@ -69,7 +69,7 @@ class Simulation:
             from .thermal.kernel import no_heat_tables
             no_heat_tables(self.state)
         self.reach = self.thermal.reach if self.thermal is not None else 0.0
-        self.fp[K.F_REACH] = self.reach
+        self.fp[K.FP.reach] = self.reach
         self.rmax = float(self.state.radius.max(initial=0.0))
         self.n_total = self.state.n_owned  # every rank holds the whole scene at this point
         self.par = None
@@ -111,63 +111,63 @@ class Simulation:
         nm = t["n"]
         model = CONTACT_MODELS[sc.contact["model"]]
         damping = DAMPING_MODELS[sc.contact["damping"]]
-        tab = np.zeros((K.NTAB, nm, nm))
-        tab[K.T_ESTAR] = t["estar"]
-        tab[K.T_GSTAR] = t["gstar"]
-        tab[K.T_MU] = t["friction"]
-        tab[K.T_MUR] = t["rolling_friction"]
+        tab = np.zeros((K.TAB.SIZE, nm, nm))
+        tab[K.TAB.estar] = t["estar"]
+        tab[K.TAB.gstar] = t["gstar"]
+        tab[K.TAB.mu] = t["friction"]
+        tab[K.TAB.mur] = t["rolling_friction"]
         for a in range(nm):
             for b in range(nm):
-                tab[K.T_DAMP, a, b] = damping_factor(t["restitution"][a, b], model, damping)
+                tab[K.TAB.damp, a, b] = damping_factor(t["restitution"][a, b], model, damping)
         self.state.tab = np.ascontiguousarray(tab)
         self.pair_tables = t
 
     def _build_walls(self):
         walls = self.scene.walls
         nw = len(walls)
-        wf = np.zeros((max(nw, 1), W.NWF))
-        wi = np.zeros((max(nw, 1), W.NWI), np.int64)
+        wf = np.zeros((max(nw, 1), W.WF.SIZE))
+        wi = np.zeros((max(nw, 1), W.WI.SIZE), np.int64)
         for k, w in enumerate(walls):
-            wf[k, W.PX:W.PX + 3] = w["point"]
-            wf[k, W.VX:W.VX + 3] = w["velocity"]
-            wf[k, W.OX:W.OX + 3] = w["angular_velocity"]
-            wf[k, W.CX:W.CX + 3] = w["rotation_center"]
-            wi[k, W.WMAT] = w["material"]
+            wf[k, W.WF.px:W.WF.px + 3] = w["point"]
+            wf[k, W.WF.vx:W.WF.vx + 3] = w["velocity"]
+            wf[k, W.WF.ox:W.WF.ox + 3] = w["angular_velocity"]
+            wf[k, W.WF.cx:W.WF.cx + 3] = w["rotation_center"]
+            wi[k, W.WI.mat] = w["material"]
             if w["type"] == "plane":
-                wi[k, W.WTYPE] = W.PLANE
-                wf[k, W.NX:W.NX + 3] = w["normal"]
-                wf[k, W.UX:W.UX + 3] = w["u_axis"]
+                wi[k, W.WI.type] = W.PLANE
+                wf[k, W.WF.nx:W.WF.nx + 3] = w["normal"]
+                wf[k, W.WF.ux:W.WF.ux + 3] = w["u_axis"]
                 ext = w["extent"]
-                wf[k, W.EU] = math.inf if ext is None else ext[0]
-                wf[k, W.EV] = math.inf if ext is None else ext[1]
+                wf[k, W.WF.eu] = math.inf if ext is None else ext[0]
+                wf[k, W.WF.ev] = math.inf if ext is None else ext[1]
             else:
-                wi[k, W.WTYPE] = W.CYLINDER
-                wf[k, W.NX:W.NX + 3] = w["axis"]
-                wf[k, W.RAD] = w["radius"]
-                wf[k, W.EU] = w["length"] / 2
-                wf[k, W.SIDE] = 1.0 if w["inside"] else -1.0
+                wi[k, W.WI.type] = W.CYLINDER
+                wf[k, W.WF.nx:W.WF.nx + 3] = w["axis"]
+                wf[k, W.WF.rad] = w["radius"]
+                wf[k, W.WF.eu] = w["length"] / 2
+                wf[k, W.WF.side] = 1.0 if w["inside"] else -1.0
         self.state.wf, self.state.wi, self.nwalls = wf, wi, nw
         self.state.enable(epsd=ROLLING_MODELS[self.scene.contact["rolling"]] == 2)
         self.wall_speed = max([float(np.linalg.norm(w["velocity"])) for w in walls], default=0.0)
 
     def _build_params(self):
         sc = self.scene
-        ip = np.zeros(K.NIP, np.int64)
-        ip[K.I_CONTACT] = CONTACT_MODELS[sc.contact["model"]]
-        ip[K.I_ROLLING] = ROLLING_MODELS[sc.contact["rolling"]]
-        ip[K.I_NWALLS] = self.nwalls
-        ip[K.I_MECH] = 1 if sc.simulation["mechanics"] else 0
-        ip[K.I_NOWN] = self.state.n_owned
-        fp = np.zeros(K.NFP)
-        fp[K.F_DT] = self.dt
-        fp[K.F_GX:K.F_GZ + 1] = sc.simulation["gravity"]
-        fp[K.F_SKIN] = sc.simulation["neighbor_skin"]
-        fp[K.F_VCHAR] = self.characteristic_velocity()
-        fp[K.F_KTRATIO] = sc.contact["tangential_stiffness_ratio"]
-        fp[K.F_LINKN] = sc.contact["normal_stiffness"]
-        fp[K.F_ETAR] = sc.contact["rolling_damping"]
-        fp[K.F_MAXOV] = sc.simulation["max_overlap_ratio"]
-        fp[K.F_VWALL] = self.wall_speed
+        ip = np.zeros(K.IP.SIZE, np.int64)
+        ip[K.IP.contact] = CONTACT_MODELS[sc.contact["model"]]
+        ip[K.IP.rolling] = ROLLING_MODELS[sc.contact["rolling"]]
+        ip[K.IP.nwalls] = self.nwalls
+        ip[K.IP.mech] = 1 if sc.simulation["mechanics"] else 0
+        ip[K.IP.nown] = self.state.n_owned
+        fp = np.zeros(K.FP.SIZE)
+        fp[K.FP.dt] = self.dt
+        fp[K.FP.gx:K.FP.gz + 1] = sc.simulation["gravity"]
+        fp[K.FP.skin] = sc.simulation["neighbor_skin"]
+        fp[K.FP.vchar] = self.characteristic_velocity()
+        fp[K.FP.ktratio] = sc.contact["tangential_stiffness_ratio"]
+        fp[K.FP.linkn] = sc.contact["normal_stiffness"]
+        fp[K.FP.etar] = sc.contact["rolling_damping"]
+        fp[K.FP.maxov] = sc.simulation["max_overlap_ratio"]
+        fp[K.FP.vwall] = self.wall_speed
         self.state.ip, self.state.fp = ip, fp
 
     def characteristic_velocity(self):
@@ -190,7 +190,7 @@ class Simulation:
 
     def halo(self):
         """Ghost layer width: the longest pair reach 2 r_max + reach + skin."""
-        return 2.0 * self.rmax + self.reach + self.fp[K.F_SKIN]
+        return 2.0 * self.rmax + self.reach + self.fp[K.FP.skin]
 
     def __getattr__(self, name):
         """The run's arrays by their dem.schema names (``sim.nb`` is ``sim.state.nb``)."""
@@ -220,7 +220,7 @@ class Simulation:
         for _ in range(2):
             nb, nnb, hist, rhist, age, maxc = build_half_list(
                 st.position, st.radius, st.n, st.n_owned, Box(self.lo, self.hi, self.periodic), Box(glo, ghi, gwrap),
-                self.reach, self.fp[K.F_SKIN], slots, empty)
+                self.reach, self.fp[K.FP.skin], slots, empty)
             if not initial or maxc + 2 >= slots:
                 break
             slots = maxc + 2
@@ -245,7 +245,7 @@ class Simulation:
         rep["radius_min"] = float(st.radius.min())
         rep["radius_max"] = float(st.radius.max())
         tr, th, ovmax = self.time_scales()
-        vchar = self.fp[K.F_VCHAR]
+        vchar = self.fp[K.FP.vchar]
         rep["impact_overlap_ratio"] = ovmax
         rep["rayleigh_time"] = tr
         rep["hertz_time"] = th
@@ -261,10 +261,10 @@ class Simulation:
         runs, skipped = self.models_report()
         rep["runs"], rep["skipped"] = runs, skipped
         warnings = []
-        if sc.simulation["mechanics"] and ovmax > self.fp[K.F_MAXOV]:
+        if sc.simulation["mechanics"] and ovmax > self.fp[K.FP.maxov]:
             warnings.append(f"a Hertz impact at the characteristic velocity {vchar:.3g} m/s overlaps "
                             f"{ovmax:.3g} of the radius, above simulation.max_overlap_ratio = "
-                            f"{self.fp[K.F_MAXOV]:g}: the overlap guard may stop the run (raise "
+                            f"{self.fp[K.FP.maxov]:g}: the overlap guard may stop the run (raise "
                             f"youngs_modulus, or the bound if such overlaps are acceptable)")
         warnings += _parcel_period_warnings(sc)
         if self.thermal is not None:
@@ -323,7 +323,7 @@ class Simulation:
         impact overlap / radius) of the smallest particle of each material (and its walls)."""
         sc = self.scene
         st = self.state
-        vchar = self.fp[K.F_VCHAR]
+        vchar = self.fp[K.FP.vchar]
         tr, th = math.inf, math.inf
         ovmax = 0.0
         for k, m in enumerate(sc.materials):
@@ -334,10 +334,10 @@ class Simulation:
             G = m["youngs_modulus"] / (2 * (1 + m["poisson_ratio"]))
             tr = min(tr, rayleigh_time(rmin, m["density"], G, m["poisson_ratio"]))
             mmin = 4 / 3 * math.pi * rmin ** 3 * m["density"]
-            estar = self.tab[K.T_ESTAR, k, k]
+            estar = self.tab[K.TAB.estar, k, k]
             th = min(th, hertz_collision_time(mmin / 2, rmin / 2, estar, vchar))
             for w in sc.walls:
-                th = min(th, hertz_collision_time(mmin, rmin, self.tab[K.T_ESTAR, k, w["material"]], vchar))
+                th = min(th, hertz_collision_time(mmin, rmin, self.tab[K.TAB.estar, k, w["material"]], vchar))
             # largest Hertz overlap of an impact at the characteristic velocity (smallest particle)
             d = (15 * (mmin / 2) * vchar ** 2 / (16 * estar * math.sqrt(rmin / 2))) ** 0.4
             ovmax = max(ovmax, d / rmin)
@@ -355,7 +355,7 @@ class Simulation:
             glo, ghi, gwrap = self.lo, self.hi, self.periodic
         else:
             glo, ghi, gwrap = self.par.grid_box(self)
-        grid = grid_bytes(st.position, st.radius, st.n, glo, ghi, gwrap, self.reach, self.fp[K.F_SKIN])
+        grid = grid_bytes(st.position, st.radius, st.n, glo, ghi, gwrap, self.reach, self.fp[K.FP.skin])
         mem = st.memory_bytes("particle") + st.memory_bytes("pair")
         return mem + lists + grid, lists + grid
 
@@ -400,12 +400,12 @@ class Simulation:
         if not self._forces_ready:
             self._compute_forces()
             self._forces_ready = True
-        phases = K.PH_STEP if self.ip[K.I_MECH] else K.PH_HEAT  # frozen packing: heat on fixed conductances
+        phases = K.PH_STEP if self.ip[K.IP.mech] else K.PH_HEAT  # frozen packing: heat on fixed conductances
         done, status, who, other, value, nc, nreb, C = self._phases(phases, nsteps, self.step_count)
         self._set_pairs(C)
         self.step_count += done
         self.time = self.step_count * self.dt
-        if self.ip[K.I_MECH]:  # frozen packings keep the contact count of their set-up
+        if self.ip[K.IP.mech]:  # frozen packings keep the contact count of their set-up
             self._nc2 = nc
             self.last_contacts = nc // 2
         if status != K.OK:
@@ -423,7 +423,7 @@ class Simulation:
         if status == K.OVERLAP:
             other = f"wall {self.scene.walls[-1 - j]['name']}" if j < 0 else f"particle id {int(st.id[j])}"
             msg = (f"particle id {pid} at {pos} and {other} overlap by {value:.3g} of the radius {where}, "
-                   f"beyond simulation.max_overlap_ratio = {self.fp[K.F_MAXOV]:g}. Lower time_step "
+                   f"beyond simulation.max_overlap_ratio = {self.fp[K.FP.maxov]:g}. Lower time_step "
                    f"(now {self.dt:g} s), raise youngs_modulus, or lower the impact speeds")
         elif status == K.NONFINITE:
             msg = (f"particle id {pid} got a non-finite velocity {where}: the run is unstable. "
@@ -465,10 +465,10 @@ class Simulation:
         glo, ghi, gwrap = par.grid_box(self)
         self._rebuild(step, glo, ghi, gwrap, initial=initial)
         records.restore(rec, st, par.key_base)
-        self.ip[K.I_NOWN] = st.n_owned
+        self.ip[K.IP.nown] = st.n_owned
         if self.thermal is not None and not initial:
-            from .thermal.heat import TI_LOCALPOR
-            if self.thermal.thi[TI_LOCALPOR] == 1:
+            from .thermal.heat import TI
+            if self.thermal.thi[TI.localpor] == 1:
                 par.forward(self, motion=False, porosity=True)
             elif resort_vor:
                 self.thermal.update_porosity(self.time)
@@ -478,15 +478,15 @@ class Simulation:
         """The phases of dem.step.advance (drift, rebuild, interact, kick + guards, heat),
         one step at a time with the ghost messages between them (one Allreduce per step
         carries the rebuild decision and the previous step's stability status)."""
-        from .thermal.heat import cross_rates, TI_INTEG
+        from .thermal.heat import cross_rates, TI
         par = self.par
         st = self.state
-        expo_cross = self.thermal is not None and self.thermal.thi[TI_INTEG] != 0
+        expo_cross = self.thermal is not None and self.thermal.thi[TI.integ] != 0
         if not self._forces_ready:
             self._compute_forces()
             self._forces_ready = True
         dt = self.dt
-        mech = bool(self.ip[K.I_MECH])
+        mech = bool(self.ip[K.IP.mech])
         heat = self.thermal is not None
         done = 0
         for _ in range(nsteps):
@@ -541,7 +541,7 @@ class Simulation:
             self.par.sort_pending = True
             return
         st = self.state
-        cell = 2 * float(st.radius.max()) + self.reach + self.fp[K.F_SKIN]
+        cell = 2 * float(st.radius.max()) + self.reach + self.fp[K.FP.skin]
         st.permute(sort_permutation(st.position, self.lo, self.hi, cell))
         if self.thermal is not None and self.thermal.voronoi and self.scene.simulation["mechanics"]:
             self.thermal.update_porosity(self.time)
@@ -593,8 +593,8 @@ class Simulation:
         if porosity is not None:
             st.por[:k] = porosity
             th.local_porosity = False
-            from .thermal.heat import TI_LOCALPOR
-            th.thi[TI_LOCALPOR] = 0  # the CFD void fraction is used instead
+            from .thermal.heat import TI
+            th.thi[TI.localpor] = 0  # the CFD void fraction is used instead
             if self.par is not None:
                 self.par.forward(self, motion=False, porosity=True)
 
@@ -725,7 +725,7 @@ class Simulation:
         n = st.n_owned
         rec = records.extract(st)
         rec = {f"rec_{k}": v for k, v in rec.items() if v is not None}
-        common = dict(fp_tbuild=np.float64(self.fp[K.F_TBUILD]), step_count=np.int64(self.step_count),
+        common = dict(fp_tbuild=np.float64(self.fp[K.FP.tbuild]), step_count=np.int64(self.step_count),
                       dt=np.float64(self.dt), forces_ready=np.bool_(self._forces_ready),
                       scene_file=np.str_(os.path.abspath(self.scene.file)),
                       ranks=np.int64(1 if self.par is None else self.par.size))
@@ -815,7 +815,7 @@ class Simulation:
             setattr(st, f.name, np.ascontiguousarray(z[f.checkpoint], f.dtype))
         st.allocate()  # what an older checkpoint lacks (dem.checkpoint.ADDED_LATER)
         self._load_totals(z, root=True)
-        self.fp[K.F_TBUILD] = float(z["fp_tbuild"])
+        self.fp[K.FP.tbuild] = float(z["fp_tbuild"])
         self.step_count = int(z["step_count"])
         self.time = self.step_count * self.dt
         self._forces_ready = bool(z["forces_ready"])
@@ -872,7 +872,7 @@ class Simulation:
         st.n_owned = rows.size
         st.n_ghost = 0
         st.allocate()  # the arrays a checkpoint does not hold (scratch), sized for these rows
-        self.ip[K.I_NOWN] = rows.size
+        self.ip[K.IP.nown] = rows.size
         rec = {k: (z[f"rec_{k}"] if f"rec_{k}" in z.files else None) for k in records.FIELDS}
         if rec["a"] is None:
             rec = None
