@@ -77,7 +77,7 @@ def accuracy():
 
 def bed():
     from dem import Simulation
-    from dem.thermal.heat import E_RAD, E_WALL
+    from dem.thermal.heat import TOT
     n = (20, 20, 5)
     ov = 2e-5
     a = 2 * R - ov
@@ -108,7 +108,7 @@ def bed():
                 if emis > 0 and rep == 0:
                     gain = float((C * (sim.state.temperature - T0)).sum())
                     wt, wg, wr = sim.state.wtot[0], sim.state.wgap[0], sim.state.wrad[0]
-                    res = (wt - wg - wr, wg, wr, gain - sim.state.tot[E_WALL] - sim.state.tot[E_RAD], gain)
+                    res = (wt - wg - wr, wg, wr, gain - sim.state.tot[TOT.wall] - sim.state.tot[TOT.rad], gain)
         sp = {e: 999 * len(pos) / best[e] for e in best}
         print(f"| {model} | {res[0]:.4g} | {res[1]:.4g} | {res[2]:.4g} | {res[3]:.1e} (of {res[4]:.4g}) | "
               f"{sp[0.8]:.3g} | {sp[0.0]:.3g} | {sp[0.8] / sp[0.0]:.3f} |")

@@ -39,13 +39,13 @@ class Diagnostics:
         """[E_particles, E_conv, E_walls, E_sources] (J) of the particles, summed over the ranks
         (collective): their thermal energy sum(C T) and what they received since the DEM's start
         by convection, through the walls, and by radiation, generation and sources."""
-        from dem.thermal.heat import E_CONV, E_GEN, E_RAD, E_SRC, E_WALL
+        from dem.thermal.heat import TOT
         a = np.zeros(4)
         if sim.thermal is not None:
             st, tot = sim.state, sim.thermal.tot
             n = st.n_owned
-            a[:] = (float((st.temperature[:n] / st.inv_heat_capacity[:n]).sum()), tot[E_CONV], tot[E_WALL],
-                    tot[E_RAD] + tot[E_GEN] + tot[E_SRC])
+            a[:] = (float((st.temperature[:n] / st.inv_heat_capacity[:n]).sum()), tot[TOT.conv], tot[TOT.wall],
+                    tot[TOT.rad] + tot[TOT.gen] + tot[TOT.src])
         if sim.par is not None:
             a = np.asarray(sim.par.allsum(a), float)
         return a

@@ -342,8 +342,8 @@ def validate(path, arrays, record, subset=False):
             on = feats.get(f.when, None) if f.when is not None else True
             full = f.shape(rows, W1, slots) if owner != "wall" else (W1,)
             if owner == "param":
-                from .thermal.heat import NTOT
-                full = (NTOT,)
+                from .thermal.heat import TOT
+                full = (TOT.SIZE,)
             if on is None:  # an older checkpoint: either form
                 need(f.checkpoint, f.dtype, full, f.shape(0), required=False)
             elif on:

@@ -39,7 +39,7 @@ class Checkpointer:
         """The run's scalars a checkpoint holds beside the arrays."""
         st = self.state
         w = self.world
-        return dict(fp_tbuild=np.float64(st.fp[K.F_TBUILD]), step_count=np.int64(w.step_count),
+        return dict(fp_tbuild=np.float64(st.fp[K.FP.tbuild]), step_count=np.int64(w.step_count),
                     dt=np.float64(w.dt), forces_ready=np.bool_(self.stepper.forces_ready),
                     scene_file=np.str_(os.path.abspath(w.scene.file)),
                     ranks=np.int64(1 if self.par is None else self.par.size))
@@ -191,7 +191,7 @@ class Checkpointer:
             self._load_array(f, z, None)
         st.allocate()  # what an older checkpoint lacks (dem.checkpoint.ADDED_LATER)
         self._load_totals(z, root=True)
-        st.fp[K.F_TBUILD] = float(z["fp_tbuild"])
+        st.fp[K.FP.tbuild] = float(z["fp_tbuild"])
         self._load_clock(z)
 
     def _load_totals(self, z, root):
@@ -221,7 +221,7 @@ class Checkpointer:
         st.n_owned = rows.size
         st.n_ghost = 0
         st.allocate()  # the arrays a checkpoint does not hold (scratch), sized for these rows
-        st.ip[K.I_NOWN] = rows.size
+        st.ip[K.IP.nown] = rows.size
         rec = {k: (z[f"rec_{k}"] if f"rec_{k}" in z.files else None) for k in records.FIELDS}
         if rec["a"] is None:
             rec = None

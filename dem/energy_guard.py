@@ -31,9 +31,9 @@ import math
 import numpy as np
 from numba import njit
 
-from .contact.walls import wall_distance, OX, VX, WMAT
+from .contact.walls import wall_distance, WF, WI
 from .neighbors import pair_distance
-from .step import I_CONTACT, F_LINKN, F_VCHAR, F_KTRATIO, F_GX, F_GZ, T_ESTAR, T_GSTAR, T_MU
+from .step import FP, contact_law, pair_material
 
 # relative energy gain between two checks that stops a run (see the module docstring)
 GAIN_TOLERANCE = 0.05
@@ -50,9 +50,8 @@ def particle_energies(P, C, W, TB, prm, nown, t, out):
     nb, nnb, hist, wnb, wnn, whist = C.nb, C.nnb, C.hist, P.wnb, P.wnn, P.whist
     wf, wi, tab, lo, hi, periodic = W.wf, W.wi, TB.tab, prm.lo, prm.hi, prm.periodic
     fp = prm.fp
-    model = prm.ip[I_CONTACT]
-    lin_kn, vchar, ktr = fp[F_LINKN], fp[F_VCHAR], fp[F_KTRATIO]
-    g = fp[F_GX:F_GZ + 1]
+    law = contact_law(prm.ip, fp)
+    g = fp[FP.gx:FP.gz + 1]
     el_tot = 0.0
     for i in range(nown):
         ke = 0.5 * m[i] * (v[i, 0] * v[i, 0] + v[i, 1] * v[i, 1] + v[i, 2] * v[i, 2])
@@ -70,9 +69,8 @@ def particle_energies(P, C, W, TB, prm, nown, t, out):
             delta = rs - dist
             rstar = r[i] * r[j] / rs
             mstar = m[i] * m[j] / (m[i] + m[j])
-            e = _spring_energy(model, delta, rstar, mstar, tab[T_ESTAR, mat[i], mat[j]],
-                               tab[T_GSTAR, mat[i], mat[j]], tab[T_MU, mat[i], mat[j]], lin_kn, vchar, ktr,
-                               hist[i, s, 0], hist[i, s, 1], hist[i, s, 2])
+            e = _spring_energy(law, pair_material(tab, mat[i], mat[j]), delta, rstar, mstar,
+                               (hist[i, s, 0], hist[i, s, 1], hist[i, s, 2]))
             el_tot += e if j < nown else 0.5 * e
             out[i, 2] += 0.5 * e
             if j < nown:
@@ -82,36 +80,40 @@ def particle_energies(P, C, W, TB, prm, nown, t, out):
             dist, nx, ny, nz = wall_distance(wf, wi, wl, x[i, 0], x[i, 1], x[i, 2], t)
             if dist >= r[i]:
                 continue
-            mw = np.int32(wi[wl, WMAT])
-            e = _spring_energy(model, r[i] - dist, r[i], m[i], tab[T_ESTAR, mat[i], mw], tab[T_GSTAR, mat[i], mw],
-                               tab[T_MU, mat[i], mw], lin_kn, vchar, ktr, whist[i, wl, 0], whist[i, wl, 1],
-                               whist[i, wl, 2])
+            mw = np.int32(wi[wl, WI.mat])
+            e = _spring_energy(law, pair_material(tab, mat[i], mw), r[i] - dist, r[i], m[i],
+                               (whist[i, wl, 0], whist[i, wl, 1], whist[i, wl, 2]))
             el_tot += e
             out[i, 2] += e
     return el_tot
 
 
 @njit(cache=True, error_model="numpy")
-def _spring_energy(model, delta, rstar, mstar, estar, gstar, mu, lin_kn, vchar, ktr, hx, hy, hz):
-    """Normal spring energy + the recoverable tangential spring energy of one contact.
+def _spring_energy(law, pm, delta, rstar, mstar, h):
+    """Normal spring energy + the recoverable tangential spring energy of one contact by the
+    run's law (dem.step.ContactLaw) for the material pair ``pm`` (dem.step.PairMaterial),
+    ``h`` the stored tangential spring (a 3-tuple).
 
     The tangential part is 1/2 S_t |xi|^2, capped at (mu F_n,el)^2 / (2 S_t): a spring held
     at the Coulomb limit while sliding stores xi = -(F_t + c_t v_t) / S_t (the damping part
     included), of which only what the Coulomb force can give back is recoverable."""
+    hx, hy, hz = h
+    estar, gstar, mu = pm.estar, pm.gstar, pm.mu
     h2 = hx * hx + hy * hy + hz * hz
-    if model == 0:  # Hertz-Mindlin
+    if law.model == 0:  # Hertz-Mindlin
         sq = math.sqrt(rstar * delta)
         en = 8.0 / 15.0 * estar * sq * delta * delta
         fn = 4.0 / 3.0 * estar * sq * delta
         st = 8.0 * gstar * sq
     else:
-        kn = lin_kn
+        kn = law.lin_kn
         if kn <= 0.0:
             sr = math.sqrt(rstar)
+            vchar = law.vchar
             kn = 16.0 / 15.0 * sr * estar * (15.0 * mstar * vchar * vchar / (16.0 * sr * estar)) ** 0.2
         en = 0.5 * kn * delta * delta
         fn = kn * delta
-        st = ktr * kn
+        st = law.kt_ratio * kn
     if st <= 0.0:
         return en
     return en + 0.5 * min(st * h2, (mu * fn) ** 2 / st)
@@ -125,9 +127,9 @@ def inputs_of(world):
     if not world.scene.simulation["mechanics"]:
         why.append("mechanics frozen")
     nw = world.nwalls
-    if nw and (np.any(st.wf[:nw, VX:VX + 3] != 0.0) or np.any(st.wf[:nw, OX:OX + 3] != 0.0)):
+    if nw and (np.any(st.wf[:nw, WF.vx:WF.vx + 3] != 0.0) or np.any(st.wf[:nw, WF.ox:WF.ox + 3] != 0.0)):
         why.append("a wall moves or turns")
-    g = np.asarray(st.fp[1:4])
+    g = np.asarray(st.fp[FP.gx:FP.gz + 1])
     if np.any(st.periodic & (g != 0.0)):
         why.append("gravity along a periodic axis")
     if st.features.get("fluid"):
@@ -160,7 +162,7 @@ class EnergyGuard:
         out = np.zeros((nown, 3))
         P, C, W, TB, prm = st.bundles()
         el = particle_energies(P, C, W, TB, prm, nown, s.time, out)
-        g = float(np.linalg.norm(st.fp[K.F_GX:K.F_GZ + 1]))
+        g = float(np.linalg.norm(st.fp[K.FP.gx:K.FP.gz + 1]))
         tot = np.array([out[:, 0].sum(), out[:, 1].sum(), el, float(np.sum(st.mass[:nown])) * g])
         if s.par is not None:
             tot = s.par.allsum(tot)

@@ -38,6 +38,6 @@ def set_fluid(world, stepper, force=None, velocity=None, temperature=None, poros
     if porosity is not None:
         st.por[:k] = porosity
         th.local_porosity = False
-        from .thermal.heat import TI_LOCALPOR
-        th.thi[TI_LOCALPOR] = 0  # the CFD void fraction is used instead
+        from .thermal.heat import TI
+        th.thi[TI.localpor] = 0  # the CFD void fraction is used instead
         stepper.forward_porosity()

@@ -9,8 +9,14 @@ The list covers pairs with surface gap < ``reach`` + skin; it is rebuilt when th
 largest displacement since the last build exceeds half the skin.
 """
 import math
+from collections import namedtuple
+
 import numpy as np
 from numba import njit
+
+# a box: lower and upper corner and its periodic (wrapped) axes: the domain of the minimum
+# image, or the region a cell grid covers
+Box = namedtuple("Box", "lo hi periodic")
 
 
 @njit(cache=True, error_model="numpy")
@@ -155,8 +161,10 @@ def _axis_cell(c, o, ncell, wrap, cmin, ext):
 
 
 @njit(cache=True, error_model="numpy")
-def _scan(i, q0, q1, order, x, r, length, periodic, reach, skin, nb, cnt, slots):
-    """Add the particles j > i of order[q0:q1] within the list cut-off to row i."""
+def _scan(i, q0, q1, order, x, r, length, periodic, reach, skin, nb, cnt):
+    """Add the particles j > i of order[q0:q1] within the list cut-off to row i (counted in
+    ``cnt``, stored while the row's slots, nb.shape[1], last)."""
+    slots = nb.shape[1]
     for q in range(q0, q1):
         j = order[q]
         if j <= i:
@@ -173,18 +181,21 @@ def _scan(i, q0, q1, order, x, r, length, periodic, reach, skin, nb, cnt, slots)
 
 
 @njit(cache=True, error_model="numpy")
-def build_half_list(x, r, n, nown, lo, hi, periodic, glo, ghi, gwrap, reach, skin, slots,
-                    nb_old, nnb_old, hist_old, rhist_old, age_old):
-    """Build the half list and carry the history over.
+def build_half_list(x, r, n, nown, dom, grid, reach, skin, slots, old):
+    """Build the half list and carry the history over from ``old`` (dem.schema Pairs: its
+    nb, nnb, hist, rhist, age; empty arrays for none).
 
     Rows [nown, n) are ghosts (another rank's particles): they get no row of their own, so
     ghost-ghost pairs are never listed. Distances use the minimum image of the domain
-    (lo, hi, periodic); the cell grid covers [glo, ghi] and wraps on the axes of ``gwrap``
-    (in a serial run the grid is the domain; a rank's grid is its box plus the halo); only
+    ``dom`` (a :class:`Box`); the cell grid covers the box ``grid`` and wraps on its periodic
+    axes (in a serial run the grid is the domain; a rank's grid is its box plus the halo); only
     the box of occupied cells is stored (``cell_grid``), so memory grows with n, not with
     the domain. Returns (nb, nnb, hist, rhist, age, max_count). When a row overflows the
     slots the build is redone with more slots (the arrays returned are then larger).
     """
+    lo, hi, periodic = dom.lo, dom.hi, dom.periodic
+    glo, ghi, gwrap = grid.lo, grid.hi, grid.periodic
+    nb_old, nnb_old, hist_old, rhist_old, age_old = old.nb, old.nnb, old.hist, old.rhist, old.age
     ncell, cc, cmin, ext, order, table, dense = cell_grid(x, r, n, glo, ghi, gwrap, reach, skin)
     length = np.empty(3)
     for k in range(3):
@@ -223,7 +234,7 @@ def build_half_list(x, r, n, nown, lo, hi, periodic, glo, ghi, gwrap, reach, ski
                             zb = zc[t]
                         t += 1
                         q0, q1 = _key_range(table, dense, base + za, base + zb)
-                        cnt = _scan(i, q0, q1, order, x, r, length, periodic, reach, skin, nb, cnt, slots)
+                        cnt = _scan(i, q0, q1, order, x, r, length, periodic, reach, skin, nb, cnt)
             if cnt > maxc:
                 maxc = cnt
             nnb[i] = min(cnt, slots)

@@ -33,7 +33,7 @@ def check(world, stepper):
     rep["radius_min"] = float(st.radius.min())
     rep["radius_max"] = float(st.radius.max())
     tr, th, ovmax = time_scales(world)
-    vchar = st.fp[K.F_VCHAR]
+    vchar = st.fp[K.FP.vchar]
     rep["impact_overlap_ratio"] = ovmax
     rep["rayleigh_time"] = tr
     rep["hertz_time"] = th
@@ -48,10 +48,10 @@ def check(world, stepper):
     rep["memory_per_particle"] = mem / max(st.n, 1)
     rep["runs"], rep["skipped"] = models_report(world, stepper.par)
     warnings = []
-    if sc.simulation["mechanics"] and ovmax > st.fp[K.F_MAXOV]:
+    if sc.simulation["mechanics"] and ovmax > st.fp[K.FP.maxov]:
         warnings.append(f"a Hertz impact at the characteristic velocity {vchar:.3g} m/s overlaps "
                         f"{ovmax:.3g} of the radius, above simulation.max_overlap_ratio = "
-                        f"{st.fp[K.F_MAXOV]:g}: the overlap guard may stop the run (raise "
+                        f"{st.fp[K.FP.maxov]:g}: the overlap guard may stop the run (raise "
                         f"youngs_modulus, or the bound if such overlaps are acceptable)")
     warnings += parcel_period_warnings(sc)
     if world.thermal is not None:
@@ -112,7 +112,7 @@ def time_scales(world):
     impact overlap / radius) of the smallest particle of each material (and its walls)."""
     sc = world.scene
     st = world.state
-    vchar = st.fp[K.F_VCHAR]
+    vchar = st.fp[K.FP.vchar]
     tr, th = math.inf, math.inf
     ovmax = 0.0
     for k, m in enumerate(sc.materials):
@@ -123,10 +123,10 @@ def time_scales(world):
         G = m["youngs_modulus"] / (2 * (1 + m["poisson_ratio"]))
         tr = min(tr, rayleigh_time(rmin, m["density"], G, m["poisson_ratio"]))
         mmin = 4 / 3 * math.pi * rmin ** 3 * m["density"]
-        estar = st.tab[K.T_ESTAR, k, k]
+        estar = st.tab[K.TAB.estar, k, k]
         th = min(th, hertz_collision_time(mmin / 2, rmin / 2, estar, vchar))
         for w in sc.walls:
-            th = min(th, hertz_collision_time(mmin, rmin, st.tab[K.T_ESTAR, k, w["material"]], vchar))
+            th = min(th, hertz_collision_time(mmin, rmin, st.tab[K.TAB.estar, k, w["material"]], vchar))
         # largest Hertz overlap of an impact at the characteristic velocity (smallest particle)
         d = (15 * (mmin / 2) * vchar ** 2 / (16 * estar * math.sqrt(rmin / 2))) ** 0.4
         ovmax = max(ovmax, d / rmin)
@@ -145,7 +145,7 @@ def memory_estimate(world, par):
         glo, ghi, gwrap = st.lo, st.hi, st.periodic
     else:
         glo, ghi, gwrap = par.grid_box(world)
-    grid = grid_bytes(st.position, st.radius, st.n, glo, ghi, gwrap, world.reach, st.fp[K.F_SKIN])
+    grid = grid_bytes(st.position, st.radius, st.n, glo, ghi, gwrap, world.reach, st.fp[K.FP.skin])
     mem = st.memory_bytes("particle") + st.memory_bytes("pair")
     return mem + lists + grid, lists + grid
 

@@ -38,8 +38,10 @@ B1 = np.dtype(np.bool_)
 
 
 class Field(namedtuple("Field", "name owner dtype tail when ghost forward sort migrate checkpoint "
-                                "scratch output kernel record doc")):
-    """One declared array (see the module docstring)."""
+                                "scratch output kernel record doc",
+                       defaults=((), None, False, None, None, None, None, False, None, True, None, ""))):
+    """One declared array (see the module docstring); every column after ``dtype`` has a
+    default (sort and migrate: None = by owner, see :func:`_f`)."""
 
     def shape(self, rows, walls=1, slots=1):
         """Full shape for ``rows`` rows (per-wall / per-slot axes filled in)."""
@@ -51,15 +53,12 @@ class Field(namedtuple("Field", "name owner dtype tail when ghost forward sort m
         return np.zeros(self.shape(0), self.dtype)
 
 
-def _f(name, owner, dtype, tail=(), when=None, ghost=False, forward=None, sort=None, migrate=None,
-       checkpoint=None, scratch=False, output=None, kernel=True, record=None, doc=""):
-    rows = owner in ("particle", "pair")
-    if sort is None:
-        sort = rows
-    if migrate is None:
-        migrate = owner == "particle"
-    return Field(name, owner, np.dtype(dtype), tuple(tail), when, ghost, forward, sort, migrate,
-                 checkpoint, scratch, output, kernel, record, doc)
+def _f(name, owner, dtype, tail=(), **columns):
+    """One row of :data:`FIELDS`: the columns of :class:`Field` by keyword, their defaults
+    declared there; sort (None) = per-row arrays (particle, pair), migrate (None) = particle arrays."""
+    f = Field(name, owner, np.dtype(dtype), tuple(tail), **columns)
+    return f._replace(sort=owner in ("particle", "pair") if f.sort is None else f.sort,
+                      migrate=owner == "particle" if f.migrate is None else f.migrate)
 
 
 FIELDS = (
@@ -138,9 +137,9 @@ FIELDS = (
     _f("Hi", "pair", F8, ("S",), when="indirect", checkpoint="Hi", doc="indirect conductance (W/K)"),
     _f("rnear", "pair", U1, ("S",), when="radiation", checkpoint="rnear", doc="within the radiation range"),
     # ---------------------------------------------------------------- walls
-    _f("wf", "wall", F8, (None,), doc="geometry and motion (dem.contact.walls columns)"),
-    _f("wi", "wall", I8, (None,), doc="type and material"),
-    _f("wth", "wall", F8, (5,), doc="thermal condition, temperature, flux, table length, emissivity"),
+    _f("wf", "wall", F8, (None,), doc="geometry and motion (columns: dem.contact.walls WF)"),
+    _f("wi", "wall", I8, (None,), doc="type and material (columns: dem.contact.walls WI)"),
+    _f("wth", "wall", F8, (5,), doc="thermal condition, temperature, flux, table length, emissivity (columns: dem.thermal.heat WT)"),
     _f("wtab", "wall", F8, (None, 2), doc="temperature table [time, T]"),
     _f("wtot", "wall", F8, (), checkpoint="th_wtot", doc="heat through each wall since the start (J)"),
     _f("wgap", "wall", F8, (), checkpoint="th_wgap",
@@ -148,21 +147,21 @@ FIELDS = (
     _f("wrad", "wall", F8, (), checkpoint="th_wrad",
        doc="the part of wtot by radiation (a fixed-temperature wall with an emissivity, J)"),
     # ---------------------------------------------------------------- tables
-    _f("tab", "table", F8, (None, None), doc="pair tables E*, G*, damping, mu, mu_r [5, mat, mat]"),
+    _f("tab", "table", F8, (None, None), doc="pair tables E*, G*, damping, mu, mu_r [5, mat, mat] (slots: dem.step TAB)"),
     _f("tmat", "table", F8, (None,), doc="thermal material table (dem.thermal.registry)"),
     _f("gas", "table", F8, doc="gas and model parameters (dem.thermal.registry)"),
     _f("ereal", "table", F8, (None,), doc="real effective modulus per material pair (Pa)"),
     _f("keff", "table", F8, (None,), doc="series conductivity per material pair (W/(m K))"),
     # ---------------------------------------------------------------- parameters
-    _f("ip", "param", I8, doc="integer switches (dem.step I_*)"),
-    _f("fp", "param", F8, doc="float parameters (dem.step F_*)"),
-    _f("thi", "param", I8, doc="thermal switches (dem.thermal.heat TI_*)"),
-    _f("thf", "param", F8, doc="thermal floats (dem.thermal.heat TF_*)"),
+    _f("ip", "param", I8, doc="integer switches (slots: dem.step IP)"),
+    _f("fp", "param", F8, doc="float parameters (slots: dem.step FP)"),
+    _f("thi", "param", I8, doc="thermal switches (slots: dem.thermal.heat TI)"),
+    _f("thf", "param", F8, doc="thermal floats (slots: dem.thermal.heat TF)"),
     _f("lo", "param", F8, doc="domain lower corner (m)"),
     _f("hi", "param", F8, doc="domain upper corner (m)"),
     _f("periodic", "param", B1, doc="periodic axes"),
     _f("srcbox", "param", F8, (7,), doc="volumetric heat-source boxes: min, max, W/m^3"),
-    _f("tot", "param", F8, checkpoint="th_tot", doc="heat per mechanism since the start (J)"),
+    _f("tot", "param", F8, checkpoint="th_tot", doc="heat per mechanism since the start (J; slots: dem.thermal.heat TOT)"),
 )
 
 BY_NAME = {f.name: f for f in FIELDS}
@@ -196,3 +195,27 @@ COUPLING_FEATURES = ("fluid", "fluid_torque", "virtual_mass")
 
 def enabled(field, feats):
     return field.when is None or bool(feats.get(field.when, False))
+
+
+def slots(name, rows, size=None):
+    """The slots of a parameter array (``ip``, ``fp``, ``thi``, ...) or the columns of a table,
+    declared once: ``rows`` are (slot, meaning) or (slot, width, meaning), in array order.
+    Returns a named tuple of each slot's first index, which the kernels read by name
+    (``fp[FP.dt]``; a global tuple is a compile-time constant to Numba: the same machine code
+    as an integer literal), with ``SIZE`` (the array's length: ``size``, spare slots
+    included, or the slots' total width) and ``MEANING`` (slot -> meaning)."""
+    names, first, meaning = [], [], {}
+    k = 0
+    for row in rows:
+        slot, width, what = row if len(row) == 3 else (row[0], 1, row[1])
+        names.append(slot)
+        first.append(k)
+        meaning[slot] = what
+        k += width
+    if size is not None and size < k:
+        raise ValueError(f"{name}: {k} slots declared, size {size}")
+    t = namedtuple(name, names)
+    t.SIZE = k if size is None else size
+    t.MEANING = meaning
+    t.__doc__ = f"Slots of {name}: " + "; ".join(f"{a} = {i}: {meaning[a]}" for a, i in zip(names, first))
+    return t(*first)

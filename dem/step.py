@@ -14,35 +14,57 @@ model, no wall loop without walls, no heat terms without a thermal section
 (see dem.thermal.kernel for the heat part).
 """
 import math
+from collections import namedtuple
+
 import numpy as np
 from numba import njit
 
 from .contact.hertz_mindlin import hertz_mindlin
 from .contact.linear import linear_spring_dashpot
 from .contact.rolling import constant_torque, epsd
-from .contact.walls import wall_distance, wall_velocity, WMAT
-from .neighbors import build_half_list
-from .schema import Pairs
+from .contact.walls import wall_distance, wall_velocity, WI
+from .neighbors import build_half_list, Box
+from .schema import Pairs, slots
 from .thermal.contact_radius import (contact_radius_pw, hertz_force, hertz_overlap, geometric_pp_inv,
                                      apply_correction, HERTZ_FORCE, HERTZ_OVERLAP)
 from .thermal.direct import direct_pp, direct_pw, direct_cg_pp, direct_cg_pw, batchelor_obrien_keff
 from .thermal.registry import DIRECT_BATCHELOR_OBRIEN
 from .thermal.indirect import indirect_pp, indirect_pw
 from .thermal.generation import friction_heat, partition
-from .thermal.heat import (heat_step, local_porosity, TI_HEAT, TI_DIRECT, TI_CR, TI_CORR,
-                           TI_INDIRECT, TI_RAD, TI_FRIC, TI_PART, TI_AGE, TF_DFACTOR,
-                           TF_RADRANGE, TF_CT, TF_CN, TF_CHI, WT_COND, TI_LOCALPOR, TI_FUSED,
-                           E_DIRECT, E_INDIRECT, E_WALL, wall_temperature, heat_cg)
+from .thermal.heat import heat_step, local_porosity, TI, TF, WT, TOT, wall_temperature, heat_cg
 
-# integer parameters
-I_CONTACT, I_ROLLING, I_NWALLS, I_MECH, I_NOWN = 0, 1, 2, 3, 4  # I_NOWN: owned rows (the rest are ghosts)
-NIP = 8
-# float parameters
-F_DT, F_GX, F_GY, F_GZ, F_SKIN, F_REACH, F_VCHAR, F_KTRATIO, F_LINKN, F_ETAR, F_MAXOV, F_VWALL, F_TBUILD = range(13)
-NFP = 16
-# pair tables
-T_ESTAR, T_GSTAR, T_DAMP, T_MU, T_MUR = range(5)
-NTAB = 5
+# integer parameters (Params.ip)
+IP = slots("IP", (
+    ("contact", "contact law (dem.contact.registry CONTACT_MODELS: 0 Hertz-Mindlin, 1 linear)"),
+    ("rolling", "rolling model (ROLLING_MODELS: 0 none, 1 constant torque, 2 EPSD)"),
+    ("nwalls", "number of walls"),
+    ("mech", "1: mechanics on; 0: a frozen packing (heat alone)"),
+    ("nown", "owned rows (the rest are ghosts)"),
+), size=8)
+# float parameters (Params.fp)
+FP = slots("FP", (
+    ("dt", "time step (s)"),
+    ("gx", "gravity x (m/s^2)"),
+    ("gy", "gravity y (m/s^2)"),
+    ("gz", "gravity z (m/s^2)"),
+    ("skin", "neighbour-list skin (m)"),
+    ("reach", "list reach beyond contact: the heat models' range (m)"),
+    ("vchar", "characteristic velocity of the linear law's Hertz-equivalent stiffness (m/s)"),
+    ("ktratio", "tangential / normal stiffness of the linear law"),
+    ("linkn", "linear normal stiffness (N/m; <= 0: Hertz-equivalent at vchar)"),
+    ("etar", "EPSD rolling damping ratio"),
+    ("maxov", "largest overlap ratio before the overlap guard stops the run"),
+    ("vwall", "fastest wall speed (m/s, the rebuild test)"),
+    ("tbuild", "time of the last neighbour build (s; checkpointed as fp_tbuild)"),
+), size=16)
+# pair tables (Tables.tab[slot, material, material])
+TAB = slots("TAB", (
+    ("estar", "effective Young's modulus E* (Pa)"),
+    ("gstar", "effective shear modulus G* (Pa)"),
+    ("damp", "damping coefficient (dem.contact.damping)"),
+    ("mu", "sliding friction coefficient"),
+    ("mur", "rolling friction coefficient"),
+))
 # status
 OK, OVERLAP, NONFINITE, LEFT_DOMAIN, BAD_TEMPERATURE, REBUILD_DUE = 0, 1, 2, 3, 4, 5
 # phases of one step (advance's ``phases`` bits): a serial run asks for all of them, an MPI run
@@ -51,18 +73,45 @@ PH_DRIFT, PH_REBUILD, PH_FORCES, PH_KICK, PH_HEAT, PH_AFTER_BUILD = 1, 2, 4, 8, 
 PH_STEP = PH_DRIFT | PH_REBUILD | PH_FORCES | PH_KICK | PH_HEAT
 
 
+# the run's contact-law constants, one record for every contact of a force evaluation
+ContactLaw = namedtuple("ContactLaw", "model dt lin_kn vchar kt_ratio")
+ContactLaw.__doc__ = ("Contact law (ip[IP.contact]: 0 Hertz-Mindlin, 1 linear), time step, linear normal stiffness "
+                      "(<= 0: Hertz-equivalent at vchar), characteristic velocity, tangential / normal stiffness.")
+# the material-pair constants of one contact (rows of the pair table ``tab``)
+PairMaterial = namedtuple("PairMaterial", "estar gstar damp mu")
+PairMaterial.__doc__ = "E*, G*, damping coefficient and friction coefficient of a material pair (dem.step TAB)."
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def contact_law(ip, fp):
+    """The :class:`ContactLaw` of the run's switches and parameters."""
+    return ContactLaw(ip[IP.contact], fp[FP.dt], fp[FP.linkn], fp[FP.vchar], fp[FP.ktratio])
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def pair_material(tab, mi, mj):
+    """The :class:`PairMaterial` of materials mi and mj."""
+    return PairMaterial(tab[TAB.estar, mi, mj], tab[TAB.gstar, mi, mj], tab[TAB.damp, mi, mj], tab[TAB.mu, mi, mj])
+
+
 @njit(cache=True, error_model="numpy", fastmath={"nsz", "arcp", "contract", "afn", "reassoc"})
-def _pair_law(model, delta, vn, vtx, vty, vtz, hx, hy, hz, rstar, mstar, estar, gstar,
-              damp, mu, dt, lin_kn, vchar, kt_ratio):
-    if model == 0:
+def _pair_law(law, pm, delta, vn, vt, h, rstar, mstar):
+    """Normal and tangential force of one contact by the run's law (``law``: :class:`ContactLaw`)
+    for the material pair ``pm`` (:class:`PairMaterial`): ``vt`` the tangential relative
+    velocity and ``h`` the stored tangential spring (3-tuples)."""
+    vtx, vty, vtz = vt
+    hx, hy, hz = h
+    estar = pm.estar
+    if law.model == 0:
         return hertz_mindlin(delta, vn, vtx, vty, vtz, hx, hy, hz,
-                             rstar, mstar, estar, gstar, damp, mu, dt)
-    kn = lin_kn
+                             rstar, mstar, estar, pm.gstar, pm.damp, pm.mu, law.dt)
+    kn = law.lin_kn
     if kn <= 0.0:  # Hertz-equivalent stiffness at the characteristic velocity
         sr = math.sqrt(rstar)
+        vchar = law.vchar
         kn = 16.0 / 15.0 * sr * estar * (15.0 * mstar * vchar * vchar / (16.0 * sr * estar)) ** 0.2
     return linear_spring_dashpot(delta, vn, vtx, vty, vtz, hx, hy, hz,
-                                 mstar, kn, kt_ratio, damp, mu, dt)
+                                 mstar, kn, law.kt_ratio, pm.damp, pm.mu, law.dt)
 
 
 @njit(cache=True, error_model="numpy")
@@ -80,7 +129,7 @@ def _contact_heat(fric, mu, thf, vtx, vty, vtz, ftx, fty, ftz, fn, vn):
     """Heat generated at a contact (W) by the friction model ``fric`` (dem.thermal.generation)."""
     vtm = math.sqrt(vtx * vtx + vty * vty + vtz * vtz)
     ftv = abs(ftx * vtx + fty * vty + ftz * vtz)
-    return friction_heat(fric, mu, thf[TF_CHI], vtm, fn, ftv, thf[TF_CT], thf[TF_CN], ftv, abs(fn * vn))
+    return friction_heat(fric, mu, thf[TF.chi], vtm, fn, ftv, thf[TF.ct], thf[TF.cn], ftv, abs(fn * vn))
 
 
 @njit(cache=True, error_model="numpy")
@@ -110,7 +159,7 @@ def compute_forces(P, C, W, TB, prm, n, t, hon):
     neighbour slot and wall candidate for the heat step: Hd, Hi, Hw, the radiation
     neighbour flags and the friction heat. Returns (max overlap ratio, i, j (-1-wall),
     2 x contacts). ``hon``: True with heat, None without (a type, so that the mechanics-only
-    specialisation is compiled without the heat code). Rows >= ip[I_NOWN] are ghosts
+    specialisation is compiled without the heat code). Rows >= ip[IP.nown] are ghosts
     (copies of another rank's particles, no pairs of their own); a pair with a ghost is
     computed on both ranks, so it counts 1 (of 2) and half its exchanged heat goes into the
     totals here."""
@@ -120,17 +169,17 @@ def compute_forces(P, C, W, TB, prm, n, t, hon):
     nb, nnb, hist, rhist, age, Hd, Hi, rnear = C.nb, C.nnb, C.hist, C.rhist, C.age, C.Hd, C.Hi, C.rnear
     wf, wi, tab, ip, fp, lo, hi, periodic = W.wf, W.wi, TB.tab, prm.ip, prm.fp, prm.lo, prm.hi, prm.periodic
     thi = prm.thi
-    heat = hon is not None and thi[TI_HEAT] != 0
+    heat = hon is not None and thi[TI.heat] != 0
     # each heat block tests `hon is not None` first: Numba removes those blocks before typing
     # when hon is None, so the mechanics-only form neither types nor compiles the heat models
-    dmodel = thi[TI_DIRECT]
-    crm = thi[TI_CR]
-    crc = thi[TI_CORR]
-    imodel = thi[TI_INDIRECT]
-    radon = thi[TI_RAD] >= 0
-    fric = thi[TI_FRIC]
-    pmodel = thi[TI_PART]
-    use_age = thi[TI_AGE] != 0
+    dmodel = thi[TI.direct]
+    crm = thi[TI.cr]
+    crc = thi[TI.corr]
+    imodel = thi[TI.indirect]
+    radon = thi[TI.rad] >= 0
+    fric = thi[TI.fric]
+    pmodel = thi[TI.part]
+    use_age = thi[TI.age] != 0
     thf = prm.thf
     tmat = TB.tmat
     gas = TB.gas
@@ -149,9 +198,9 @@ def compute_forces(P, C, W, TB, prm, n, t, hon):
     por = P.por
     qgen = P.qgen
     wage = P.wage
-    dfac = thf[TF_DFACTOR]
-    radrange = thf[TF_RADRANGE]
-    fused = heat and thi[TI_FUSED] == 1
+    dfac = thf[TF.dfactor]
+    radrange = thf[TF.radrange]
+    fused = heat and thi[TI.fused] == 1
     T = P.temperature
     Q = P.heat_rate
     tot = prm.tot
@@ -168,16 +217,14 @@ def compute_forces(P, C, W, TB, prm, n, t, hon):
     if fused:
         for i in range(n):
             Q[i] = 0.0
-    dt = fp[F_DT]
-    model = ip[I_CONTACT]
-    rolling = ip[I_ROLLING]
-    lin_kn = fp[F_LINKN]
-    vchar = fp[F_VCHAR]
-    ktr = fp[F_KTRATIO]
-    etar = fp[F_ETAR]
-    gx = fp[F_GX]
-    gy = fp[F_GY]
-    gz = fp[F_GZ]
+    dt = fp[FP.dt]
+    model = ip[IP.contact]
+    rolling = ip[IP.rolling]
+    law = contact_law(ip, fp)
+    etar = fp[FP.etar]
+    gx = fp[FP.gx]
+    gy = fp[FP.gy]
+    gz = fp[FP.gz]
     Lx = hi[0] - lo[0]
     Ly = hi[1] - lo[1]
     Lz = hi[2] - lo[2]
@@ -187,7 +234,7 @@ def compute_forces(P, C, W, TB, prm, n, t, hon):
     has_ext = fext.shape[0] == n
     text = P.external_torque
     has_text = text.shape[0] == n
-    nown = ip[I_NOWN]
+    nown = ip[IP.nown]
     for i in range(n):
         f[i, 0] = m[i] * gx
         f[i, 1] = m[i] * gy
@@ -290,9 +337,7 @@ def compute_forces(P, C, W, TB, prm, n, t, hon):
             rstar = ri * rj / rs
             mstar = m[i] * m[j] / (m[i] + m[j])
             fn, ftx, fty, ftz, hx, hy, hz, kn = _pair_law(
-                model, delta, vn, vtx, vty, vtz, hx, hy, hz, rstar, mstar,
-                tab[T_ESTAR, mi, mj], tab[T_GSTAR, mi, mj], tab[T_DAMP, mi, mj],
-                tab[T_MU, mi, mj], dt, lin_kn, vchar, ktr)
+                law, pair_material(tab, mi, mj), delta, vn, (vtx, vty, vtz), (hx, hy, hz), rstar, mstar)
             hist[i, s, 0] = hx
             hist[i, s, 1] = hy
             hist[i, s, 2] = hz
@@ -303,11 +348,11 @@ def compute_forces(P, C, W, TB, prm, n, t, hon):
                 if crm == HERTZ_OVERLAP:
                     rc = hertz_overlap(rstar, delta)
                 elif crm == HERTZ_FORCE:
-                    rc = hertz_force(fel, rstar, tab[T_ESTAR, mi, mj])
+                    rc = hertz_force(fel, rstar, tab[TAB.estar, mi, mj])
                 else:
                     rc = geometric_pp_inv(ri, rj, d, invd)
                 if crc != 0:
-                    rc = apply_correction(crm, crc, rc, rstar, fel, tab[T_ESTAR, mi, mj], ereal[mi, mj])
+                    rc = apply_correction(crm, crc, rc, rstar, fel, tab[TAB.estar, mi, mj], ereal[mi, mj])
                 if bo:  # Batchelor & O'Brien with the tabulated series conductivity (linear in
                     # r_c: the same for a parcel as its real law times cg)
                     hdir = dfac * batchelor_obrien_keff(rc, keff[mi, mj])
@@ -343,7 +388,7 @@ def compute_forces(P, C, W, TB, prm, n, t, hon):
                 if radon:
                     rnear[i, s] = 1
                 if fric >= 0:
-                    qf = _contact_heat(fric, tab[T_MU, mi, mj], thf, vtx, vty, vtz, ftx, fty, ftz, fn, vn)
+                    qf = _contact_heat(fric, tab[TAB.mu, mi, mj], thf, vtx, vty, vtz, ftx, fty, ftz, fn, vn)
                     psi = partition(pmodel, mi, mj, tmat)
                     qgen[i] += psi * qf
                     qgen[j] += (1.0 - psi) * qf
@@ -367,7 +412,7 @@ def compute_forces(P, C, W, TB, prm, n, t, hon):
             tq[j, 1] += rj * cy
             tq[j, 2] += rj * cz
             if rolling != 0:
-                mur = tab[T_MUR, mi, mj]
+                mur = tab[TAB.mur, mi, mj]
                 wx = w[i, 0] - w[j, 0]
                 wy = w[i, 1] - w[j, 1]
                 wz = w[i, 2] - w[j, 2]
@@ -412,13 +457,13 @@ def compute_forces(P, C, W, TB, prm, n, t, hon):
                     if use_age:
                         wage[i, wl, 0] = 0.0
                     hw = 0.0
-                    if imodel >= 0 and wth[wl, WT_COND] == 1.0 and dist >= ri:
+                    if imodel >= 0 and wth[wl, WT.cond] == 1.0 and dist >= ri:
                         if has_cg:
                             c = cgv[i]
-                            hw = c * c * indirect_pw(imodel, ri / c, dist / c, 0.0, mi, np.int32(wi[wl, WMAT]),
+                            hw = c * c * indirect_pw(imodel, ri / c, dist / c, 0.0, mi, np.int32(wi[wl, WI.mat]),
                                                      por[i], tmat, gas)
                         else:
-                            hw = indirect_pw(imodel, ri, dist, 0.0, mi, np.int32(wi[wl, WMAT]), por[i], tmat, gas)
+                            hw = indirect_pw(imodel, ri, dist, 0.0, mi, np.int32(wi[wl, WI.mat]), por[i], tmat, gas)
                     if fused:
                         if hw > 0.0:
                             qq = hw * (wall_temperature(wth, wtab, wl, t) - T[i])
@@ -439,7 +484,7 @@ def compute_forces(P, C, W, TB, prm, n, t, hon):
                 maxov = ov
                 who_i = i
                 who_j = -1 - wl
-            mw = np.int32(wi[wl, WMAT])  # a material index like the particles' (one compiled form per model)
+            mw = np.int32(wi[wl, WI.mat])  # a material index like the particles' (one compiled form per model)
             cpx = x[i, 0] + dist * nx
             cpy = x[i, 1] + dist * ny
             cpz = x[i, 2] + dist * nz
@@ -456,20 +501,18 @@ def compute_forces(P, C, W, TB, prm, n, t, hon):
             vtz = vrz - vn * nz
             hx, hy, hz = _rotate_history(whist, i, wl, nx, ny, nz)
             fn, ftx, fty, ftz, hx, hy, hz, kn = _pair_law(
-                model, delta, vn, vtx, vty, vtz, hx, hy, hz, ri, m[i],
-                tab[T_ESTAR, mi, mw], tab[T_GSTAR, mi, mw], tab[T_DAMP, mi, mw],
-                tab[T_MU, mi, mw], dt, lin_kn, vchar, ktr)
+                law, pair_material(tab, mi, mw), delta, vn, (vtx, vty, vtz), (hx, hy, hz), ri, m[i])
             whist[i, wl, 0] = hx
             whist[i, wl, 1] = hy
             whist[i, wl, 2] = hz
             if hon is not None and heat:
-                cond = wth[wl, WT_COND]
+                cond = wth[wl, WT.cond]
                 fel = (2.0 / 3.0) * kn * delta if model == 0 else kn * delta
                 tc, vimp = _contact_age(wage, i, wl, vn, dt) if use_age else (0.0, 0.0)
                 hw = 0.0
                 hwg = 0.0  # the part across the gas gap
                 if cond != 0.0:
-                    rc = contact_radius_pw(crm, crc, ri, dist, fel, tab[T_ESTAR, mi, mw], ereal[mi, mw])
+                    rc = contact_radius_pw(crm, crc, ri, dist, fel, tab[TAB.estar, mi, mw], ereal[mi, mw])
                     if cond == 1.0 and has_cg:
                         c = cgv[i]
                         if dmodel >= 0:
@@ -493,7 +536,7 @@ def compute_forces(P, C, W, TB, prm, n, t, hon):
                         qq = hw * dtw
                         wgap[wl] += hwg * dtw * dt
                     elif cond == 2.0:
-                        qq = hw * wth[wl, 2]
+                        qq = hw * wth[wl, WT.q]
                     else:
                         qq = 0.0
                     Q[i] += qq
@@ -503,7 +546,7 @@ def compute_forces(P, C, W, TB, prm, n, t, hon):
                 if has_wg:
                     Hwg[i, q] = hwg
                 if fric >= 0:
-                    qf = _contact_heat(fric, tab[T_MU, mi, mw], thf, vtx, vty, vtz, ftx, fty, ftz, fn, vn)
+                    qf = _contact_heat(fric, tab[TAB.mu, mi, mw], thf, vtx, vty, vtz, ftx, fty, ftz, fn, vn)
                     qgen[i] += partition(pmodel, mi, mw, tmat) * qf
             f[i, 0] += -fn * nx + ftx
             f[i, 1] += -fn * ny + fty
@@ -512,7 +555,7 @@ def compute_forces(P, C, W, TB, prm, n, t, hon):
             tq[i, 1] += ri * (nz * ftx - nx * ftz)
             tq[i, 2] += ri * (nx * fty - ny * ftx)
             if rolling != 0:
-                mur = tab[T_MUR, mi, mw]
+                mur = tab[TAB.mur, mi, mw]
                 wx = w[i, 0]
                 wy = w[i, 1]
                 wz = w[i, 2]
@@ -534,9 +577,9 @@ def compute_forces(P, C, W, TB, prm, n, t, hon):
                 tq[i, 1] += my
                 tq[i, 2] += mz
     if fused:
-        tot[E_DIRECT] += e_dir * dt
-        tot[E_INDIRECT] += e_ind * dt
-        tot[E_WALL] += e_wall * dt
+        tot[TOT.direct] += e_dir * dt
+        tot[TOT.indirect] += e_ind * dt
+        tot[TOT.wall] += e_wall * dt
     return maxov, who_i, who_j, ncont
 
 
@@ -593,14 +636,19 @@ def half_kick_angular_implicit(w, tq, inv_i, kr, i, h):
         w[i, k] = (w[i, k] + a * tq[i, k]) / den
 
 
-@njit(cache=True, error_model="numpy")
-def kick_drift(n, x, v, w, f, tq, inv_m, inv_i, beta, xb, lo, hi, periodic, dt, kr, inv_me):
-    """First half of velocity Verlet for rows [0, n): half kick, drift, periodic wrap.
-    Returns the largest squared displacement since the last neighbour build.
-    ``beta`` (a coupled run; else empty): drag coefficients taken implicitly (:func:`half_kick`);
-    ``kr`` (coupled, fluid torque; else empty): rotational drag taken implicitly
-    (:func:`half_kick_angular_implicit`); ``inv_me`` (coupled, virtual mass; else empty): the
+@njit(cache=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
+def kick_drift(P, prm, n, dt):
+    """First half of velocity Verlet for rows [0, n) of the particles ``P`` (dem.schema
+    Particles) in the domain of ``prm``: half kick, drift, periodic wrap.
+    Returns the largest squared displacement since the last neighbour build (P.x_build).
+    ``P.drag_beta`` (a coupled run; else empty): drag coefficients taken implicitly (:func:`half_kick`);
+    ``P.rot_drag`` (coupled, fluid torque; else empty): rotational drag taken implicitly
+    (:func:`half_kick_angular_implicit`); ``P.inv_mass_eff`` (coupled, virtual mass; else empty): the
     inverse effective mass m + C_vm rho_f V_p of the translational kick instead of 1/m."""
+    x, v, w, f, tq, inv_m, inv_i = P.position, P.velocity, P.angular_velocity, P.force, P.torque, P.inv_mass, \
+        P.inv_inertia
+    beta, xb, kr, inv_me = P.drag_beta, P.x_build, P.rot_drag, P.inv_mass_eff
+    lo, hi, periodic = prm.lo, prm.hi, prm.periodic
     half = 0.5 * dt
     L0 = hi[0] - lo[0]
     L1 = hi[1] - lo[1]
@@ -675,10 +723,8 @@ def drift(P, prm, nown, t):
     when the neighbour lists must be rebuilt before the forces at time t (a particle moved
     more than half the skin since the last build, counting the walls' motion)."""
     fp = prm.fp
-    maxd2 = kick_drift(nown, P.position, P.velocity, P.angular_velocity, P.force, P.torque, P.inv_mass,
-                       P.inv_inertia, P.drag_beta, P.x_build, prm.lo, prm.hi, prm.periodic, fp[F_DT],
-                       P.rot_drag, P.inv_mass_eff)
-    return math.sqrt(maxd2) + fp[F_VWALL] * (t - fp[F_TBUILD]) > 0.5 * fp[F_SKIN]
+    maxd2 = kick_drift(P, prm, nown, fp[FP.dt])
+    return math.sqrt(maxd2) + fp[FP.vwall] * (t - fp[FP.tbuild]) > 0.5 * fp[FP.skin]
 
 
 @njit(cache=True, error_model="numpy")
@@ -697,8 +743,8 @@ def _slot_arrays(n, slots, C, heat, thi):
     unchanged (every used slot is rewritten by the next force evaluation), else new."""
     if not heat or (C.Hd.shape[0] == n and C.Hd.shape[1] == slots):
         return C.Hd, C.Hi, C.rnear
-    Hi = np.zeros((n, slots)) if thi[TI_INDIRECT] >= 0 else C.Hi
-    rnear = np.zeros((n, slots), np.uint8) if thi[TI_RAD] >= 0 else C.rnear
+    Hi = np.zeros((n, slots)) if thi[TI.indirect] >= 0 else C.Hi
+    rnear = np.zeros((n, slots), np.uint8) if thi[TI.rad] >= 0 else C.rnear
     return np.zeros((n, slots)), Hi, rnear
 
 
@@ -714,28 +760,27 @@ def after_build(P, C, W, prm, n, nown, t, carry):
     fp = prm.fp
     ip = prm.ip
     thi = prm.thi
-    heat = thi[TI_HEAT] != 0
+    heat = thi[TI.heat] != 0
     x = P.position
     nb, nnb, hist, rhist, age = C.nb, C.nnb, C.hist, C.rhist, C.age
     if not carry:
-        if ip[I_ROLLING] == 2:
+        if ip[IP.rolling] == 2:
             rhist = np.zeros(hist.shape)
-        if heat and thi[TI_AGE] != 0:
+        if heat and thi[TI.age] != 0:
             age = np.zeros((nb.shape[0], nb.shape[1], 2))
-    build_wall_list(x, P.radius, nown, W.wf, W.wi, ip[I_NWALLS], fp[F_REACH] + fp[F_SKIN], t, P.wnb, P.wnn,
+    build_wall_list(x, P.radius, nown, W.wf, W.wi, ip[IP.nwalls], fp[FP.reach] + fp[FP.skin], t, P.wnb, P.wnn,
                     P.whist, P.wrhist)
     for i in range(nown, n):
         P.wnn[i] = 0
     Hd, Hi, rnear = _slot_arrays(n, nb.shape[1], C, heat, thi)
     C = Pairs(nb, nnb, hist, rhist, age, Hd, Hi, rnear)
-    if heat and thi[TI_LOCALPOR] == 1:
-        local_porosity(n, x, P.radius, nb, nnb, prm.lo, prm.hi, prm.periodic, fp[F_REACH], W.wf, W.wi, P.wnb,
-                       P.wnn, t, P.por, 0.2)
+    if heat and thi[TI.localpor] == 1:
+        local_porosity(P, C, W, prm, n, fp[FP.reach], t, 0.2)
     xb = P.x_build
     for i in range(nown):
         for k in range(3):
             xb[i, k] = x[i, k]
-    fp[F_TBUILD] = t
+    fp[FP.tbuild] = t
     return C
 
 
@@ -745,9 +790,9 @@ def rebuild(P, C, W, prm, n, t):
     (dem.neighbors.build_half_list), then :func:`after_build`. A run on several ranks, and the
     first build, call the same two functions from dem.simulation around the exchange."""
     fp = prm.fp
-    nb, nnb, hist, rhist, age, _ = build_half_list(
-        P.position, P.radius, n, n, prm.lo, prm.hi, prm.periodic, prm.lo, prm.hi, prm.periodic, fp[F_REACH],
-        fp[F_SKIN], C.nb.shape[1], C.nb, C.nnb, C.hist, C.rhist, C.age)
+    dom = Box(prm.lo, prm.hi, prm.periodic)
+    nb, nnb, hist, rhist, age, _ = build_half_list(P.position, P.radius, n, n, dom, dom, fp[FP.reach], fp[FP.skin],
+                                                   C.nb.shape[1], C)
     carry = C.nb.shape[0] == n  # the history was carried over (same rows); a run-time value, so that
     # after_build has one compiled form (a literal True would make a second one)
     return after_build(P, Pairs(nb, nnb, hist, rhist, age, C.Hd, C.Hi, C.rnear), W, prm, n, n, t, carry)
@@ -759,10 +804,10 @@ def kick_guard(P, prm, nown, maxov, who_i, who_j):
     (status, particle, other, value): NONFINITE (a non-finite velocity), OVERLAP (the largest
     overlap ratio of the force evaluation above simulation.max_overlap_ratio) or OK."""
     bad = kick(nown, P.velocity, P.angular_velocity, P.force, P.torque, P.inv_mass, P.inv_inertia,
-               P.drag_beta, prm.fp[F_DT], P.rot_drag, P.inv_mass_eff)
+               P.drag_beta, prm.fp[FP.dt], P.rot_drag, P.inv_mass_eff)
     if bad >= 0:
         return NONFINITE, bad, -1, 0.0
-    if maxov > prm.fp[F_MAXOV]:
+    if maxov > prm.fp[FP.maxov]:
         return OVERLAP, who_i, who_j, maxov
     return OK, -1, -1, 0.0
 
@@ -771,7 +816,7 @@ def kick_guard(P, prm, nown, maxov, who_i, who_j):
 def heat_phase(P, C, W, TB, prm, n, nown, t):
     """Phase "heat": one thermal step of the owned rows on the conductances of the force
     evaluation (dem.thermal.heat.heat_step); (BAD_TEMPERATURE, particle, value) or (OK, -1, 0)."""
-    badt = heat_step(P, C, W, TB, prm, n, nown, prm.fp[F_DT], t)
+    badt = heat_step(P, C, W, TB, prm, n, nown, prm.fp[FP.dt], t)
     if badt >= 0:
         return BAD_TEMPERATURE, badt, P.temperature[badt]
     return OK, -1, 0.0
@@ -804,9 +849,9 @@ def advance(nsteps, s0, n, nown, P, C, W, TB, prm, hon, phases):
     wi_ = -1
     wj_ = -1
     thi = prm.thi
-    heat = hon is not None and thi[TI_HEAT] != 0
+    heat = hon is not None and thi[TI.heat] != 0
     for step in range(nsteps):
-        t = (s0 + step + 1) * prm.fp[F_DT]
+        t = (s0 + step + 1) * prm.fp[FP.dt]
         if phases & PH_AFTER_BUILD:  # the lists of C were just built from Python (a first build, or
             # after an exchange with other ranks): the rest of the rebuild, history starting empty
             C = after_build(P, C, W, prm, n, nown, t, False)

@@ -16,7 +16,7 @@ import numpy as np
 from . import schema as S
 from . import step as K
 from .errors import SimulationError
-from .neighbors import build_half_list, sort_permutation
+from .neighbors import Box, build_half_list, sort_permutation
 
 
 class Stepper:
@@ -102,11 +102,11 @@ class Stepper:
         PH_AFTER_BUILD). A first build sizes the slots tightly (the largest count + 2)."""
         st = self.state
         slots = 12 if initial else st.nb.shape[1]
-        empty = [f.empty() for f in S.of("pair") if f.name in ("nb", "nnb") or f.record]
+        empty = S.Pairs(*[f.empty() for f in S.of("pair", kernel_only=True)])
         for _ in range(2):
             nb, nnb, hist, rhist, age, maxc = build_half_list(
-                st.position, st.radius, st.n, st.n_owned, st.lo, st.hi, st.periodic, glo, ghi, gwrap,
-                self.world.reach, st.fp[K.F_SKIN], slots, *empty)
+                st.position, st.radius, st.n, st.n_owned, Box(st.lo, st.hi, st.periodic), Box(glo, ghi, gwrap),
+                self.world.reach, st.fp[K.FP.skin], slots, empty)
             if not initial or maxc + 2 >= slots:
                 break
             slots = maxc + 2
@@ -133,7 +133,7 @@ class Stepper:
         follows (neighbour rows renumbered), so the physics is unchanged."""
         st = self.state
         w = self.world
-        cell = 2 * float(st.radius.max()) + w.reach + st.fp[K.F_SKIN]
+        cell = 2 * float(st.radius.max()) + w.reach + st.fp[K.FP.skin]
         st.permute(sort_permutation(st.position, st.lo, st.hi, cell))
         if w.thermal is not None and w.thermal.voronoi and w.scene.simulation["mechanics"]:
             w.thermal.update_porosity(w.time)
@@ -165,7 +165,7 @@ class Stepper:
         if status == K.OVERLAP:
             other = f"wall {w.scene.walls[-1 - j]['name']}" if j < 0 else f"particle id {int(st.id[j])}"
             return (f"particle id {pid} at {pos} and {other} overlap by {value:.3g} of the radius {where}, "
-                    f"beyond simulation.max_overlap_ratio = {st.fp[K.F_MAXOV]:g}. Lower time_step "
+                    f"beyond simulation.max_overlap_ratio = {st.fp[K.FP.maxov]:g}. Lower time_step "
                     f"(now {dt:g} s), raise youngs_modulus, or lower the impact speeds")
         if status == K.NONFINITE:
             return (f"particle id {pid} got a non-finite velocity {where}: the run is unstable. "
@@ -228,10 +228,10 @@ class ParallelStepper(Stepper):
         glo, ghi, gwrap = par.grid_box(w)
         self.rebuild(step, glo, ghi, gwrap, initial=initial)
         records.restore(rec, st, par.key_base)
-        st.ip[K.I_NOWN] = st.n_owned
+        st.ip[K.IP.nown] = st.n_owned
         if th is not None and not initial:
-            from .thermal.heat import TI_LOCALPOR
-            if th.thi[TI_LOCALPOR] == 1:
+            from .thermal.heat import TI
+            if th.thi[TI.localpor] == 1:
                 self.forward_porosity()
             elif resort_vor:
                 th.update_porosity(w.time)
@@ -253,12 +253,12 @@ class ParallelStepper(Stepper):
         """The phases of dem.step.advance (drift, rebuild, interact, kick + guards, heat),
         one step at a time with the ghost messages between them (one Allreduce per step
         carries the rebuild decision and the previous step's stability status)."""
-        from .thermal.heat import cross_rates, TI_INTEG
+        from .thermal.heat import cross_rates, TI
         par = self.par
         st = self.state
         w = self.world
         heat = w.thermal is not None
-        expo_cross = heat and w.thermal.thi[TI_INTEG] != 0
+        expo_cross = heat and w.thermal.thi[TI.integ] != 0
         self._ready()
         mech = w.mechanics
         done = 0

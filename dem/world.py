@@ -60,28 +60,28 @@ class World:
             from .thermal.kernel import no_heat_tables
             no_heat_tables(st)
         self.reach = self.thermal.reach if self.thermal is not None else 0.0
-        st.fp[K.F_REACH] = self.reach
+        st.fp[K.FP.reach] = self.reach
         self.rmax = float(st.radius.max(initial=0.0))
         self.n_total = st.n_owned  # every rank holds the whole scene at this point
 
     def _params(self):
         sc = self.scene
-        ip = np.zeros(K.NIP, np.int64)
-        ip[K.I_CONTACT] = CONTACT_MODELS[sc.contact["model"]]
-        ip[K.I_ROLLING] = ROLLING_MODELS[sc.contact["rolling"]]
-        ip[K.I_NWALLS] = self.nwalls
-        ip[K.I_MECH] = 1 if sc.simulation["mechanics"] else 0
-        ip[K.I_NOWN] = self.state.n_owned
-        fp = np.zeros(K.NFP)
-        fp[K.F_DT] = self.dt
-        fp[K.F_GX:K.F_GZ + 1] = sc.simulation["gravity"]
-        fp[K.F_SKIN] = sc.simulation["neighbor_skin"]
-        fp[K.F_VCHAR] = self.characteristic_velocity()
-        fp[K.F_KTRATIO] = sc.contact["tangential_stiffness_ratio"]
-        fp[K.F_LINKN] = sc.contact["normal_stiffness"]
-        fp[K.F_ETAR] = sc.contact["rolling_damping"]
-        fp[K.F_MAXOV] = sc.simulation["max_overlap_ratio"]
-        fp[K.F_VWALL] = self.wall_speed
+        ip = np.zeros(K.IP.SIZE, np.int64)
+        ip[K.IP.contact] = CONTACT_MODELS[sc.contact["model"]]
+        ip[K.IP.rolling] = ROLLING_MODELS[sc.contact["rolling"]]
+        ip[K.IP.nwalls] = self.nwalls
+        ip[K.IP.mech] = 1 if sc.simulation["mechanics"] else 0
+        ip[K.IP.nown] = self.state.n_owned
+        fp = np.zeros(K.FP.SIZE)
+        fp[K.FP.dt] = self.dt
+        fp[K.FP.gx:K.FP.gz + 1] = sc.simulation["gravity"]
+        fp[K.FP.skin] = sc.simulation["neighbor_skin"]
+        fp[K.FP.vchar] = self.characteristic_velocity()
+        fp[K.FP.ktratio] = sc.contact["tangential_stiffness_ratio"]
+        fp[K.FP.linkn] = sc.contact["normal_stiffness"]
+        fp[K.FP.etar] = sc.contact["rolling_damping"]
+        fp[K.FP.maxov] = sc.simulation["max_overlap_ratio"]
+        fp[K.FP.vwall] = self.wall_speed
         return ip, fp
 
     def characteristic_velocity(self):
@@ -105,7 +105,7 @@ class World:
 
     def halo(self):
         """Ghost layer width: the longest pair reach 2 r_max + reach + skin."""
-        return 2.0 * self.rmax + self.reach + self.state.fp[K.F_SKIN]
+        return 2.0 * self.rmax + self.reach + self.state.fp[K.FP.skin]
 
     def set_step(self, step_count):
         """Set the clock to step number ``step_count`` (the time follows: step_count x dt)."""
@@ -115,48 +115,48 @@ class World:
     @property
     def mechanics(self):
         """False for a frozen packing (simulation.mechanics = false)."""
-        return bool(self.state.ip[K.I_MECH])
+        return bool(self.state.ip[K.IP.mech])
 
 
 def pair_tables(scene):
-    """(tab[NTAB, n_mat, n_mat], the mixed material tables) of the scene's materials."""
+    """(tab[TAB.SIZE, n_mat, n_mat], the mixed material tables) of the scene's materials."""
     t = mixed_tables(scene.materials)
     nm = t["n"]
     model = CONTACT_MODELS[scene.contact["model"]]
     damping = DAMPING_MODELS[scene.contact["damping"]]
-    tab = np.zeros((K.NTAB, nm, nm))
-    tab[K.T_ESTAR] = t["estar"]
-    tab[K.T_GSTAR] = t["gstar"]
-    tab[K.T_MU] = t["friction"]
-    tab[K.T_MUR] = t["rolling_friction"]
+    tab = np.zeros((K.TAB.SIZE, nm, nm))
+    tab[K.TAB.estar] = t["estar"]
+    tab[K.TAB.gstar] = t["gstar"]
+    tab[K.TAB.mu] = t["friction"]
+    tab[K.TAB.mur] = t["rolling_friction"]
     for a in range(nm):
         for b in range(nm):
-            tab[K.T_DAMP, a, b] = damping_factor(t["restitution"][a, b], model, damping)
+            tab[K.TAB.damp, a, b] = damping_factor(t["restitution"][a, b], model, damping)
     return np.ascontiguousarray(tab), t
 
 
 def wall_tables(walls):
-    """(wf[n, NWF], wi[n, NWI]) of the scene's walls (one empty row without walls)."""
+    """(wf[n, WF.SIZE], wi[n, WI.SIZE]) of the scene's walls (one empty row without walls)."""
     nw = len(walls)
-    wf = np.zeros((max(nw, 1), W.NWF))
-    wi = np.zeros((max(nw, 1), W.NWI), np.int64)
+    wf = np.zeros((max(nw, 1), W.WF.SIZE))
+    wi = np.zeros((max(nw, 1), W.WI.SIZE), np.int64)
     for k, w in enumerate(walls):
-        wf[k, W.PX:W.PX + 3] = w["point"]
-        wf[k, W.VX:W.VX + 3] = w["velocity"]
-        wf[k, W.OX:W.OX + 3] = w["angular_velocity"]
-        wf[k, W.CX:W.CX + 3] = w["rotation_center"]
-        wi[k, W.WMAT] = w["material"]
+        wf[k, W.WF.px:W.WF.px + 3] = w["point"]
+        wf[k, W.WF.vx:W.WF.vx + 3] = w["velocity"]
+        wf[k, W.WF.ox:W.WF.ox + 3] = w["angular_velocity"]
+        wf[k, W.WF.cx:W.WF.cx + 3] = w["rotation_center"]
+        wi[k, W.WI.mat] = w["material"]
         if w["type"] == "plane":
-            wi[k, W.WTYPE] = W.PLANE
-            wf[k, W.NX:W.NX + 3] = w["normal"]
-            wf[k, W.UX:W.UX + 3] = w["u_axis"]
+            wi[k, W.WI.type] = W.PLANE
+            wf[k, W.WF.nx:W.WF.nx + 3] = w["normal"]
+            wf[k, W.WF.ux:W.WF.ux + 3] = w["u_axis"]
             ext = w["extent"]
-            wf[k, W.EU] = math.inf if ext is None else ext[0]
-            wf[k, W.EV] = math.inf if ext is None else ext[1]
+            wf[k, W.WF.eu] = math.inf if ext is None else ext[0]
+            wf[k, W.WF.ev] = math.inf if ext is None else ext[1]
         else:
-            wi[k, W.WTYPE] = W.CYLINDER
-            wf[k, W.NX:W.NX + 3] = w["axis"]
-            wf[k, W.RAD] = w["radius"]
-            wf[k, W.EU] = w["length"] / 2
-            wf[k, W.SIDE] = 1.0 if w["inside"] else -1.0
+            wi[k, W.WI.type] = W.CYLINDER
+            wf[k, W.WF.nx:W.WF.nx + 3] = w["axis"]
+            wf[k, W.WF.rad] = w["radius"]
+            wf[k, W.WF.eu] = w["length"] / 2
+            wf[k, W.WF.side] = 1.0 if w["inside"] else -1.0
     return wf, wi

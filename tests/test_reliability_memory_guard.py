@@ -77,7 +77,7 @@ def neighbour_bytes(sim):
     """Neighbour list + history slots + the transient cell grid of one build."""
     st = sim.state
     grid = NB.grid_bytes(st.position, st.radius, st.n, sim.state.lo, sim.state.hi, sim.state.periodic, sim.world.reach,
-                         sim.state.fp[K.F_SKIN])
+                         sim.state.fp[K.FP.skin])
     return sim.state.nb.nbytes + sim.state.nnb.nbytes + sim.state.hist.nbytes + sim.state.rhist.nbytes + sim.state.age.nbytes, grid
 
 
@@ -114,7 +114,7 @@ def test_neighbour_arrays_bounded_by_particle_count(tmp_path):
     # (cell, key, order, sorted key)
     sim.state.position[:] = [[0.01, 0.01, 0.001], [1.99, 1.99, 0.001], [1.99, 0.01, 1.99]]
     ncell, cc, cmin, ext, order, table, dense = NB.cell_grid(
-        sim.state.position, sim.state.radius, n, sim.state.lo, sim.state.hi, sim.state.periodic, 0.0, sim.state.fp[K.F_SKIN])
+        sim.state.position, sim.state.radius, n, sim.state.lo, sim.state.hi, sim.state.periodic, 0.0, sim.state.fp[K.FP.skin])
     assert not dense and int(np.prod(ext)) > 10 ** 8
     assert neighbour_bytes(sim)[1] == 48 * n
 

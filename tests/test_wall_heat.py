@@ -591,7 +591,7 @@ def test_local_flux_of_a_moving_bed_run(tmp_path):
     of a heated tube: all its flux in the top sector, and the flux times the sector's area is the
     rate of wall_heat.csv (its interval mean over 1 ms, while the bead's temperature relaxes
     over seconds: within 1e-3)."""
-    from dem.thermal.kernel import TI_FUSED
+    from dem.thermal.kernel import TI
     Rc, ov = 4e-3, 1e-6
     walls = [{"type": "cylinder", "name": "tube", "point": [0, 0, 0], "axis": [0, 1, 0], "radius": Rc,
               "inside": False, "length": 0.004, "material": "p",
@@ -601,7 +601,7 @@ def test_local_flux_of_a_moving_bed_run(tmp_path):
                 "porosity": "global"}, walls, end=0.005, dt=1e-6, output=0.001)
     sc["simulation"].update(mechanics=True, gravity=[0, 0, -9.81])
     sim = Simulation.from_dict(sc)
-    assert sim.thermal.thi[TI_FUSED] == 1
+    assert sim.thermal.thi[TI.fused] == 1
     sim.run(out_dir=str(tmp_path / "out"), progress=False)
     with open(tmp_path / "out" / "wall_heat_angle.csv", newline="") as f:
         rows = [r for r in csv.DictReader(f) if float(r["time"]) == pytest.approx(0.005)]

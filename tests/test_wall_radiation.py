@@ -27,7 +27,7 @@ import numpy as np
 import pytest
 
 from dem import Simulation
-from dem.thermal.heat import E_RAD, E_WALL
+from dem.thermal.heat import TOT
 from dem.thermal.radiation import SIGMA_SB
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -72,8 +72,8 @@ def test_krause_particle_sees_only_the_wall(tmp_path, integ):
     # the wall's radiation record is the energy gained; nothing else moved
     assert sim.state.wrad[0] == pytest.approx(gain, rel=1e-12)
     assert sim.state.wtot[0] == pytest.approx(gain, rel=1e-12)
-    assert sim.state.tot[E_WALL] == pytest.approx(gain, rel=1e-12)
-    assert abs(sim.state.tot[E_RAD]) <= 1e-12 * gain
+    assert sim.state.tot[TOT.wall] == pytest.approx(gain, rel=1e-12)
+    assert abs(sim.state.tot[TOT.rad]) <= 1e-12 * gain
     w = read(tmp_path / "out" / "wall_heat.csv")
     assert w[("floor", "radiation")][-1, 1] == pytest.approx(gain, rel=1e-12)
     assert w[("floor", "contact")][-1, 1] == pytest.approx(0.0, abs=1e-12 * gain)
@@ -97,7 +97,7 @@ def test_zhou_wall_takes_the_cap_of_the_sphere(tmp_path):
     assert sim.state.heat_rate[0] == pytest.approx(q, rel=1e-12)
     assert sim.state.heat_rate[1] == 0.0
     assert sim.state.wrad[0] == pytest.approx(q * dt, rel=1e-12)
-    assert abs(sim.state.tot[E_RAD]) <= 1e-12 * q * dt     # the rest (the fluid at T_f) gives nothing
+    assert abs(sim.state.tot[TOT.rad]) <= 1e-12 * q * dt     # the rest (the fluid at T_f) gives nothing
     assert sim.state.temperature[0] == pytest.approx(T0 + q * dt / C[0], rel=1e-15)
 
 
@@ -118,7 +118,7 @@ def test_bed_next_to_a_radiating_wall_closes_its_energy(tmp_path, model, integ):
     assert w[("floor", "radiation")][-1, 1] > 0.01 * gain     # radiation matters here
     assert w[("floor", "contact")][-1, 1] > 0.01 * gain       # and so does the contact
     assert parts == pytest.approx(sim.state.wtot[0], rel=1e-12)
-    assert gain == pytest.approx(sim.state.tot[E_WALL] + sim.state.tot[E_RAD], rel=1e-10)
+    assert gain == pytest.approx(sim.state.tot[TOT.wall] + sim.state.tot[TOT.rad], rel=1e-10)
 
 
 def _check(tmp_path, thermal_line, radiation):

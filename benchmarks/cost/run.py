@@ -55,7 +55,7 @@ BENCH = os.path.join(ROOT, "benchmarks")
 MECH_TOML = os.path.join(BENCH, "shared_bed_10k.toml")
 HEAT_TOML = os.path.join(BENCH, "shared_bed_heat_10k.toml")
 NOHEAT_DIR = os.path.join(CACHE, "dem_noheat")  # parent of the package copy "dem"
-HEAT_SWITCH = "heat = hon is not None and thi[TI_HEAT] != 0"
+HEAT_SWITCH = "heat = hon is not None and thi[TI.heat] != 0"
 HEAT_OFF = "heat = False  # benchmarks/cost: the heat code compiled out"
 
 # air around the bed: what the indirect, convection and radiation models read

@@ -8,12 +8,26 @@ Walls are rows of a float array ``wf`` (columns below) and an int array ``wi``.
 import math
 from numba import njit
 
-# float columns
-PX, NX, UX, EU, EV, RAD, VX, OX, CX, SIDE = 0, 3, 6, 9, 10, 11, 12, 15, 18, 21
-NWF = 22
-# int columns
-WTYPE, WMAT = 0, 1
-NWI = 2
+from ..schema import slots
+
+# float columns (Walls.wf)
+WF = slots("WF", (
+    ("px", 3, "a point of the plane, or of the cylinder's axis (m, at t = 0)"),
+    ("nx", 3, "unit normal of the plane (towards the particles), or the cylinder's axis"),
+    ("ux", 3, "in-plane axis u of a bounded plane (v = n x u)"),
+    ("eu", "half extent along u (inf: unbounded); a cylinder's half length"),
+    ("ev", "half extent along v (inf: unbounded)"),
+    ("rad", "cylinder radius (m)"),
+    ("vx", 3, "translational velocity (m/s)"),
+    ("ox", 3, "surface angular velocity (rad/s)"),
+    ("cx", 3, "centre of the rotation (m, at t = 0)"),
+    ("side", "cylinder: 1 particles inside, -1 outside"),
+))
+# int columns (Walls.wi)
+WI = slots("WI", (
+    ("type", "PLANE or CYLINDER"),
+    ("mat", "material index"),
+))
 PLANE, CYLINDER = 0, 1
 
 
@@ -21,24 +35,24 @@ PLANE, CYLINDER = 0, 1
 def wall_distance(wf, wi, w, x0, x1, x2, t):
     """Distance from a particle centre to wall ``w`` and the unit vector from the centre
     towards the wall. Returns (dist, nx, ny, nz); dist = inf when no contact is possible."""
-    px = wf[w, PX] + wf[w, VX] * t
-    py = wf[w, PX + 1] + wf[w, VX + 1] * t
-    pz = wf[w, PX + 2] + wf[w, VX + 2] * t
+    px = wf[w, WF.px] + wf[w, WF.vx] * t
+    py = wf[w, WF.px + 1] + wf[w, WF.vx + 1] * t
+    pz = wf[w, WF.px + 2] + wf[w, WF.vx + 2] * t
     rx = x0 - px
     ry = x1 - py
     rz = x2 - pz
-    ax = wf[w, NX]
-    ay = wf[w, NX + 1]
-    az = wf[w, NX + 2]
+    ax = wf[w, WF.nx]
+    ay = wf[w, WF.nx + 1]
+    az = wf[w, WF.nx + 2]
     s = rx * ax + ry * ay + rz * az
-    if wi[w, WTYPE] == PLANE:
-        eu = wf[w, EU]
-        ev = wf[w, EV]
+    if wi[w, WI.type] == PLANE:
+        eu = wf[w, WF.eu]
+        ev = wf[w, WF.ev]
         if eu == math.inf and ev == math.inf:
             return s, -ax, -ay, -az
-        ux = wf[w, UX]
-        uy = wf[w, UX + 1]
-        uz = wf[w, UX + 2]
+        ux = wf[w, WF.ux]
+        uy = wf[w, WF.ux + 1]
+        uz = wf[w, WF.ux + 2]
         vx = ay * uz - az * uy
         vy = az * ux - ax * uz
         vz = ax * uy - ay * ux
@@ -55,7 +69,7 @@ def wall_distance(wf, wi, w, x0, x1, x2, t):
             return 0.0, -sg * ax, -sg * ay, -sg * az
         return d, -dx / d, -dy / d, -dz / d
     # cylinder
-    half = wf[w, EU]
+    half = wf[w, WF.eu]
     if abs(s) > half:
         return math.inf, 0.0, 0.0, 1.0
     qx = rx - s * ax
@@ -64,19 +78,19 @@ def wall_distance(wf, wi, w, x0, x1, x2, t):
     rho = math.sqrt(qx * qx + qy * qy + qz * qz)
     if rho < 1e-300:
         return math.inf, 0.0, 0.0, 1.0
-    side = wf[w, SIDE]
-    return side * (wf[w, RAD] - rho), side * qx / rho, side * qy / rho, side * qz / rho
+    side = wf[w, WF.side]
+    return side * (wf[w, WF.rad] - rho), side * qx / rho, side * qy / rho, side * qz / rho
 
 
 @njit(cache=True, error_model="numpy")
 def wall_velocity(wf, w, cx, cy, cz, t):
     """Velocity of the wall surface at point c: V + Omega x (c - C(t))."""
-    ox = wf[w, OX]
-    oy = wf[w, OX + 1]
-    oz = wf[w, OX + 2]
-    rx = cx - (wf[w, CX] + wf[w, VX] * t)
-    ry = cy - (wf[w, CX + 1] + wf[w, VX + 1] * t)
-    rz = cz - (wf[w, CX + 2] + wf[w, VX + 2] * t)
-    return (wf[w, VX] + oy * rz - oz * ry,
-            wf[w, VX + 1] + oz * rx - ox * rz,
-            wf[w, VX + 2] + ox * ry - oy * rx)
+    ox = wf[w, WF.ox]
+    oy = wf[w, WF.ox + 1]
+    oz = wf[w, WF.ox + 2]
+    rx = cx - (wf[w, WF.cx] + wf[w, WF.vx] * t)
+    ry = cy - (wf[w, WF.cx + 1] + wf[w, WF.vx + 1] * t)
+    rz = cz - (wf[w, WF.cx + 2] + wf[w, WF.vx + 2] * t)
+    return (wf[w, WF.vx] + oy * rz - oz * ry,
+            wf[w, WF.vx + 1] + oz * rx - ox * rz,
+            wf[w, WF.vx + 2] + ox * ry - oy * rx)

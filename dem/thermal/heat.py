@@ -31,33 +31,61 @@ from .radiation import (SIGMA_SB, radiation_accumulate, radiation_env_temperatur
 from .registry import EMISSIVITY, KF, RHO_F, MU_F, PR, RAD_KRAUSE_2017
 from .implicit import jacobi_pcg, CG_RTOL
 from ..neighbors import pair_distance
-from ..contact.walls import PX, NX, VX, WTYPE, PLANE, wall_distance
+from ..contact.walls import WF, WI, PLANE, wall_distance
+from ..schema import slots
 
-# integer thermal parameters
-TI_HEAT, TI_DIRECT, TI_CR, TI_CORR, TI_INDIRECT, TI_CONV, TI_RAD, TI_FRIC, TI_PART, TI_INTEG, TI_AGE = range(11)
-TI_LOCALPOR = 11
-TI_FUSED = 12  # pairs and walls accumulated in the force loop (mechanics + euler)
-TI_WRAD = 13   # 1: a fixed-temperature wall with an emissivity takes part in the radiation
-TI_CG_OWN = 14  # 1: parcels exchange heat by their own laws ([thermal] parcel_heat = "own", a comparison)
-NTI = 15
-# float thermal parameters
-TF_DFACTOR, TF_RADRANGE, TF_CT, TF_CN, TF_CHI = range(5)
-NTF = 8
-# totals (J since the start): direct exchanged, indirect exchanged, convection, radiation,
-# generation, sources, walls
-E_DIRECT, E_INDIRECT, E_CONV, E_RAD, E_GEN, E_SRC, E_WALL = range(7)
-NTOT = 8
-# wall thermal columns: condition, temperature, flux, table length, emissivity
-WT_COND, WT_T, WT_Q, WT_NTAB, WT_EMIS = 0, 1, 2, 3, 4
-NWT = 5
+# integer thermal parameters (Params.thi; -1: the model is off)
+TI = slots("TI", (
+    ("heat", "1: heat on"),
+    ("direct", "direct conduction model (dem.thermal.registry)"),
+    ("cr", "contact radius model (dem.thermal.contact_radius)"),
+    ("corr", "contact radius correction"),
+    ("indirect", "indirect conduction model"),
+    ("conv", "convection model"),
+    ("rad", "radiation model"),
+    ("fric", "friction heat model (dem.thermal.generation)"),
+    ("part", "friction heat partition model"),
+    ("integ", "integrator: 0 euler, 1 exponential, 2 implicit"),
+    ("age", "1: contact age and impact speed are kept"),
+    ("localpor", "1: the local porosity is measured at each neighbour build"),
+    ("fused", "1: pairs and walls accumulated in the force loop (mechanics + euler)"),
+    ("wrad", "1: a fixed-temperature wall with an emissivity takes part in the radiation"),
+    ("cg_own", "1: parcels exchange heat by their own laws ([thermal] parcel_heat = \"own\", a comparison)"),
+))
+# float thermal parameters (Params.thf)
+TF = slots("TF", (
+    ("dfactor", "direct conduction factor"),
+    ("radrange", "radiation range (radii)"),
+    ("ct", "impact heat coefficient c_t"),
+    ("cn", "impact heat coefficient c_n"),
+    ("chi", "friction heat fraction chi"),
+), size=8)
+# run totals (Params.tot, J since the start; checkpointed as th_tot)
+TOT = slots("TOT", (
+    ("direct", "exchanged by direct conduction"),
+    ("indirect", "exchanged by indirect conduction"),
+    ("conv", "convection"),
+    ("rad", "radiation (the walls' parts excluded)"),
+    ("gen", "generation (friction, impacts)"),
+    ("src", "sources"),
+    ("wall", "through the walls"),
+), size=8)
+# wall thermal columns (Walls.wth)
+WT = slots("WT", (
+    ("cond", "condition: 0 adiabatic, 1 fixed temperature, 2 fixed flux"),
+    ("t", "temperature (K)"),
+    ("q", "heat flux (W/m^2)"),
+    ("ntab", "length of the temperature table (0: constant)"),
+    ("emis", "emissivity (radiation with the particles)"),
+))
 
 
 @njit(cache=True, error_model="numpy")
 def wall_temperature(wth, wtab, w, t):
     """Wall temperature at time t (constant, or linear in a [time, T] table, held at the ends)."""
-    nt = int(wth[w, WT_NTAB])
+    nt = int(wth[w, WT.ntab])
     if nt == 0:
-        return wth[w, WT_T]
+        return wth[w, WT.t]
     if t <= wtab[w, 0, 0]:
         return wtab[w, 0, 1]
     for k in range(nt - 1):
@@ -70,8 +98,8 @@ def wall_temperature(wth, wtab, w, t):
 @njit(cache=True, error_model="numpy", inline="always")
 def heat_cg(cg, thi):
     """The coarse-graining factors the heat laws scale by: ``cg`` (empty without parcels), or
-    none when the scene asks for the parcels' own laws (thi[TI_CG_OWN], a comparison)."""
-    if thi[TI_CG_OWN] == 1:
+    none when the scene asks for the parcels' own laws (thi[TI.cg_own], a comparison)."""
+    if thi[TI.cg_own] == 1:
         return cg[:0]
     return cg
 
@@ -110,8 +138,8 @@ def radiation_accumulators(rad, rows, n, T, r, mat, tmat, nb, nnb, rnear):
 def wall_radiation_now(P, C, W, TB, prm, nown, t, k, out):
     """out[i] = the radiation wall k gives owned particle i now (W; 0 out of reach), at the
     current temperatures: the part of the heat step's radiation (heat_step) that is wall k's."""
-    rad = prm.thi[TI_RAD]
-    if rad < 0 or prm.thi[TI_WRAD] != 1:
+    rad = prm.thi[TI.rad]
+    if rad < 0 or prm.thi[TI.wrad] != 1:
         return
     T, r, mat, x, por, tf = P.temperature, P.radius, P.material, P.position, P.por, P.tf
     cgv = heat_cg(P.cg, prm.thi)
@@ -121,7 +149,7 @@ def wall_radiation_now(P, C, W, TB, prm, nown, t, k, out):
     wgt = np.zeros((nown, wth.shape[0]))
     aw0 = np.zeros(nown)
     aw1 = np.zeros(nown)
-    wall_radiation_weights(rad, nown, x, r, W.wf, W.wi, wth, wtab, t, prm.thf[TF_RADRANGE], wgt, aw0, aw1)
+    wall_radiation_weights(rad, nown, x, r, W, t, prm.thf[TF.radrange], wgt, aw0, aw1)
     for i in range(nown):
         if wgt[i, k] <= 0.0:
             continue
@@ -132,16 +160,18 @@ def wall_radiation_now(P, C, W, TB, prm, nown, t, k, out):
 
 
 @njit(cache=True, error_model="numpy")
-def wall_radiation_weights(rad, m, x, r, wf, wi, wth, wtab, t, srange, wgt, aw0, aw1):
-    """The radiating walls in each sphere of influence (dem.thermal.radiation, walls): for rows
-    [0, m), wgt[i, w] the weight of wall w (fixed temperature, emissivity > 0, its surface within
-    srange r_i of the centre) and the wall accumulators (aw0, aw1) of particle i."""
+def wall_radiation_weights(rad, m, x, r, W, t, srange, wgt, aw0, aw1):
+    """The radiating walls ``W`` (dem.schema Walls) in each sphere of influence
+    (dem.thermal.radiation, walls): for rows [0, m), wgt[i, w] the weight of wall w (fixed
+    temperature, emissivity > 0, its surface within srange r_i of the centre) and the wall
+    accumulators (aw0, aw1) of particle i."""
+    wf, wi, wth, wtab = W.wf, W.wi, W.wth, W.wtab
     nw = wth.shape[0]
     for i in range(m):
         s = srange * r[i]
         for w in range(nw):
-            ew = wth[w, WT_EMIS]
-            if ew <= 0.0 or wth[w, WT_COND] != 1.0:
+            ew = wth[w, WT.emis]
+            if ew <= 0.0 or wth[w, WT.cond] != 1.0:
                 continue
             d, _, _, _ = wall_distance(wf, wi, w, x[i, 0], x[i, 1], x[i, 2], t)
             g = radiation_wall_weight(rad, ew, d, s)
@@ -153,9 +183,11 @@ def wall_radiation_weights(rad, m, x, r, wf, wi, wth, wtab, t, srange, wgt, aw0,
 
 
 @njit(cache=True, error_model="numpy")
-def wall_radiation_parts(rad, eps_i, R_i, T_i, T_e, acc1_i, aw1_i, wgt_i, wth, wtab, t, scale, wtot, wrad):
+def wall_radiation_parts(rad, eps_i, R_i, T_i, T_e, acc1_i, aw1_i, wgt_i, W, t, scale):
     """Add each wall's part of particle i's radiation rate (radiation_wall_rate), times
-    ``scale``, to wtot and wrad; returns the sum of the parts (W, before the scale)."""
+    ``scale``, to the walls' totals W.wtot and W.wrad (``W``: dem.schema Walls); returns the
+    sum of the parts (W, before the scale)."""
+    wth, wtab, wtot, wrad = W.wth, W.wtab, W.wtot, W.wrad
     q = 0.0
     for w in range(wgt_i.shape[0]):
         g = wgt_i[w]
@@ -174,7 +206,7 @@ def explicit_heat(m, n, x, r, qgen, qsrc, srcbox, dt, Q, tot):
     """Add the explicit heat rates of rows [0, m) to Q (W): friction/impact generation qgen,
     per-particle sources qsrc, and the volumetric source boxes of srcbox (rows
     [xlo, ylo, zlo, xhi, yhi, zhi, W/m3]); their energies over dt go to the run totals
-    (E_GEN, E_SRC). qgen / qsrc are empty (not of n rows) when off. Serves every integrator."""
+    (TOT.gen, TOT.src). qgen / qsrc are empty (not of n rows) when off. Serves every integrator."""
     eg = 0.0
     es = 0.0
     has_gen = qgen.shape[0] == n
@@ -193,8 +225,8 @@ def explicit_heat(m, n, x, r, qgen, qsrc, srcbox, dt, Q, tot):
                 qq = srcbox[k, 6] * 4.0 / 3.0 * math.pi * r[i] ** 3
                 Q[i] += qq
                 es += qq * dt
-    tot[E_GEN] += eg
-    tot[E_SRC] += es
+    tot[TOT.gen] += eg
+    tot[TOT.src] += es
 
 
 @njit(cache=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
@@ -215,16 +247,16 @@ def heat_step(P, C, W, TB, prm, n, nown, dt, t):
     wnb, wnn, Hw, tf, uf, por, qgen, qsrc, work = P.wnb, P.wnn, P.Hw, P.tf, P.uf, P.por, P.qgen, P.qsrc, P.work
     nb, nnb, Hd, Hi, rnear = C.nb, C.nnb, C.Hd, C.Hi, C.rnear
     wth, wtab, wtot, tmat, gas = W.wth, W.wtab, W.wtot, TB.tmat, TB.gas
-    Hwg, wgap, wrad, cgv = P.Hwg, W.wgap, W.wrad, heat_cg(P.cg, prm.thi)
+    Hwg, wgap, cgv = P.Hwg, W.wgap, heat_cg(P.cg, prm.thi)
     has_wg = Hwg.shape[0] == n
     thi, tot, srcbox = prm.thi, prm.tot, prm.srcbox
-    integ = thi[TI_INTEG]
+    integ = thi[TI.integ]
     has_ind = Hi.shape[0] == n
     if integ == 2:
         return _implicit_step(P, C, W, TB, prm, nown, dt, t, has_ind)
-    conv = thi[TI_CONV]
-    rad = thi[TI_RAD]
-    fused = thi[TI_FUSED] == 1
+    conv = thi[TI.conv]
+    rad = thi[TI.rad]
+    fused = thi[TI.fused] == 1
     if (fused and integ == 0 and conv < 0 and rad < 0 and qgen.shape[0] != n and qsrc.shape[0] != n
             and srcbox.shape[0] == 0):
         # conduction only, already summed in the force loop: one pass
@@ -252,19 +284,19 @@ def heat_step(P, C, W, TB, prm, n, nown, dt, t):
             _cross_exchange(nown, dt, T, cinv, nb, nnb, Hd, Hi, has_ind, work, tot)
     if not fused:
         if integ == 0:
-            _pair_sweep(nown, dt, T, cinv, Q, nb, nnb, Hd, Hi, has_ind, integ, fwd, tot)
+            _pair_sweep(nown, dt, T, cinv, Q, C, has_ind, integ, fwd, tot)
         else:
-            _pair_sweep(nown, 0.5 * dt, T, cinv, Q, nb, nnb, Hd, Hi, has_ind, integ, fwd, tot)
+            _pair_sweep(nown, 0.5 * dt, T, cinv, Q, C, has_ind, integ, fwd, tot)
     # ---- radiation environment (from the temperatures after the first pair half-sweep)
     if rad >= 0:
         acc0, acc1 = radiation_accumulators(rad, n, n, T, r, mat, tmat, nb, nnb, rnear)
     # radiating walls (fixed temperature, emissivity > 0) in the spheres of influence
-    wr = rad >= 0 and thi[TI_WRAD] == 1
+    wr = rad >= 0 and thi[TI.wrad] == 1
     wgt = np.zeros((nown if wr else 0, wth.shape[0]))
     aw0 = np.zeros(nown if wr else 0)
     aw1 = np.zeros(nown if wr else 0)
     if wr:
-        wall_radiation_weights(rad, nown, x, r, W.wf, W.wi, wth, wtab, t, prm.thf[TF_RADRANGE], wgt, aw0, aw1)
+        wall_radiation_weights(rad, nown, x, r, W, t, prm.thf[TF.radrange], wgt, aw0, aw1)
     # ---- reservoir links: fixed-temperature walls, gas (convection), radiation environment.
     # Euler: explicit rates into Q. Exponential: all links of a particle together relax it
     # exactly towards their conductance-weighted temperature (steady state exact, bounded,
@@ -275,7 +307,7 @@ def heat_step(P, C, W, TB, prm, n, nown, dt, t):
             if h <= 0.0:
                 continue
             w = wnb[i, q]
-            cond = wth[w, WT_COND]
+            cond = wth[w, WT.cond]
             if cond == 1.0:
                 tw = wall_temperature(wth, wtab, w, t)
                 if expo:
@@ -286,12 +318,12 @@ def heat_step(P, C, W, TB, prm, n, nown, dt, t):
                 if has_wg:
                     wgap[w] += Hwg[i, q] * (tw - T[i]) * dt
             elif cond == 2.0:
-                qq = h * wth[w, WT_Q]  # fixed flux: explicit in both schemes
+                qq = h * wth[w, WT.q]  # fixed flux: explicit in both schemes
             else:
                 continue
             Q[i] += qq
             wtot[w] += qq * dt
-            tot[E_WALL] += qq * dt
+            tot[TOT.wall] += qq * dt
     hconv = np.zeros(n if conv >= 0 else 0)
     if conv >= 0:
         convection_conductances(nown, v, r, cgv, uf, por, gas, conv, hconv)
@@ -305,7 +337,7 @@ def heat_step(P, C, W, TB, prm, n, nown, dt, t):
                 qq = h * (tf[i] - T[i])
                 Q[i] += qq
                 ec += qq * dt
-        tot[E_CONV] += ec
+        tot[TOT.conv] += ec
     hrad = np.zeros(n if rad >= 0 else 0)
     tenv = np.zeros(n if rad >= 0 else 0)
     if rad >= 0:
@@ -327,13 +359,12 @@ def heat_step(P, C, W, TB, prm, n, nown, dt, t):
             else:
                 qq = radiation_heat(eps_i, r[i], te, T[i])
                 Q[i] += qq
-                qw = 0.0   # the walls' parts go to their records, the rest to E_RAD
+                qw = 0.0   # the walls' parts go to their records, the rest to TOT.rad
                 if walls_i:
-                    qw = wall_radiation_parts(rad, eps_i, r[i], T[i], te, acc1[i], aw1[i], wgt[i], wth, wtab, t,
-                                              dt, wtot, wrad)
-                    tot[E_WALL] += qw * dt
+                    qw = wall_radiation_parts(rad, eps_i, r[i], T[i], te, acc1[i], aw1[i], wgt[i], W, t, dt)
+                    tot[TOT.wall] += qw * dt
                 er += (qq - qw) * dt
-        tot[E_RAD] += er
+        tot[TOT.rad] += er
     if expo:
         for i in range(nown):
             if hs[i] <= 0.0:
@@ -351,25 +382,25 @@ def heat_step(P, C, W, TB, prm, n, nown, dt, t):
             if not fused:
                 for q in range(wnn[i]):
                     w = wnb[i, q]
-                    if Hw[i, q] > 0.0 and wth[w, WT_COND] == 1.0:
+                    if Hw[i, q] > 0.0 and wth[w, WT.cond] == 1.0:
                         dtw = wall_temperature(wth, wtab, w, t) - ti
                         ew = f * Hw[i, q] * dtw
                         wtot[w] += ew
-                        tot[E_WALL] += ew
+                        tot[TOT.wall] += ew
                         if has_wg:
                             wgap[w] += f * Hwg[i, q] * dtw
             if conv >= 0:
-                tot[E_CONV] += f * hconv[i] * (tf[i] - ti)
+                tot[TOT.conv] += f * hconv[i] * (tf[i] - ti)
             if rad >= 0:
                 if wr and aw1[i] > 0.0:
                     qw = wall_radiation_parts(rad, own_emissivity(tmat, mat, cgv, i), r[i], ti, tenv[i], acc1[i], aw1[i],
-                                              wgt[i], wth, wtab, t, f, wtot, wrad)
-                    tot[E_WALL] += f * qw
-                    tot[E_RAD] += f * (hrad[i] * (tenv[i] - ti) - qw)
+                                              wgt[i], W, t, f)
+                    tot[TOT.wall] += f * qw
+                    tot[TOT.rad] += f * (hrad[i] * (tenv[i] - ti) - qw)
                 else:
-                    tot[E_RAD] += f * hrad[i] * (tenv[i] - ti)
+                    tot[TOT.rad] += f * hrad[i] * (tenv[i] - ti)
     if not fused and expo:
-        _pair_sweep(nown, 0.5 * dt, T, cinv, Q, nb, nnb, Hd, Hi, has_ind, integ, -fwd, tot)
+        _pair_sweep(nown, 0.5 * dt, T, cinv, Q, C, has_ind, integ, -fwd, tot)
     # ---- explicit terms: generation, sources, fixed fluxes (Q)
     if expo:
         for i in range(nown):
@@ -416,8 +447,8 @@ def _implicit_step(P, C, W, TB, prm, m, dt, t, has_ind):
     nb, nnb, Hd, Hi, rnear = C.nb, C.nnb, C.Hd, C.Hi, C.rnear
     wth, wtab, wtot, tmat, gas = W.wth, W.wtab, W.wtot, TB.tmat, TB.gas
     thi, tot, srcbox = prm.thi, prm.tot, prm.srcbox
-    conv = thi[TI_CONV]
-    rad = thi[TI_RAD]
+    conv = thi[TI.conv]
+    rad = thi[TI.rad]
     n = T.shape[0]
     Hwg, wgap, wrad, cgv = P.Hwg, W.wgap, W.wrad, heat_cg(P.cg, thi)
     has_wg = Hwg.shape[0] == n
@@ -445,15 +476,15 @@ def _implicit_step(P, C, W, TB, prm, m, dt, t, has_ind):
             if h <= 0.0:
                 continue
             w = wnb[i, q]
-            cond = wth[w, WT_COND]
+            cond = wth[w, WT.cond]
             if cond == 1.0:
                 dg[i] += h
                 b[i] += h * (wall_temperature(wth, wtab, w, t) - T[i])
             elif cond == 2.0:
-                qq = h * wth[w, WT_Q]
+                qq = h * wth[w, WT.q]
                 b[i] += qq
                 wtot[w] += qq * dt
-                tot[E_WALL] += qq * dt
+                tot[TOT.wall] += qq * dt
     # convection
     hconv = np.zeros(m if conv >= 0 else 0)
     if conv >= 0:
@@ -467,7 +498,7 @@ def _implicit_step(P, C, W, TB, prm, m, dt, t, has_ind):
     if rad >= 0:
         acc0, acc1 = radiation_accumulators(rad, m, n, T, r, mat, tmat, nb, nnb, rnear)
     # radiating walls: their parts of each particle's rate at T^n (qw) and weights omega (om)
-    wr = rad >= 0 and thi[TI_WRAD] == 1
+    wr = rad >= 0 and thi[TI.wrad] == 1
     nw = wth.shape[0]
     wgt = np.zeros((m if wr else 0, nw))
     aw0 = np.zeros(m if wr else 0)
@@ -475,7 +506,7 @@ def _implicit_step(P, C, W, TB, prm, m, dt, t, has_ind):
     qw = np.zeros((m if wr else 0, nw))
     om = np.zeros((m if wr else 0, nw))
     if wr:
-        wall_radiation_weights(rad, m, x, r, W.wf, W.wi, wth, wtab, t, prm.thf[TF_RADRANGE], wgt, aw0, aw1)
+        wall_radiation_weights(rad, m, x, r, W, t, prm.thf[TF.radrange], wgt, aw0, aw1)
     if rad >= 0:
         for i in range(m):
             walls_i = wr and aw1[i] > 0.0
@@ -520,24 +551,24 @@ def _implicit_step(P, C, W, TB, prm, m, dt, t, has_ind):
             e = abs(h * (T[j] - T[i])) * dt
             ed += e * hd / h
             ei += e * hi / h
-    tot[E_DIRECT] += ed
-    tot[E_INDIRECT] += ei
+    tot[TOT.direct] += ed
+    tot[TOT.indirect] += ei
     for i in range(m):
         for q in range(wnn[i]):
             h = Hw[i, q]
             w = wnb[i, q]
-            if h > 0.0 and wth[w, WT_COND] == 1.0:
+            if h > 0.0 and wth[w, WT.cond] == 1.0:
                 dtw = wall_temperature(wth, wtab, w, t) - T[i]
                 ew = h * dtw * dt
                 wtot[w] += ew
-                tot[E_WALL] += ew
+                tot[TOT.wall] += ew
                 if has_wg:
                     wgap[w] += Hwg[i, q] * dtw * dt
     if conv >= 0:
         ec = 0.0
         for i in range(m):
             ec += hconv[i] * (tf[i] - T[i]) * dt
-        tot[E_CONV] += ec
+        tot[TOT.conv] += ec
     if rad >= 0:
         # the linearised rate qrad - krad d at T^{n+1}; a wall's part qw - omega krad d
         er = 0.0
@@ -549,10 +580,10 @@ def _implicit_step(P, C, W, TB, prm, m, dt, t, has_ind):
                         ew = (qw[i, w] - om[i, w] * krad[i] * d[i]) * dt
                         wtot[w] += ew
                         wrad[w] += ew
-                        tot[E_WALL] += ew
+                        tot[TOT.wall] += ew
                         e -= ew
             er += e
-        tot[E_RAD] += er
+        tot[TOT.rad] += er
     for i in range(m):
         if not (T[i] > 0.0) or not math.isfinite(T[i]):
             return i
@@ -560,12 +591,14 @@ def _implicit_step(P, C, W, TB, prm, m, dt, t, has_ind):
 
 
 @njit(cache=True, error_model="numpy")
-def _pair_sweep(n, dt, T, cinv, Q, nb, nnb, Hd, Hi, has_ind, integ, direction, tot):
-    """Pair conduction over dt: Euler (into Q) or exact two-body exponential updates of T
+def _pair_sweep(n, dt, T, cinv, Q, C, has_ind, integ, direction, tot):
+    """Pair conduction over dt through the conductances of the pairs ``C`` (dem.schema Pairs:
+    Hd, and Hi when has_ind): Euler (into Q) or exact two-body exponential updates of T
     in particle order (direction 1) or reverse order (-1), over the rows [0, n) of owned
     particles. Pairs with a ghost (j >= n): Euler counts half their heat in the totals (the
     other rank counts the other half); the exponential update leaves them to the
     reservoir relaxation (_ghost_links)."""
+    nb, nnb, Hd, Hi = C.nb, C.nnb, C.Hd, C.Hi
     ed = 0.0
     ei = 0.0
     for k in range(n):
@@ -596,8 +629,8 @@ def _pair_sweep(n, dt, T, cinv, Q, nb, nnb, Hd, Hi, has_ind, integ, direction, t
                 e = abs(e)
             ed += e * hd / h
             ei += e * hi / h
-    tot[E_DIRECT] += ed
-    tot[E_INDIRECT] += ei
+    tot[TOT.direct] += ed
+    tot[TOT.indirect] += ei
 
 
 @njit(cache=True, error_model="numpy")
@@ -637,15 +670,20 @@ def _cross_exchange(nown, dt, T, cinv, nb, nnb, Hd, Hi, has_ind, work, tot):
             ei += 0.5 * abs(e) * hi / h
     for i in range(nown):
         T[i] += dT[i]
-    tot[E_DIRECT] += ed
-    tot[E_INDIRECT] += ei
+    tot[TOT.direct] += ed
+    tot[TOT.indirect] += ei
 
 
 @njit(cache=True, error_model="numpy")
-def local_porosity(n, x, r, nb, nnb, lo, hi, periodic, reach, wf, wi, wnb, wnn, t, out, floor):
-    """Porosity in a measuring sphere of radius R_m = R_i + reach around each particle:
-    1 - (own volume + exact lens volumes of the neighbours inside) / (sphere volume minus
-    the caps cut off by plane walls). Floor applied (a measuring sphere that is mostly wall)."""
+def local_porosity(P, C, W, prm, n, reach, t, floor):
+    """Porosity in a measuring sphere of radius R_m = R_i + reach around each particle of
+    rows [0, n), into P.por: 1 - (own volume + exact lens volumes of the neighbours inside
+    (the half list of ``C``)) / (sphere volume minus the caps cut off by the plane walls of
+    ``W`` among each particle's candidates). Floor applied (a measuring sphere that is mostly
+    wall). P, C, W, prm: the bundles of dem.schema."""
+    x, r, wnb, wnn, out = P.position, P.radius, P.wnb, P.wnn, P.por
+    nb, nnb, wf, wi = C.nb, C.nnb, W.wf, W.wi
+    lo, hi, periodic = prm.lo, prm.hi, prm.periodic
     vs = np.zeros(n)
     for i in range(n):
         vs[i] += 4.0 / 3.0 * math.pi * r[i] ** 3
@@ -660,11 +698,11 @@ def local_porosity(n, x, r, nb, nnb, lo, hi, periodic, reach, wf, wi, wnb, wnn, 
         vm = 4.0 / 3.0 * math.pi * rm ** 3
         for q in range(wnn[i]):
             w = wnb[i, q]
-            if wi[w, WTYPE] != PLANE:
+            if wi[w, WI.type] != PLANE:
                 continue
             dist = 0.0  # signed distance to the plane at time t (a moving wall where it is now)
             for k in range(3):
-                dist += (x[i, k] - wf[w, PX + k] - wf[w, VX + k] * t) * wf[w, NX + k]
+                dist += (x[i, k] - wf[w, WF.px + k] - wf[w, WF.vx + k] * t) * wf[w, WF.nx + k]
             if dist < rm:
                 hcap = rm - max(dist, -rm)
                 vm -= math.pi * hcap * hcap * (3.0 * rm - hcap) / 3.0

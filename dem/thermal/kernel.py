@@ -9,10 +9,7 @@ import numpy as np
 
 from . import registry as R
 from .convection import BIOT_LUMPED
-from .heat import (NTI, NTF, NTOT, TI_HEAT, TI_DIRECT, TI_CR, TI_CORR, TI_INDIRECT, TI_CONV, TI_RAD,
-                   TI_FRIC, TI_PART, TI_INTEG, TI_AGE, TI_LOCALPOR, TI_FUSED, TF_DFACTOR, TF_RADRANGE, TF_CT,
-                   TF_CN, TF_CHI, WT_COND, WT_T, WT_Q, WT_NTAB, WT_EMIS, NWT, TI_WRAD, TI_CG_OWN, E_DIRECT, E_INDIRECT, E_CONV, E_RAD,
-                   E_GEN, E_SRC, E_WALL, local_porosity)
+from .heat import TI, TF, TOT, WT, local_porosity
 
 MECHANISMS = ("direct", "indirect", "convection", "radiation", "generation", "sources")
 INTEGRAL_INDIRECT = ("cheng_1999_voronoi_a", "gan_2016_voronoi_a", "rong_horio_1999_surrounding_layer",
@@ -32,13 +29,13 @@ def no_heat_tables(st):
     """The tables and parameters of a scene without heat (dem.schema rows of owner wall, table
     and param): tiny arrays of the types a scene with heat has, so one kernel serves both."""
     nw = st.walls
-    thi = np.full(NTI, -1, np.int64)
-    thi[TI_HEAT] = 0
-    st.thi, st.thf, st.tmat, st.gas = thi, np.zeros(NTF), np.zeros((1, R.N_TPROP)), np.zeros(R.N_GAS)
+    thi = np.full(TI.SIZE, -1, np.int64)
+    thi[TI.heat] = 0
+    st.thi, st.thf, st.tmat, st.gas = thi, np.zeros(TF.SIZE), np.zeros((1, R.N_TPROP)), np.zeros(R.N_GAS)
     st.ereal, st.keff = np.zeros((1, 1)), np.zeros((1, 1))
-    st.wth, st.wtab = np.zeros((nw, NWT)), np.zeros((nw, 1, 2))
+    st.wth, st.wtab = np.zeros((nw, WT.SIZE)), np.zeros((nw, 1, 2))
     zero_wall_totals(st, nw)
-    st.srcbox, st.tot = np.zeros((0, 7)), np.zeros(NTOT)
+    st.srcbox, st.tot = np.zeros((0, 7)), np.zeros(TOT.SIZE)
 
 
 class ThermalModel:
@@ -56,38 +53,38 @@ class ThermalModel:
         mats = [dict((k, m[k]) for k in R.MATERIAL_KEYS if k in m) for m in sc.materials]
         self.tmat, self.gas, _ = R.build_tables(mats, th["gas"])
         st.enable_thermal(th["temperature"], self.tmat[:, R.CP])
-        thi = np.full(NTI, -1, np.int64)
-        thi[TI_HEAT] = 1
-        thi[TI_DIRECT] = th["direct_id"]
-        thi[TI_CR] = th["cr_id"]
-        thi[TI_CORR] = th["corr_id"]
-        thi[TI_INDIRECT] = th["indirect_id"]
-        thi[TI_CONV] = th["convection_id"]
-        thi[TI_RAD] = th["radiation_id"]
-        thi[TI_FRIC] = th["friction_id"] if sc.simulation["mechanics"] else -1
-        thi[TI_PART] = th["partition_id"]
-        thi[TI_INTEG] = th["integrator_id"]
+        thi = np.full(TI.SIZE, -1, np.int64)
+        thi[TI.heat] = 1
+        thi[TI.direct] = th["direct_id"]
+        thi[TI.cr] = th["cr_id"]
+        thi[TI.corr] = th["corr_id"]
+        thi[TI.indirect] = th["indirect_id"]
+        thi[TI.conv] = th["convection_id"]
+        thi[TI.rad] = th["radiation_id"]
+        thi[TI.fric] = th["friction_id"] if sc.simulation["mechanics"] else -1
+        thi[TI.part] = th["partition_id"]
+        thi[TI.integ] = th["integrator_id"]
         # per-contact history (contact age and impact speed) when a selected model's record asks
         self.needs_age = R.history_width({m: th[m] for m in ("direct", "indirect", "convection",
                                                              "radiation")}) > 0
-        thi[TI_AGE] = 1 if self.needs_age else 0
+        thi[TI.age] = 1 if self.needs_age else 0
         uses_por = th["indirect_id"] >= 0 or th["convection_id"] >= 0 or th["radiation"] == "zhou_2009"
         self.local_porosity = uses_por and th["porosity"] in ("local", "voronoi")
         self.voronoi = uses_por and th["porosity"] == "voronoi"
         # the kernel re-measures the local porosity at each neighbour rebuild; the Voronoi
         # porosity is computed in Python at start-up and at each spatial reordering
-        thi[TI_LOCALPOR] = 1 if (self.local_porosity and not self.voronoi) else 0
-        thi[TI_FUSED] = 1 if (sc.simulation["mechanics"] and th["integrator"] == "euler") else 0
+        thi[TI.localpor] = 1 if (self.local_porosity and not self.voronoi) else 0
+        thi[TI.fused] = 1 if (sc.simulation["mechanics"] and th["integrator"] == "euler") else 0
         from .wall_heat import radiating_walls
-        thi[TI_WRAD] = 1 if any(radiating_walls(sc)) else 0
-        thi[TI_CG_OWN] = 1 if th["parcel_heat"] == "own" else 0
+        thi[TI.wrad] = 1 if any(radiating_walls(sc)) else 0
+        thi[TI.cg_own] = 1 if th["parcel_heat"] == "own" else 0
         self.thi = thi
-        thf = np.zeros(NTF)
-        thf[TF_DFACTOR] = th["direct_factor"]
-        thf[TF_RADRANGE] = self.gas[R.RAD_RANGE]
-        thf[TF_CT] = th["impact_ct"]
-        thf[TF_CN] = th["impact_cn"]
-        thf[TF_CHI] = th["chi"]
+        thf = np.zeros(TF.SIZE)
+        thf[TF.dfactor] = th["direct_factor"]
+        thf[TF.radrange] = self.gas[R.RAD_RANGE]
+        thf[TF.ct] = th["impact_ct"]
+        thf[TF.cn] = th["impact_cn"]
+        thf[TF.chi] = th["chi"]
         self.thf = thf
         # real effective modulus per material pair (softened-stiffness corrections)
         E = np.array([m["youngs_modulus"] for m in sc.materials])
@@ -109,16 +106,16 @@ class ThermalModel:
         self.reach = reach
         # walls
         nw = max(len(sc.walls), 1)
-        wth = np.zeros((nw, NWT))
+        wth = np.zeros((nw, WT.SIZE))
         ntab = max([len(w["table"]) for w in th["walls"] if w["table"] is not None], default=1)
         wtab = np.zeros((nw, ntab, 2))
         for k, w in enumerate(th["walls"]):
-            wth[k, WT_COND] = w["cond_id"]
-            wth[k, WT_T] = w["temperature"]
-            wth[k, WT_Q] = w["heat_flux"]
-            wth[k, WT_EMIS] = w["emissivity"]
+            wth[k, WT.cond] = w["cond_id"]
+            wth[k, WT.t] = w["temperature"]
+            wth[k, WT.q] = w["heat_flux"]
+            wth[k, WT.emis] = w["emissivity"]
             if w["table"] is not None:
-                wth[k, WT_NTAB] = len(w["table"])
+                wth[k, WT.ntab] = len(w["table"])
                 wtab[k, :len(w["table"])] = w["table"]
         qsrc = np.zeros(n)
         boxes = []
@@ -130,13 +127,13 @@ class ThermalModel:
                 qsrc[sel] += s["power"] * (st.cg[sel] ** 3 if scaled else 1.0)
             else:
                 boxes.append(list(s["min"]) + list(s["max"]) + [s["power_density"]])
-        st.enable(heat=True, contact_age=self.needs_age, friction_heat=bool(thi[TI_FRIC] >= 0),
-                  group_sources=bool(np.any(qsrc != 0)), indirect=bool(thi[TI_INDIRECT] >= 0),
-                  radiation=bool(thi[TI_RAD] >= 0))
+        st.enable(heat=True, contact_age=self.needs_age, friction_heat=bool(thi[TI.fric] >= 0),
+                  group_sources=bool(np.any(qsrc != 0)), indirect=bool(thi[TI.indirect] >= 0),
+                  radiation=bool(thi[TI.rad] >= 0))
         st.wth, st.wtab = wth, wtab
         zero_wall_totals(st, nw)
         st.thi, st.thf, st.tmat, st.gas, st.ereal, st.keff = thi, thf, self.tmat, self.gas, self.ereal, self.keff
-        st.srcbox, st.tot = np.array(boxes, float).reshape(-1, 7), np.zeros(NTOT)
+        st.srcbox, st.tot = np.array(boxes, float).reshape(-1, 7), np.zeros(TOT.SIZE)
         st.por[:] = self.gas[R.POROSITY_GLOBAL]
         st.tf[:] = self.gas[R.T_F] if math.isfinite(self.gas[R.T_F]) else 0.0
         st.uf[:] = th["gas_velocity"]
@@ -147,7 +144,7 @@ class ThermalModel:
     # -------------------------------------------------------------- run totals
     @property
     def tot(self):
-        """Heat per mechanism since the start (J; dem.thermal.heat E_*)."""
+        """Heat per mechanism since the start (J; slots: dem.thermal.heat TOT)."""
         return self.state.tot
 
     @property
@@ -164,8 +161,8 @@ class ThermalModel:
         if not self.local_porosity:
             return
         st = self.state
-        local_porosity(st.n, st.position, st.radius, st.nb, st.nnb, st.lo, st.hi, st.periodic, self.reach,
-                       st.wf, st.wi, st.wnb, st.wnn, time, st.por, 0.2)
+        P, C, W, _, prm = st.bundles()
+        local_porosity(P, C, W, prm, st.n, self.reach, time, 0.2)
         if self.voronoi:
             from .voronoi import voronoi_porosity
             pv = voronoi_porosity(st.position, st.radius, st.lo, st.hi)
@@ -177,10 +174,10 @@ class ThermalModel:
         from .heat import convection_conductances
         st = self.state
         out = np.zeros(st.n)
-        if self.thi[TI_CONV] >= 0:
-            cg = st.cg if self.thi[TI_CG_OWN] == 0 else st.cg[:0]
+        if self.thi[TI.conv] >= 0:
+            cg = st.cg if self.thi[TI.cg_own] == 0 else st.cg[:0]
             convection_conductances(st.n, st.velocity, st.radius, cg, st.uf, st.por, self.gas,
-                                    int(self.thi[TI_CONV]), out)
+                                    int(self.thi[TI.conv]), out)
         return out
 
     # -------------------------------------------------------------- reports
@@ -201,7 +198,7 @@ class ThermalModel:
         H = np.where(mask, H, 0.0)
         np.add.at(hsum, np.repeat(np.arange(st.n), H.shape[1]), H.ravel())
         np.add.at(hsum, st.nb.ravel()[mask.ravel()], H.ravel()[mask.ravel()])
-        wmask = (np.arange(st.Hw.shape[1])[None, :] < st.wnn[:, None]) & (st.wth[st.wnb, WT_COND] == 1.0)
+        wmask = (np.arange(st.Hw.shape[1])[None, :] < st.wnn[:, None]) & (st.wth[st.wnb, WT.cond] == 1.0)
         hsum += (st.Hw * wmask).sum(1)
         C = 1.0 / st.inv_heat_capacity
         with np.errstate(divide="ignore"):
@@ -219,11 +216,11 @@ class ThermalModel:
         rep["thermal_step_ratio"] = dt / tcrit
         warnings = []
         # conductances stored per slot (the fused Euler path does not store them)
-        fused = self.thi[TI_FUSED]
+        fused = self.thi[TI.fused]
         saved = (st.heat_totals(), st.heat_rate.copy(), st.force.copy(), st.torque.copy())
-        self.thi[TI_FUSED] = 0
+        self.thi[TI.fused] = 0
         compute_forces()
-        self.thi[TI_FUSED] = fused
+        self.thi[TI.fused] = fused
         st.restore_heat_totals(saved[0])
         st.heat_rate[:], st.force[:], st.torque[:] = saved[1:]
         lim = self.network_limit()
@@ -232,7 +229,7 @@ class ThermalModel:
             warnings.append(f"euler thermal step {dt:.3g} s exceeds the network stability limit "
                             f"min C_i/sum H_ij = {lim:.3g} s: use thermal.integrator = \"exponential\" "
                             f"or a smaller step")
-        if self.thi[TI_RAD] >= 0:
+        if self.thi[TI.rad] >= 0:
             # explicit radiation: dt < C / (4 eps sigma A T^3) at the hottest temperature in play
             from .radiation import SIGMA_SB
             tw = [w["temperature"] for w in self.cfg["walls"]] + [float(np.max(st.temperature))]
@@ -255,7 +252,7 @@ class ThermalModel:
                                 f"accuracy limit {rl:.3g} s at {tmax:.0f} K: expected error up to {err:.2g} % of "
                                 f"the temperature change (measured for radiation alone, "
                                 f"benchmarks/radiation_step_error.py); lower thermal.time_step for accuracy")
-        if self.thi[TI_CONV] >= 0:
+        if self.thi[TI.conv] >= 0:
             g = self.gas
             n = st.n
             ur = np.linalg.norm(st.uf[:n] - st.velocity[:n], axis=1)
@@ -279,7 +276,7 @@ class ThermalModel:
         function the heat step uses). A check, not a step: a Python loop is fine here."""
         from .convection import biot_lumped, nusselt_gas
         st, g = self.state, self.gas
-        corr = int(self.thi[TI_CONV])
+        corr = int(self.thi[TI.conv])
         re = np.asarray(re, float)
         por = np.asarray(por, float)
         n = re.shape[0]
@@ -299,7 +296,7 @@ class ThermalModel:
         for mech in ("direct", "indirect", "convection", "radiation", "friction"):
             key, label = R.MECHANISMS[mech]
             name = c[key]
-            if name != "none" and not (mech == "friction" and self.thi[TI_FRIC] < 0):
+            if name != "none" and not (mech == "friction" and self.thi[TI.fric] < 0):
                 rec = R.record(mech, name)
                 gas_keys = rec.inputs()[1]
                 extra = ""

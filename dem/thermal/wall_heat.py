@@ -197,24 +197,24 @@ def particle_wall_heat(sim, k):
     at a fixed-flux wall; the wall's part of each particle's radiation (dem.thermal.heat.
     wall_radiation_now) at a fixed-temperature wall with an emissivity; empty arrays without
     heat, at an adiabatic wall or with no particle in reach."""
-    from .heat import WT_COND, WT_Q, TI_WRAD, wall_temperature, wall_radiation_now
+    from .heat import WT, TI, wall_temperature, wall_radiation_now
     st = sim.state
     n = st.n_owned
     none = np.zeros(0, np.int64), np.zeros(0), np.zeros(0), np.zeros(0)
     if sim.thermal is None or not n:
         return none
-    cond = int(st.wth[k, WT_COND])
+    cond = int(st.wth[k, WT.cond])
     if cond == 0:
         return none
     wnb, wnn = st.wnb[:n], st.wnn[:n]
     rows, cols = np.nonzero((wnb == k) & (np.arange(wnb.shape[1])[None, :] < wnn[:, None]))
     H = st.Hw[rows, cols]
     if cond == 2:   # fixed flux: Hw holds the contact area
-        return rows, H * st.wth[k, WT_Q], np.zeros_like(H), np.zeros_like(H)
+        return rows, H * st.wth[k, WT.q], np.zeros_like(H), np.zeros_like(H)
     Hg = st.Hwg[rows, cols] if st.Hwg.shape[0] >= n else np.zeros_like(H)   # Hwg: indirect models only
     dT = wall_temperature(st.wth, st.wtab, k, sim.time) - st.temperature[rows]
     qc, qg = (H - Hg) * dT, Hg * dT
-    if st.thi[TI_WRAD] != 1:
+    if st.thi[TI.wrad] != 1:
         return rows, qc, qg, np.zeros_like(H)
     qr = np.zeros(n)
     P, C, W, TB, prm = st.bundles()
@@ -234,7 +234,7 @@ def cylinder_flux_by_angle(sim, n_bins=ANGLE_BINS):
     axis (``_angle_frame``) and divided by the sector's area 2 pi R L / n_bins. Collective over
     the MPI ranks. Returns {wall index: (angles_deg [n_bins] (sector centres), contact [n_bins],
     gas_gap [n_bins], radiation [n_bins]) in W/m^2}; empty without heat."""
-    from .heat import WT_COND
+    from .heat import WT
     st, sc = sim.state, sim.scene
     out = {}
     if sim.thermal is None:
@@ -243,7 +243,7 @@ def cylinder_flux_by_angle(sim, n_bins=ANGLE_BINS):
     edges = np.linspace(0.0, 360.0, n_bins + 1)
     centres = 0.5 * (edges[:-1] + edges[1:])
     for k, w in enumerate(sc.walls):
-        if w["type"] != "cylinder" or int(st.wth[k, WT_COND]) == 0:
+        if w["type"] != "cylinder" or int(st.wth[k, WT.cond]) == 0:
             continue
         e0, e1 = _angle_frame(w, sc.simulation["gravity"])
         sums = np.zeros((3, n_bins))
