@@ -94,11 +94,13 @@ def pair_material(tab, mi, mj):
     return PairMaterial(tab[TAB.estar, mi, mj], tab[TAB.gstar, mi, mj], tab[TAB.damp, mi, mj], tab[TAB.mu, mi, mj])
 
 
-@njit(cache=True, error_model="numpy", fastmath={"nsz", "arcp", "contract", "afn", "reassoc"})
+@njit(cache=True, error_model="numpy", fastmath={"nsz", "arcp", "contract", "afn", "reassoc"}, inline="always")
 def _pair_law(law, pm, delta, vn, vt, h, rstar, mstar):
     """Normal and tangential force of one contact by the run's law (``law``: :class:`ContactLaw`)
     for the material pair ``pm`` (:class:`PairMaterial`): ``vt`` the tangential relative
-    velocity and ``h`` the stored tangential spring (3-tuples)."""
+    velocity and ``h`` the stored tangential spring (3-tuples). Inlined into the contact loops
+    (``inline="always"``, the loops' fastmath flags): called with the records and tuples, the
+    shared 10k heat bed ran 7-10 % slower (benchmarks/loop_time.py A/B, docs/benchmarks.md)."""
     vtx, vty, vtz = vt
     hx, hy, hz = h
     estar = pm.estar
