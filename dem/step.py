@@ -94,26 +94,24 @@ def pair_material(tab, mi, mj):
     return PairMaterial(tab[TAB.estar, mi, mj], tab[TAB.gstar, mi, mj], tab[TAB.damp, mi, mj], tab[TAB.mu, mi, mj])
 
 
-@njit(cache=True, error_model="numpy", fastmath={"nsz", "arcp", "contract", "afn", "reassoc"}, inline="always")
-def _pair_law(law, pm, delta, vn, vt, h, rstar, mstar):
-    """Normal and tangential force of one contact by the run's law (``law``: :class:`ContactLaw`)
-    for the material pair ``pm`` (:class:`PairMaterial`): ``vt`` the tangential relative
-    velocity and ``h`` the stored tangential spring (3-tuples). Inlined into the contact loops
-    (``inline="always"``, the loops' fastmath flags): called with the records and tuples, the
-    shared 10k heat bed ran 7-10 % slower (benchmarks/loop_time.py A/B, docs/benchmarks.md)."""
-    vtx, vty, vtz = vt
-    hx, hy, hz = h
-    estar = pm.estar
-    if law.model == 0:
+@njit(cache=True, error_model="numpy", fastmath={"nsz", "arcp", "contract", "afn", "reassoc"})
+def _pair_law(model, delta, vn, vtx, vty, vtz, hx, hy, hz, rstar, mstar, estar, gstar,
+              damp, mu, dt, lin_kn, vchar, kt_ratio):
+    """The contact law of the run (``model``: ip[IP.contact], 0 Hertz-Mindlin, 1 linear spring-
+    dashpot) with its scalars: normal and tangential force of one contact. It keeps the laws'
+    scalar parameter list (tests/test_architecture.py, SCALAR_LAWS): taking the records
+    ContactLaw / PairMaterial and 3-tuples through the call ran the shared 10k heat bed 7-10 %
+    slower (benchmarks/loop_time.py, alternated pairs), and inlining that form into the contact
+    loops changed the rotating drum's bits (fastmath across the former call boundary)."""
+    if model == 0:
         return hertz_mindlin(delta, vn, vtx, vty, vtz, hx, hy, hz,
-                             rstar, mstar, estar, pm.gstar, pm.damp, pm.mu, law.dt)
-    kn = law.lin_kn
+                             rstar, mstar, estar, gstar, damp, mu, dt)
+    kn = lin_kn
     if kn <= 0.0:  # Hertz-equivalent stiffness at the characteristic velocity
         sr = math.sqrt(rstar)
-        vchar = law.vchar
         kn = 16.0 / 15.0 * sr * estar * (15.0 * mstar * vchar * vchar / (16.0 * sr * estar)) ** 0.2
     return linear_spring_dashpot(delta, vn, vtx, vty, vtz, hx, hy, hz,
-                                 mstar, kn, law.kt_ratio, pm.damp, pm.mu, law.dt)
+                                 mstar, kn, kt_ratio, damp, mu, dt)
 
 
 @njit(cache=True, error_model="numpy")
@@ -339,7 +337,9 @@ def compute_forces(P, C, W, TB, prm, n, t, hon):
             rstar = ri * rj / rs
             mstar = m[i] * m[j] / (m[i] + m[j])
             fn, ftx, fty, ftz, hx, hy, hz, kn = _pair_law(
-                law, pair_material(tab, mi, mj), delta, vn, (vtx, vty, vtz), (hx, hy, hz), rstar, mstar)
+                law.model, delta, vn, vtx, vty, vtz, hx, hy, hz, rstar, mstar,
+                tab[TAB.estar, mi, mj], tab[TAB.gstar, mi, mj], tab[TAB.damp, mi, mj],
+                tab[TAB.mu, mi, mj], law.dt, law.lin_kn, law.vchar, law.kt_ratio)
             hist[i, s, 0] = hx
             hist[i, s, 1] = hy
             hist[i, s, 2] = hz
@@ -503,7 +503,9 @@ def compute_forces(P, C, W, TB, prm, n, t, hon):
             vtz = vrz - vn * nz
             hx, hy, hz = _rotate_history(whist, i, wl, nx, ny, nz)
             fn, ftx, fty, ftz, hx, hy, hz, kn = _pair_law(
-                law, pair_material(tab, mi, mw), delta, vn, (vtx, vty, vtz), (hx, hy, hz), ri, m[i])
+                law.model, delta, vn, vtx, vty, vtz, hx, hy, hz, ri, m[i],
+                tab[TAB.estar, mi, mw], tab[TAB.gstar, mi, mw], tab[TAB.damp, mi, mw],
+                tab[TAB.mu, mi, mw], law.dt, law.lin_kn, law.vchar, law.kt_ratio)
             whist[i, wl, 0] = hx
             whist[i, wl, 1] = hy
             whist[i, wl, 2] = hz

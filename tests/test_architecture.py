@@ -11,6 +11,7 @@ MAX_PARAMETERS = 12
 # the scalar model laws: one contact's physics, named after its authors, whose inputs are the
 # scalars of the paper's equation (docs/models.md); a record would only hide them
 SCALAR_LAWS = {
+    ("dem/step.py", "_pair_law"),   # the run's contact law with the laws' scalars (its docstring: why)
     ("dem/contact/hertz_mindlin.py", "hertz_mindlin"),
     ("dem/contact/linear.py", "linear_spring_dashpot"),
     ("dem/contact/rolling.py", "epsd"),
