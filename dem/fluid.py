@@ -10,19 +10,9 @@ def set_fluid(world, stepper, force=None, velocity=None, temperature=None, poros
     st = world.state
     k = st.n_owned
     if force is not None:
-        if not st.features.get("fluid"):
-            st.enable(fluid=True)
-        st.external_force[:k] = force
-        st.external_force[k:] = 0.0
-        st.drag_beta[:k] = 0.0 if drag is None else drag
-        st.drag_beta[k:] = 0.0
+        _explicit_and_implicit(st, "fluid", ("external_force", force), ("drag_beta", drag))
     if torque is not None:
-        if not st.features.get("fluid_torque"):
-            st.enable(fluid_torque=True)
-        st.external_torque[:k] = torque
-        st.external_torque[k:] = 0.0
-        st.rot_drag[:k] = 0.0 if torque_drag is None else torque_drag
-        st.rot_drag[k:] = 0.0
+        _explicit_and_implicit(st, "fluid_torque", ("external_torque", torque), ("rot_drag", torque_drag))
     if added_mass is not None:
         if not st.features.get("virtual_mass"):
             st.enable(virtual_mass=True)
@@ -41,3 +31,15 @@ def set_fluid(world, stepper, force=None, velocity=None, temperature=None, poros
         from .thermal.heat import TI
         th.thi[TI.localpor] = 0  # the CFD void fraction is used instead
         stepper.forward_porosity()
+
+
+def _explicit_and_implicit(st, feature, explicit, implicit):
+    """Enable ``feature`` and set, on the owned rows, its explicit part (name, value) and its
+    implicit coefficient (name, value, or None for 0); the ghost rows hold 0."""
+    if not st.features.get(feature):
+        st.enable(**{feature: True})
+    k = st.n_owned
+    for name, value in (explicit, implicit):
+        a = getattr(st, name)
+        a[:k] = 0.0 if value is None else value
+        a[k:] = 0.0
