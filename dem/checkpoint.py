@@ -1,6 +1,6 @@
 """Checkpoint files that carry what they need, and restarts with an edited scene.
 
-A checkpoint is an ``.npz`` holding the arrays of :meth:`dem.Simulation.checkpoint_arrays`
+A checkpoint is an ``.npz`` holding the arrays of :meth:`dem.checkpointer.Checkpointer.arrays`
 plus four entries written here:
 
     format          "thermodem-checkpoint"

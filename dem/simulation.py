@@ -87,15 +87,6 @@ class Simulation:
         return self.world.n_total
 
     @property
-    def reach(self):
-        """The thermal models' longest pair reach beyond contact (m; 0 without heat)."""
-        return self.world.reach
-
-    @property
-    def nwalls(self):
-        return self.world.nwalls
-
-    @property
     def is_root(self):
         """True on the rank that writes files (always in a serial run)."""
         return self.writers.is_root
@@ -104,9 +95,6 @@ class Simulation:
     def last_contacts(self):
         """Contacts of the last force evaluation (this rank's in an MPI run)."""
         return self.stepper.last_contacts
-
-    def halo(self):
-        return self.world.halo()
 
     # ------------------------------------------------------------------ checks and reports
     def check(self):
@@ -166,9 +154,6 @@ class Simulation:
         heat or walls."""
         return self.writers.wall_heat_totals()
 
-    def particle_fields(self):
-        return self.writers.particle_fields()
-
     def final_arrays(self):
         """Per-particle results ordered by id (collective; None on ranks other than the root)."""
         return self.writers.final_arrays()
@@ -188,9 +173,6 @@ class Simulation:
         self.writers.settle_writes()
 
     # ------------------------------------------------------------------ checkpoints
-    def checkpoint_arrays(self):
-        return self.checkpointer.arrays()
-
     def write_checkpoint(self, path):
         """Write a checkpoint (collective; dem.checkpoint: format version, record, checksum)."""
         self.checkpointer.write(path)

@@ -48,8 +48,7 @@ class Writers:
 
     def each_rank_write(self, write):
         """A write done by every rank, each its own file (collective under MPI): a failure on any
-        rank raises the same OutputError, naming that rank, on every rank at once (one Allreduce
-        of a flag; the messages are gathered only when a write failed)."""
+        rank raises the same OutputError, naming that rank, on every rank at once."""
         if self.par is None:
             write()
             return
@@ -58,23 +57,28 @@ class Writers:
             write()
         except OutputError as exc:
             err = str(exc)
-        if self.par.allmax(1.0 if err is not None else 0.0):
-            msgs = self.par.comm.allgather(err)
-            rank = next(r for r, m in enumerate(msgs) if m)
-            raise OutputError(message=f"{msgs[rank]} [rank {rank} of {len(msgs)}]")
+        self._raise_any(err)
+
+    def _raise_any(self, msg):
+        """Collective: when any rank has a failure message, raise it on every rank, naming the rank
+        (one Allreduce of a flag; the messages are gathered only when a write failed)."""
+        if not self.par.allmax(1.0 if msg is not None else 0.0):
+            return
+        msgs = self.par.comm.allgather(msg)
+        rank = next(r for r, m in enumerate(msgs) if m)
+        raise OutputError(message=f"{msgs[rank]} [rank {rank} of {len(msgs)}]")
 
     def settle_writes(self):
         """Raise a held OutputError of any rank on every rank, naming that rank (collective under
-        MPI: one Allreduce of a flag; the messages are gathered only when a write failed)."""
+        MPI)."""
         if self.par is None:
             return
-        if not self.par.allmax(1.0 if self._failure is not None else 0.0):
-            return
-        msgs = self.par.comm.allgather(str(self._failure) if self._failure is not None else None)
-        rank = next(r for r, m in enumerate(msgs) if m)
-        self._failure = None
-        self.hold = False
-        raise OutputError(message=f"{msgs[rank]} [rank {rank} of {len(msgs)}]")
+        held, self._failure = self._failure, None
+        try:
+            self._raise_any(str(held) if held is not None else None)
+        except OutputError:
+            self.hold = False
+            raise
 
     def begin(self):
         """A run starts: no failure held yet, failures held from now on."""
