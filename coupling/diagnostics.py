@@ -29,10 +29,6 @@ class Diagnostics:
         self.hist = History(str(path), self.COLUMNS + (BALANCE_COLUMNS if ledger is not None else []), keep_until)
         self.mesh = mesh
         self.gas = gas
-        z = np.round(mesh.cell_centres[:, 2], 12)
-        self.zlev = np.unique(z)
-        self.bottom = np.flatnonzero(z == self.zlev[0])
-        self.top = np.flatnonzero(z == self.zlev[-1])
 
     @staticmethod
     def particle_records(sim):
@@ -51,9 +47,10 @@ class Diagnostics:
         return a
 
     @staticmethod
-    def row_of(diag, t, step, sim, iface, fluid, frame, wall):
-        """Particle sums of this rank, summed over the ranks; rank 0 (diag) writes the row. The
-        particles' energy and convective heat are particle_records' (the balance's own)."""
+    def sums_of(sim, iface, fluid, frame):
+        """The sums a coupling.csv row needs, over the ranks (collective): (particle sums,
+        particle_records, gas_sums). The particles' energy and convective heat are
+        particle_records' (the balance's own)."""
         st = sim.state
         n = st.n_owned
         loc = np.zeros(7)
@@ -64,33 +61,50 @@ class Diagnostics:
         loc[6] = iface.n_lost
         if sim.thermal is not None:
             loc[1] = float((1.0 / st.inv_heat_capacity[:n]).sum())
+        gas = Diagnostics.gas_sums(iface, fluid, frame)   # this rank's owned cells
         if sim.par is not None:
             vmax = sim.par.allmax(loc[5])
             loc = sim.par.allsum(loc)
             loc[5] = vmax
+            gas = sim.par.allsum(gas)
         precs = Diagnostics.particle_records(sim)
-        if diag is not None:
-            diag.row(t, step, sim, iface, fluid, frame, wall, loc, precs)
+        return loc, precs, gas
 
-    def row(self, t, step, sim, iface, fluid, frame, wall, sums, precs):
+    @staticmethod
+    def gas_sums(iface, fluid, frame):
+        """[E_gas, sum rho cp eps V, Q_to_gas, sum p bottom, n bottom, sum p top, n top] over the
+        cells this rank owns (coupling.cells; serial: every cell)."""
+        cs = iface.cells
+        own = cs.owned
+        g = iface.gas
+        V = iface.V[own]
+        T = fluid["T"][own]
+        mg = g.rho * g.cp * frame["eps"][own] * V
+        p = fluid["p"]
+        bot = getattr(cs, "_bottom", None)
+        if bot is None:
+            z = np.round(iface.mesh.cell_centres[:, 2], 12)
+            zl = np.unique(z)
+            cs._bottom = bot = np.flatnonzero((z == zl[0]) & cs.owned_mask)
+            cs._top = np.flatnonzero((z == zl[-1]) & cs.owned_mask)
+        top = cs._top
+        return np.array([float((mg * T).sum()), float(mg.sum()),
+                         float(((frame["Sexp"][own] - frame["Simp"][own] * T) * V).sum()),
+                         float(p[bot].sum()), float(bot.size), float(p[top].sum()), float(top.size)])
+
+    def row(self, t, step, sim, iface, fluid, frame, wall, sums, precs, gas):
         """One coupling.csv row: ``sums`` = [-, sum C, -, sum z, n, max |v|, n lost] over the
-        ranks, ``precs`` = particle_records."""
-        V = self.mesh.cell_volumes
-        g = self.gas
-        eps = frame["eps"]
-        T = fluid["T"]
+        ranks, ``precs`` = particle_records, ``gas`` = gas_sums over the ranks."""
         if sim.thermal is not None:
             Ep = float(precs[0])
             Tp = float(precs[0] / sums[1])
             Ec = float(precs[1])
         else:
             Tp = Ep = Ec = float("nan")
-        mg = g.rho * g.cp * eps * V
-        Eg = float((mg * T).sum())
-        Tg = float(Eg / mg.sum())
-        q = float(((frame["Sexp"] - frame["Simp"] * T) * V).sum())
-        p = fluid["p"]
-        dp = float(p[self.bottom].mean() - p[self.top].mean())
+        Eg = float(gas[0])
+        Tg = float(Eg / gas[1])
+        q = float(gas[2])
+        dp = float(gas[3] / gas[4] - gas[5] / gas[6])
         zb = float(sums[3] / sums[4]) if sums[4] else 0.0
         row = dict(time=t, step=step, T_particles=Tp, T_gas=Tg, E_particles=Ep, E_gas=Eg,
                    Q_to_gas=q, E_conv_particles=Ec, dp=dp, bed_height=zb, v_max=float(sums[5]),
@@ -167,29 +181,33 @@ class Outputs:
         self.diag = Diagnostics(out / "coupling.csv", iface.mesh, case.gas, keep, ledger)
 
     def __call__(self, fluid, frame, t, step):
-        sim, timer = self.sim, self.iface.timer
-        self._rows(fluid, frame, t, step)
+        """One output step (collective): the sums over the ranks first, then rank 0's files; a
+        write failure there (disk full) stops every rank with the same error, naming the rank."""
+        sim, iface = self.sim, self.iface
+        with iface.timer("output"):
+            row = sim.history_row()
+            if sim.scene.output["vtk"]:   # every rank its own piece (a failure raised on all)
+                n = sim.state.n_owned
+                force = np.ascontiguousarray(iface.last.get("force", np.zeros((n, 3))))
+                sim.write_vtk(self.vtk, fluid_force=force)
+            diag = Diagnostics.sums_of(sim, iface, fluid, frame)   # collective
         totals = sim.wall_heat_totals()   # collective over the DEM ranks
         from dem.thermal.wall_heat import WallAngleFile, cylinder_flux_by_angle
         by_angle = cylinder_flux_by_angle(sim) if WallAngleFile.wanted(sim.scene) else None   # collective
-        with timer("output"):
+        wall = time.perf_counter() - self.t_wall0
+
+        def write():
+            if self.hist is None:   # not rank 0
+                return
+            self.hist.add(row)
+            self.diag.row(t, step, sim, iface, fluid, frame, wall, *diag)
             if self.walls is not None:
                 self.walls.add(t, totals, gas=self.ledger.gas_wall_energy(len(sim.scene.walls)))
             if self.walls_by_angle is not None:
                 self.walls_by_angle.add(t, by_angle)
 
-    def _rows(self, fluid, frame, t, step):
-        """history.csv, VTK and coupling.csv rows (collective over the DEM ranks; rank 0 writes)."""
-        sim, iface = self.sim, self.iface
         with iface.timer("output"):
-            row = sim.history_row()
-            if self.hist is not None:
-                self.hist.add(row)
-            if sim.scene.output["vtk"]:
-                n = sim.state.n_owned
-                force = np.ascontiguousarray(iface.last.get("force", np.zeros((n, 3))))
-                sim.write_vtk(self.vtk, fluid_force=force)
-            Diagnostics.row_of(self.diag, t, step, sim, iface, fluid, frame, time.perf_counter() - self.t_wall0)
+            sim.writers.each_rank_write(write)
 
 
 # gas speed above which the (incompressible) gas solution is taken as diverged: the
@@ -208,8 +226,10 @@ class RunWatch:
     CLIPPED = 1e-3            # fraction of the particle volume hidden by the eps_min clipping
     GAS_SPEED = 100.0         # m/s, about Mach 0.3 in air
 
-    def __init__(self, mesh, cfg, log):
+    def __init__(self, mesh, cfg, log, cells=None):
+        from .cells import CellShare
         self.mesh, self.cfg, self.log = mesh, cfg, log
+        self.cells = cells if cells is not None else CellShare(mesh)
         self.clip = None
         self.eps_change = 0.0
         self.gas_speed = 0.0
@@ -247,10 +267,11 @@ class RunWatch:
                      f"{self.cfg.smoothing_time:g} s) or lower coupling_interval")
 
     def after_receive(self, fluid, t):
-        u = np.asarray(fluid["U"])
+        own = self.cells.owned
+        u = np.asarray(fluid["U"])[own]
         s2 = (u * u).sum(axis=1)
         c = int(np.argmax(s2)) if s2.size else -1
-        v = float(np.sqrt(s2[c])) if c >= 0 else 0.0
+        v, c = self.cells.argmax(float(np.sqrt(s2[c])) if c >= 0 else 0.0, int(own[c]) if c >= 0 else -1)
         self.gas_speed = max(self.gas_speed, v)
         if v > self.GAS_SPEED and "speed" not in self._said:
             self._said.add("speed")
@@ -264,11 +285,13 @@ class RunWatch:
         return dict(eps_clipping=self.clip, eps_change_max=self.eps_change, gas_speed_max=self.gas_speed)
 
 
-def check_gas_fields(fluid, step, *, time_value=None, mesh=None, cfg=None, eps_change=None):
+def check_gas_fields(fluid, step, *, time_value=None, mesh=None, cfg=None, eps_change=None, cells=None):
     """Guard on every gas frame received from the solver (before the DEM sees it): U, T,
     grad p and p finite, T > 0, |U| <= GAS_SPEED_LIMIT. Raises :class:`GasFieldError`
     naming the field, the number of bad cells, the first one (index and centre), the time
-    and what to change."""
+    and what to change. ``cells``: the global cell of each row (a many-to-many rank checks
+    the cells it owns); None: row = cell."""
+    ids = cells
     bad = None
     for name, test, what in (
             ("U", lambda a: ~np.isfinite(a).all(axis=1), "non-finite"),
@@ -288,8 +311,8 @@ def check_gas_fields(fluid, step, *, time_value=None, mesh=None, cfg=None, eps_c
     if bad is None:
         return fluid
     name, what, cells = bad
-    c = int(cells[0])
-    val = np.asarray(fluid[name])[c]
+    val = np.asarray(fluid[name])[int(cells[0])]
+    c = int(cells[0]) if ids is None else int(ids[int(cells[0])])
     where = f"cell {c}"
     if mesh is not None:
         where += f" at {np.array2string(mesh.cell_centres[c], precision=6)}"

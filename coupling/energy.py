@@ -422,28 +422,39 @@ class FluxSplit:
                 est[:, p] = np.bincount(cells[f], weights=q[p], minlength=self.n_cells)
         return est
 
-    def columns(self, sim, dt):
+    def columns(self, sim, dt, share=None):
         """[n_cells, 3 n_walls] W of the coming interval: (contact, gas gap, radiation) per tied
-        wall (collective over the DEM ranks)."""
+        wall (collective over the DEM ranks; ``share``: coupling.cells.CellShare, the cells
+        each rank owns: valid there, each total summed over the ranks' owned cells)."""
+        from .cells import CellShare
+        cs = share if share is not None else CellShare(_NoCells(self.n_cells))
         m = len(self.walls)
         out = np.zeros((self.n_cells, NPATH * m))
         if not m:
             return out
         rec = self._records(sim)
         est = np.concatenate([self._estimate(sim, k) for k in range(m)], axis=1)
-        if sim.par is not None:
-            est = np.asarray(sim.par.allsum(est.ravel()), float).reshape(self.n_cells, NPATH * m)
+        (est,) = cs.assemble(est)
+        own = cs.owned
         for k in range(m):
             cells, area, _ = self.faces[k]
             by_area = np.bincount(cells, weights=area, minlength=self.n_cells) / area.sum()
             for p in range(NPATH):
                 e = est[:, NPATH * k + p]
                 owed = rec[k, p] - self.sent[k, p]        # taken beyond what was sent, J
-                tot = e.sum()
-                shape = e / tot if tot != 0.0 and np.all(e * tot >= 0.0) else by_area
+                tot = float(cs.allsum(e[own].sum()))
+                same_sign = bool(cs.allmin(int(np.all(e[own] * tot >= 0.0))))
+                shape = e / tot if tot != 0.0 and same_sign else by_area
                 out[:, NPATH * k + p] = e + shape * (owed / dt)
-                self.sent[k, p] += out[:, NPATH * k + p].sum() * dt
+                self.sent[k, p] += float(cs.allsum(out[own, NPATH * k + p].sum())) * dt
         return out
+
+
+class _NoCells:
+    """A mesh of n cells for a serial CellShare (every cell owned by the one rank)."""
+
+    def __init__(self, n):
+        self.n_cells = n
 
 
 def _contact_points(w, x):

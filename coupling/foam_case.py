@@ -136,8 +136,9 @@ def block_mesh(case) -> None:
 
 
 def decompose(case, n: int | None = None, *, method: str | None = None,
-              split: tuple[int, int, int] | None = None) -> None:
-    """Run decomposePar (-force). Optionally set numberOfSubdomains / method / split n."""
+              split: tuple[int, int, int] | None = None, time: str | None = None) -> None:
+    """Run decomposePar (-force). Optionally set numberOfSubdomains / method / split n;
+    ``time``: decompose the fields of that time folder only (a restart on more processes)."""
     case = Path(case)
     d = case / "system" / "decomposeParDict"
     if n is not None or method is not None or split is not None:
@@ -156,7 +157,8 @@ def decompose(case, n: int | None = None, *, method: str | None = None,
             if m and int(m.group(1)) * int(m.group(2)) * int(m.group(3)) != n:
                 text = re.sub(r"(\bn\s+)\([^)]*\)", rf"\g<1>(1 1 {int(n)})", text)
         d.write_text(text)
-    run_foam(["decomposePar", "-force"], case, log="log.decomposePar")
+    run_foam(["decomposePar", "-force"] + (["-time", str(time)] if time is not None else []), case,
+             log="log.decomposePar")
 
 
 # --------------------------------------------------------------------------- parsing
@@ -279,6 +281,7 @@ class LinkOptions:
     path: str | None = None
     host: str = "127.0.0.1"
     role: str = "client"
+    m2m_directory: str = "coupling/m2m"
 
 
 def write_coupling_dict(case, transport: str = "file", *, timeout: float = 60, port: int | None = None,
@@ -295,8 +298,8 @@ def write_coupling_dict(case, transport: str = "file", *, timeout: float = 60, p
     path, host, role = o.path, o.host, o.role
     if send_velocity not in ("cell", "flux"):
         raise ValueError("send_velocity must be cell or flux")
-    if transport not in ("file", "socket", "none"):
-        raise ValueError("transport must be file, socket or none")
+    if transport not in ("file", "socket", "m2m", "none"):
+        raise ValueError("transport must be file, socket, m2m or none")
     if transport == "socket" and (port is None) == (path is None):
         raise ValueError("socket transport needs exactly one of port or path")
     sock = f'        host        "{host}";\n        role        {role};\n'
@@ -319,6 +322,7 @@ def write_coupling_dict(case, transport: str = "file", *, timeout: float = 60, p
         f"    pollInterval {poll_interval};\n"
         f"    keepFiles   {'true' if keep_files else 'false'};\n"
         "}\n\nsocket\n{\n" + sock.replace("        ", "    ") + "}\n"
+        + (f'\nm2m\n{{\n    directory   "{o.m2m_directory}";\n}}\n' if transport == "m2m" else "")
     )
     out = Path(case) / "system" / "couplingDict"
     out.write_text(_HEADER.format(cls="dictionary", loc="system", obj="couplingDict") + body)

@@ -136,6 +136,13 @@ class CouplingInterface:
         if self.model_type not in ("A", "B"):
             raise ValueError(f"modelType must be A or B, got {self.model_type!r}")
         self.V = self.mesh.cell_volumes
+        # the gas cells this DEM rank owns and sees (coupling.cells; serial: all of them)
+        from .cells import CellShare
+        from .voidfraction import KERNEL_WIDTH
+        reach = 2.0 + (KERNEL_WIDTH if self.void_fraction == "smoothed" else 0.0)
+        self.cells = CellShare(self.mesh, self.sim.par, reach_cells=reach)
+        if self.sim.par is not None:
+            self.cells.plan(self.sim.world.halo())
         self.hint = None
         self.eps_sent = None
         self.ksl_sent = None
@@ -151,13 +158,18 @@ class CouplingInterface:
         self.eps_change = (0.0, -1)   # largest |eps_n - eps_(n-1)| sent to the gas, and its cell
 
     def _note_clipping(self, eps_raw) -> None:
-        low = eps_raw < self.eps_min
-        c = int(np.argmin(eps_raw)) if eps_raw.size else -1
-        vol = float(((self.eps_min - eps_raw[low]) * self.V[low]).sum()) if low.any() else 0.0
-        vp = float(self._allsum(np.array([(4.0 / 3.0) * math.pi * float(
-            (self.sim.state.radius[:self.sim.state.n_owned] ** 3).sum())]))[0])
-        self.clip = dict(cells=int(low.sum()), volume=vol, fraction=vol / vp if vp > 0 else 0.0,
-                         eps_raw_min=float(eps_raw[c]) if c >= 0 else 1.0, cell=c)
+        """The eps_min clipping of the cells this rank owns, summed over the ranks."""
+        cs = self.cells
+        own = cs.owned
+        e = eps_raw[own]
+        low = e < self.eps_min
+        c = int(np.argmin(e)) if e.size else -1
+        vol = float(((self.eps_min - e[low]) * self.V[own][low]).sum()) if low.any() else 0.0
+        vp = (4.0 / 3.0) * math.pi * float((self.sim.state.radius[:self.sim.state.n_owned] ** 3).sum())
+        n_low, vol, vp = cs.allsum(np.array([float(low.sum()), vol, vp]))
+        e_min, c = cs.argmin(float(e[c]) if c >= 0 else 1.0, int(own[c]) if c >= 0 else -1)
+        self.clip = dict(cells=int(n_low), volume=float(vol), fraction=float(vol / vp) if vp > 0 else 0.0,
+                         eps_raw_min=float(e_min), cell=int(c))
 
     def map_particles(self) -> None:
         """Locate the particles and build the stencil / void fraction now (e.g. right after
@@ -167,16 +179,6 @@ class CouplingInterface:
         self._mapped = (self.sim.step_count, pw, eps)
 
     # ------------------------------------------------------------------ particle -> mesh
-    def _allsum(self, a):
-        """Sum of a per-cell array over the DEM ranks (each rank holds its own particles)."""
-        par = self.sim.par
-        if par is None:
-            return a
-        from mpi4py import MPI
-        out = np.empty_like(a)
-        par.comm.Allreduce(np.ascontiguousarray(a), out, op=MPI.SUM)
-        return out
-
     def _stencil(self):
         st = self.sim.state
         n = st.n_owned
@@ -187,8 +189,12 @@ class CouplingInterface:
             self._exchanges_seen = par.exchanges
         pos, rad = st.position[:n], st.radius[:n]
         prev = self._map_cache
-        if (prev is not None and prev[0].shape == pos.shape and np.array_equal(prev[0], pos)
-                and np.array_equal(prev[1], rad)):
+        same = (prev is not None and prev[0].shape == pos.shape and np.array_equal(prev[0], pos)
+                and np.array_equal(prev[1], rad))
+        if par is not None:
+            same = bool(par.allmin(int(same)))   # the sums below are collective: every rank agrees
+            self.cells.refresh(self.sim.world.halo())   # the DEM boxes were re-cut: who sees what
+        if same:
             # particles have not moved (held bed, mechanics = false): same stencil, exactly
             return prev[2], prev[3]
         with self.timer("locate"):
@@ -197,7 +203,9 @@ class CouplingInterface:
             pw = vf.compute_weights(self.mesh, pos, rad, self.void_fraction, located=cells,
                                     n_satellites=self.n_satellites,
                                     out=prev[2] if prev is not None else None)
-            eps = 1.0 - self._allsum(vf.solid_volume(pw, rad)) / self.V
+            self.cells.check_stencil(pw.cells)
+            (solid,) = self.cells.assemble(vf.solid_volume(pw, rad))
+            eps = 1.0 - solid / self.V
             self._note_clipping(eps)
             eps = np.maximum(eps, self.eps_min)
         self.hint = pw.centre_cell
@@ -267,9 +275,11 @@ class CouplingInterface:
         self._mapped = None
         eps = self._relax(self.eps_sent, eps_raw, dt_cfd)
         if self.eps_sent is not None and eps.size:
-            de = np.abs(eps - self.eps_sent)
-            c = int(np.argmax(de))
-            self.eps_change = (float(de[c]), c)
+            own = self.cells.owned
+            de = np.abs(eps[own] - self.eps_sent[own])
+            c = int(np.argmax(de)) if de.size else -1
+            self.eps_change = self.cells.argmax(float(de[c]) if c >= 0 else 0.0, int(own[c]) if c >= 0 else -1)
+        self.cells.update(eps)   # the owners' relaxed eps in the halo cells (after a re-cut: new halo cells)
         self.eps_sent = eps
 
         with self.timer("interpolation"):
@@ -329,8 +339,7 @@ class CouplingInterface:
                 hA = np.zeros(n)
                 Tp = np.zeros(n)
             sums = _scatter_sums(pw.cells, pw.weights, beta, vel, hA, Tp, self.V.shape[0])
-            if self.sim.par is not None:
-                sums = tuple(self._allsum(a) for a in sums)
+            sums = self.cells.assemble(*sums)
             ksl_raw, us, simp, sexp = _finish_terms(*sums, self.V)
             ksl = self._relax(self.ksl_sent, ksl_raw, dt_cfd)
             self.ksl_sent = ksl

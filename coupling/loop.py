@@ -75,7 +75,7 @@ class CoupledLoop:
             last = s == self.n_steps or bool(self.stop_sig)   # a stop request ends this coupling step
             frame = iface.prepare(fluid, dt)
             if self.split:
-                frame["wall_columns"] = self.split.columns(iface.sim, dt)   # collective
+                frame["wall_columns"] = self.split.columns(iface.sim, dt, iface.cells)   # collective
             self.watch.after_prepare(iface, self.t)
             if s == 1 and not self.restart:
                 self.output(fluid, frame, self.t, step - 1)

@@ -32,6 +32,43 @@ def _time_dirs(case: Path) -> list[tuple[float, Path]]:
     return sorted(out)
 
 
+def gas_times(out: Path) -> list[tuple[float, Path]]:
+    """The gas time folders of a run: processor0's when the gas ran decomposed (the solver
+    wrote there), else the case's."""
+    p0 = out / "processor0"
+    if p0.is_dir():
+        t = [(tv, p) for tv, p in _time_dirs(p0) if tv > 0]
+        if t:
+            return t
+    return [(tv, p) for tv, p in _time_dirs(out) if tv > 0]
+
+
+def relayout_gas(out: Path, tdir: Path, n_gas: int) -> str | None:
+    """Continue the gas of restart time ``tdir`` (a folder of gas_times) on ``n_gas`` processes
+    when it was written on another number: reconstructPar, then decomposePar of that time
+    (OpenFOAM's own tools); the processor folders of the earlier layout (ours) are replaced.
+    Returns what was done (for the log) or None."""
+    from dem import outdir
+    from . import foam_case as fc
+    procs = [p for p in out.glob("processor*") if p.name[9:].isdigit()]
+    decomposed = tdir.parent.resolve() != out.resolve()
+    written = len(procs) if decomposed else 1
+    if written == n_gas:
+        return None
+    name = tdir.name
+    if decomposed:
+        outdir.claim(out / name)
+        outdir.claim(out / "log.reconstructPar")
+        fc.run_foam(["reconstructPar", "-time", name], out, log="log.reconstructPar")
+    for p in procs:   # written by this tool (claimed when decomposed)
+        shutil.rmtree(p)
+    if n_gas > 1:
+        for entry in ["log.decomposePar"] + [f"processor{i}" for i in range(n_gas)]:
+            outdir.claim(out / entry)
+        fc.decompose(out, n_gas, time=name)
+    return f"gas fields of t = {name} s moved from {written} to {n_gas} process(es) (reconstructPar/decomposePar)"
+
+
 def _time_index(tdir: Path) -> int | None:
     f = tdir / "uniform" / "time"
     if not f.exists():
@@ -49,13 +86,21 @@ def _restart_point_files(out: Path, step: int) -> tuple[Path, Path]:
 def _coupling_state(iface, step, t, fluid, ledger=None, split=None):
     """Arrays of checkpoints/coupling_<step>.npz: the exchange-field state of the
     interface (eps, Ksl as last sent: the time-smoothing relaxes from them) and the gas
-    frame of this step (U, T, grad p, p), which the next DEM interval uses."""
+    frame of this step (U, T, grad p, p), which the next DEM interval uses. Collective: each
+    rank holds its owned cells' values (coupling.cells), rank 0 gets the whole arrays (None
+    elsewhere)."""
+    cells = iface.cells
+    nc = cells.n_cells
+    per_cell = {}
+    for key, a in iface.restart_state().items():
+        per_cell[f"iface_{key}"] = cells.gather_owned(a) if a.shape[0] == nc and nc else a
+    for key in FLUID_FIELDS:
+        per_cell[f"fluid_{key}"] = cells.gather_owned(np.ascontiguousarray(fluid[key], dtype=np.float64))
+    if not iface.cells.rank == 0:
+        return None
     d = dict(format=np.str_(COUPLING_STATE_FORMAT), version=np.int64(COUPLING_STATE_VERSION),
              step=np.int64(step), time=np.float64(t))
-    for key, a in iface.restart_state().items():
-        d[f"iface_{key}"] = a
-    for key in FLUID_FIELDS:
-        d[f"fluid_{key}"] = np.ascontiguousarray(fluid[key], dtype=np.float64)
+    d.update(per_cell)
     d["fluid_scalars"] = np.ascontiguousarray(fluid.get("scalars", ()), dtype=np.float64)
     if ledger is not None:
         d.update(ledger.state())
@@ -69,9 +114,9 @@ def _write_restart_point(R, sim, iface, out, step, t, fluid, ledger=None, split=
     checkpoint, each written atomically; ``--restart`` only takes a step whose DEM
     checkpoint exists, so a kill between the two writes leaves the previous point."""
     ck, cs = _restart_point_files(out, step)
-    if R.root:
-        from dem.output import save_npz
-        save_npz(str(cs), durable=True, **_coupling_state(iface, step, t, fluid, ledger, split))
+    from dem.output import save_npz
+    state = _coupling_state(iface, step, t, fluid, ledger, split)   # collective
+    R.on_root(lambda: save_npz(str(cs), durable=True, **state))     # a failure there stops every rank
     sim.write_checkpoint(str(ck))
     return ck
 
@@ -141,9 +186,9 @@ def _restart(out: Path, sim, dt, log, R, n_cells):
     Returns (step index, time, coupling state)."""
     cks = {int(m.group(1)): p for p in (out / "checkpoints").glob("checkpoint_*.npz")
            if (m := re.match(r"checkpoint_(\d+)\.npz", p.name))}
-    gas_times = [(tv, p) for tv, p in _time_dirs(out) if tv > 0]
+    gas_times_ = gas_times(out)
     best = None
-    for tv, p in gas_times:
+    for tv, p in gas_times_:
         idx = _time_index(p)
         if idx is None:
             idx = int(round(tv / dt))
@@ -152,12 +197,12 @@ def _restart(out: Path, sim, dt, log, R, n_cells):
     if best is None:
         raise CouplingRunError(f"{out}: no OpenFOAM time directory with a matching DEM checkpoint "
                                f"(checkpoints/checkpoint_<step>.npz); gas times: "
-                               f"{[p.name for _, p in gas_times]}, DEM checkpoints: {sorted(cks)}")
+                               f"{[p.name for _, p in gas_times_]}, DEM checkpoints: {sorted(cks)}")
     idx, tv, p = best
     cstate = _load_coupling_state(_restart_point_files(out, idx)[1], idx, n_cells)
     R.barrier()  # every rank has chosen the same restart point before rank 0 prunes
     if R.root:
-        for tv2, p2 in gas_times:
+        for tv2, p2 in _time_dirs(out):
             if tv2 > tv + 1e-12:
                 shutil.rmtree(p2)
         for proc in out.glob("processor*"):
@@ -168,6 +213,7 @@ def _restart(out: Path, sim, dt, log, R, n_cells):
     if abs(sim.time - tv) > 1e-9 * max(1.0, tv):
         raise CouplingRunError(f"{cks[idx]}: DEM time {sim.time} does not match the gas time {tv}")
     log(f"coupling: restarting from t = {tv:g} s (step {idx}, {cks[idx].name}, {cstate['path'].name})")
+    cstate["gas_dir"] = p
     return idx, tv, cstate
 
 

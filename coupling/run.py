@@ -37,8 +37,10 @@ equals the uninterrupted one to round-off (bit-identical in tests). SIGINT/SIGTE
 this process, or of the gas solver) end the current coupling step, the solver writes its
 fields there, a restart point is written, one line gives the command to continue, and the
 command exits 130/143 (the ``coupling`` command installs the handlers, dem.interrupt;
-``run_case`` called from Python does not). Under ``mpirun -np 1`` the command works as in
-serial; more DEM ranks are not supported yet.
+``run_case`` called from Python does not). Under ``mpirun -np M`` the DEM runs on M ranks;
+with several DEM ranks or ``gas_processes > 1`` the socket transport is many-to-many
+(coupling.m2m: each DEM rank exchanges the cells it owns with the gas processors holding
+them; coupling.cells).
 """
 from __future__ import annotations
 
@@ -62,7 +64,7 @@ from .launch import scrub_mpi_env, start_solver
 from .loop import CoupledLoop, LoopPlan
 from .prepare import output_rule, prepare_gas, prepare_output
 from .restart import RestartPoints, continue_command, resume, stopped_line
-from .transport import Ranks, open_link
+from .transport import Ranks, open_link, open_m2m, uses_m2m
 
 EXIT_CHECK = 2
 EXIT_COUPLING = 3
@@ -94,6 +96,10 @@ def run_case(case_dir, out=None, *, transport=None, end_time=None, restart=False
         cfg.transport = transport
     sim = case.sim
     R = Ranks(sim)
+    if R.size > 1 and cfg.transport != "socket":
+        raise CouplingRunError(f"{case.config_file}: transport = \"{cfg.transport}\" runs with one DEM rank; with "
+                               f"{R.size} DEM ranks use transport = \"socket\" (each rank exchanges its own cells "
+                               "with the gas processors: docs/coupling_protocol.md)")
     R.barrier()   # every rank has checked --out before rank 0 claims it
     R.on_root(prepare_output, case, out, restart=restart, overwrite=overwrite)
     R.on_root(remove_stale_temporaries, str(out))  # left by a kill -9 of an earlier run (ours only)
@@ -112,14 +118,19 @@ def run_case(case_dir, out=None, *, transport=None, end_time=None, restart=False
     plan = _plan(case, restart, end, i0, t_start, cstate)
     if plan.n_steps < 1:
         return _nothing_to_run(R, case_dir, case, out, end_time, end, restart, plan, log)
-    ex, exe = R.on_root(prepare_gas, out, cfg, mesh, split, eps0, end, restart=restart, solver=solver) or (None, None)
+    m2m = uses_m2m(cfg, R.size)
+    eps_all = iface.cells.gather_owned(eps0)   # rank 0 writes the gas's initial void fraction (set-up)
+    ex, exe = R.on_root(prepare_gas, out, cfg, mesh, split, eps_all, end, restart=restart, solver=solver,
+                        m2m=m2m, gas_dir=cstate["gas_dir"] if cstate else None, log=log) or (None, None)
+    if m2m:
+        ex = open_m2m(R, out, cfg, iface.cells)   # every rank listens and writes its plan lines
     sim.warmup()
     output = Outputs(R.root, iface, case, ledger, out, t_start if restart else None, t_wall0)
     restart_point = RestartPoints(R, sim, iface, out, ledger, split)
     cont = continue_command(case_dir, out, end_time, transport, R.size)
     proc = start_solver(out, cfg, exe, external_solver, log) if R.root else None
-    link = open_link(R, ex, proc, mesh, cfg, out, iface.timer, external=external_solver)
-    loop = CoupledLoop(link, iface, RunWatch(mesh, cfg, R.log(log)), output, restart_point, plan,
+    link = open_link(R, ex, proc, mesh, cfg, out, iface.timer, external=external_solver, cells=iface.cells)
+    loop = CoupledLoop(link, iface, RunWatch(mesh, cfg, R.log(log), cells=iface.cells), output, restart_point, plan,
                        log=R.log(log), ledger=ledger, split=split,
                        particle_energy=lambda: Diagnostics.particle_records(sim))
     _drive(loop, link, sim, out, t_wall0)
@@ -181,9 +192,9 @@ def _drive(loop, link, sim, out, t_wall0):
         link.explain(e, sim)
         raise
     finally:
-        link.close(status, lambda failing: write_timings(
-            out / "timings.json", timings(timer, t_wall0, sim, n_steps=loop.step - loop.i0, k=loop.k),
-            failing=failing))
+        link.close(status, lambda failing, extra: write_timings(
+            out / "timings.json", dict(timings(timer, t_wall0, sim, n_steps=loop.step - loop.i0, k=loop.k),
+                                       **(extra or {})), failing=failing))
 
 
 def _finish(R, loop, case, out, cont, t_wall0, quiet, log):

@@ -1,10 +1,18 @@
 """The transport of a coupled run: how the DEM ranks get the gas solver's frames and give it
-theirs. Today's transport is rank 0's: rank 0 holds the one exchange with the solver
-(coupling.exchange: file or socket, one frame format), checks every frame it receives and
-broadcasts it to the other DEM ranks (:func:`_share`), which only listen. This module is the
-one place a many-to-many transport (every DEM rank exchanging its part with the gas ranks)
-would replace; the loop (coupling.loop), the restart points (coupling.restart) and the
-diagnostics (coupling.diagnostics) only use the interface below.
+theirs. Two links, one interface:
+
+* one DEM rank and one gas process (any transport), or one DEM rank with the file transport:
+  :class:`_SolverLink`, rank 0's one exchange with the solver (coupling.exchange: file or
+  socket, one frame of every cell);
+* several DEM ranks or several gas processes with the socket transport: the many-to-many link
+  (:class:`_M2MLink`, coupling.m2m): every DEM rank exchanges the cells it owns
+  (coupling.cells) with the gas processors holding them, and the DEM ranks share only the
+  cells they both see. Per step the ranks agree, in one reduction of a few numbers, on a
+  stop request, a failure anywhere and the solver's flags; nothing of the size of the mesh
+  is broadcast or reduced.
+
+The loop (coupling.loop), the restart points (coupling.restart) and the diagnostics
+(coupling.diagnostics) only use the interface below.
 
 The interface
 -------------
@@ -16,7 +24,7 @@ to the solver and writes the files), ``size``, ``par``, ``comm``, ``barrier()``,
 
 A link (one per DEM rank, from :func:`open_link`) provides:
 
-* ``own_stop()``: the signal number of a stop request of this process (0 if none);
+* ``own_stop()``: the signal number of a stop request (0 if none; the same on every rank);
 * ``first(i0, t_start, cstate)``: the gas fields the first DEM interval uses (after a
   restart: the frame of the restart point, coupling.restart.restored_frame);
 * ``send(step, frame, time_value, final)``: the exchange fields of the particles
@@ -28,14 +36,20 @@ A link (one per DEM rank, from :func:`open_link`) provides:
 * ``fail(e)``: the run failed on this rank outside a receive (tell the others);
 * ``explain(e, sim)``: add the checkpoint and the solver's log tail to a CouplingError;
 * ``close(status, write_timings)``: stop the solver if still running, close the exchange,
-  write timings.json (``write_timings(failing)``).
+  write timings.json (``write_timings(failing, extra)``; ``extra``: the per-rank message
+  and memory figures of a many-to-many run).
 
-:func:`open_exchange` makes the exchange (and the solver's couplingDict) when the case is
-prepared; :func:`open_link` makes the link once the solver is started (coupling.launch).
+:func:`open_exchange` makes rank 0's exchange (and the solver's couplingDict) when the case
+is prepared; :func:`open_m2m` makes every rank's many-to-many exchange and its plan before
+the solver starts; :func:`open_link` makes the link once the solver is started
+(coupling.launch).
 """
 from __future__ import annotations
 
+import shutil
 from pathlib import Path
+
+import numpy as np
 
 from dem.interrupt import stop_requested
 
@@ -60,7 +74,6 @@ class Ranks:
         self.comm = sim.par.comm if sim.par is not None else None
         self.root = self.comm is None or self.comm.Get_rank() == 0
         self.size = 1 if self.comm is None else self.comm.Get_size()
-        self.failure_shared = False
 
     def log(self, fn):
         """``fn`` on rank 0 (which reports for every rank), a silent logger elsewhere."""
@@ -102,11 +115,25 @@ class Ranks:
         return res
 
 
-def open_exchange(out: Path, cfg, n_cells: int, tied):
+def uses_m2m(cfg, n_dem_ranks: int) -> bool:
+    """The many-to-many link: the socket transport with several DEM ranks or gas processes."""
+    return cfg.transport == "socket" and (n_dem_ranks > 1 or cfg.gas_processes > 1)
+
+
+def open_exchange(out: Path, cfg, n_cells: int, tied, *, m2m: bool = False):
     """Rank 0's exchange with the solver (cfg.transport: socket or file) and the solver's
-    system/couplingDict saying how to reach it (``tied``: the tied walls' entries)."""
+    system/couplingDict saying how to reach it (``tied``: the tied walls' entries). With
+    ``m2m`` only the couplingDict and an empty plan folder (the ranks' exchanges: open_m2m)."""
     from dem import outdir
     outdir.claim(out / "coupling")   # the exchange folder (file transport; the solver's pid file)
+    if m2m:
+        folder = out / "coupling" / "m2m"
+        if folder.exists():   # the plan of an earlier run (inside our claimed coupling/ folder)
+            shutil.rmtree(folder)
+        folder.mkdir(parents=True)
+        fc.write_coupling_dict(out, "m2m", timeout=cfg.timeout, send_velocity=cfg.send_velocity, tied=tied,
+                               options=fc.LinkOptions(m2m_directory=str(folder)))
+        return None
     if cfg.transport == "socket":
         ex = SocketExchange(port=0, timeout=cfg.timeout, n_cells=n_cells)
         fc.write_coupling_dict(out, "socket", port=ex.port, timeout=cfg.timeout,
@@ -117,18 +144,39 @@ def open_exchange(out: Path, cfg, n_cells: int, tied):
     return ex
 
 
-def open_link(R, ex, proc, mesh, cfg, out, timer, *, external=False):
+def open_m2m(R, out: Path, cfg, cells):
+    """Every rank's many-to-many exchange (listening) and its plan lines; rank 0 writes
+    ``ready`` once all are written (collective; before the solver starts)."""
+    from .m2m import M2MExchange, gas_pairs
+    folder = out / "coupling" / "m2m"
+    ex = R.everywhere(lambda: M2MExchange(0 if R.comm is None else R.comm.Get_rank(),
+                                          gas_pairs(out, cfg.gas_processes, cells.owned_mask), folder,
+                                          timeout=cfg.timeout))
+    R.everywhere(ex.write_plan)
+    R.barrier()
+    if R.root:
+        (folder / "ready").write_text(f"{R.size}\n")
+    return ex
+
+
+def open_link(R, ex, proc, mesh, cfg, out, timer, *, external=False, cells=None):
     """This rank's link: rank 0 talks to the solver process ``proc`` through ``ex`` (watching
-    the process unless the user started it: ``external``), the others listen to rank 0."""
-    if not R.root:
-        return _FollowerLink(R)
+    the process unless the user started it: ``external``); with a many-to-many exchange
+    (coupling.m2m.M2MExchange) every rank talks to its gas processors."""
+    from .m2m import M2MExchange
+    if isinstance(ex, M2MExchange):
+        ex.peer_process = proc if (R.root and not external) else None
+        return _M2MLink(R, ex, proc, mesh, cfg, out, timer, cells)
+    if R.size > 1:
+        raise CouplingError(f"transport {cfg.transport!r} with {R.size} DEM ranks: use transport = \"socket\" "
+                            "(the many-to-many exchange)", peer="DEM", step=0)
     ex.peer_process = proc if not external else None
     return _SolverLink(R, ex, proc, mesh, cfg, out, timer)
 
 
 class _SolverLink:
-    """Rank 0's side of the gas link: frames to and from the solver process; every received
-    frame is checked (check_gas_fields) and passed on to the other DEM ranks (_share)."""
+    """The one DEM rank's gas link: frames of every cell to and from the solver process; every
+    received frame is checked (check_gas_fields)."""
 
     def __init__(self, R, ex, proc, mesh, cfg, out, timer):
         self.R, self.ex, self.proc, self.mesh, self.cfg, self.out, self.timer = R, ex, proc, mesh, cfg, out, timer
@@ -139,7 +187,7 @@ class _SolverLink:
 
     def first(self, i0, t_start, cstate):
         with self.timer("gas_wait"):
-            fluid = _share(self.R, lambda: _first_frame(self.ex, i0, t_start, self.mesh, self.cfg, cstate), self.ex)
+            fluid = _first_frame(self.ex, i0, t_start, self.mesh, self.cfg, cstate)
         grow = getattr(self.ex, "grow_buffers", None)  # the socket transport only
         if grow is not None:
             grow(self.mesh.n_cells)
@@ -153,9 +201,8 @@ class _SolverLink:
         """(gas fields of t, the solver's FINAL flag, the signal that stopped it or 0)."""
         ex = self.ex
         with self.timer("gas_wait"):
-            fluid = _share(self.R, lambda: check_gas_fields(ex.receive(step), step, time_value=t, mesh=self.mesh,
-                                                            cfg=self.cfg, eps_change=eps_change), ex,
-                           stop_sig=lambda: stop_sig or _peer_signal(ex))
+            fluid = check_gas_fields(ex.receive(step), step, time_value=t, mesh=self.mesh, cfg=self.cfg,
+                                     eps_change=eps_change)
         from dem import outdir
         outdir.adopt_solver_entries(self.out)   # the time folders the solver wrote (dem.outdir)
         return fluid, bool(ex.peer_final), _peer_signal(ex)
@@ -172,11 +219,7 @@ class _SolverLink:
                                 f"(log: {self.out / 'log.thermoDemFoam'})", peer="CFD solver", step=step)
 
     def fail(self, e):
-        """Rank 0 failed outside a receive: the other ranks wait in one; tell them."""
-        from dem.simulation import SimulationError
-        R = self.R
-        if R.comm is not None and not isinstance(e, SimulationError) and not R.failure_shared:
-            _share_failure(R, e)
+        pass
 
     def explain(self, e, sim):
         if isinstance(e, CouplingError):
@@ -192,50 +235,155 @@ class _SolverLink:
             self.proc.wait()
         self.ex.close()
         outdir.adopt_solver_entries(self.out)
-        write_timings(status != "finished")
+        write_timings(status != "finished", None)
 
 
-class _FollowerLink:
-    """A DEM rank other than 0: what rank 0 received from the solver (or its failure), the
-    FINAL flag and the signal that ends the run, by broadcast; nothing to send or close."""
+class _M2MLink:
+    """A DEM rank's gas link in a many-to-many run: frames of the cells it owns to and from
+    the gas processors holding them (coupling.m2m), the gas fields of the cells it sees but
+    does not own from their owners (coupling.cells.update), and one small reduction per step
+    so that every rank takes the same decision: a stop request, a failure on any rank (its
+    message, naming the rank, is raised on every rank), the solver's flags and its energy
+    ledger (the same in every frame; a rank owning no cell gets it there)."""
 
-    def __init__(self, R):
-        self.R = R
+    FIELDS = ("U", "T", "gradp", "p")
 
-    @staticmethod
-    def own_stop():
-        return 0
+    def __init__(self, R, ex, proc, mesh, cfg, out, timer, cells):
+        self.R, self.ex, self.proc, self.mesh, self.cfg, self.out, self.timer = R, ex, proc, mesh, cfg, out, timer
+        self.cells = cells
+        self.pending = None     # a failure of this rank in a send, raised with the next agreement
+        self.flags = 0
+        self.frame_difference = None
 
-    def _receive(self, step):
-        fluid, final, err, signum = self.R.comm.bcast(None, root=0)
-        if err is not None:
-            raise CouplingError(f"rank 0: {err}", peer="CFD solver", step=step)
-        return fluid, final, signum
+    def own_stop(self):
+        """A stop request of any rank (Open MPI passes a Ctrl-C to every rank as SIGTERM)."""
+        return int(self.R.comm.allreduce(int(stop_requested()), op=_mpi_max())) if self.R.comm is not None \
+            else stop_requested()
 
-    def first(self, i0, t_start, cstate):
-        fluid, _, _ = self._receive(i0)
-        if cstate is not None:
-            fluid = dict(fluid, **cstate["fluid"])
+    def _agree(self, err, scalars):
+        """Every rank learns whether any failed (then raises the first failure, naming its rank),
+        the solver's flags and its ledger scalars (one reduction of a few numbers)."""
+        R = self.R
+        n_sc = -1 if scalars is None else int(scalars.size)
+        head = np.array([1.0 if err is not None else 0.0, float(self.flags), float(n_sc)])
+        if R.comm is not None:
+            head = R.comm.allreduce(head, op=_mpi_max())
+        if head[0] > 0:
+            errs = [err] if R.comm is None else R.comm.allgather(None if err is None else str(err))
+            k, msg = next((k, e) for k, e in enumerate(errs) if e is not None)
+            if R.size > 1:
+                msg = f"[DEM rank {k} of {R.size}] {msg}"
+            if err is not None:   # this rank's own failure (GasFieldError, CouplingError), the first one's text
+                err.args = (msg,)
+                raise err
+            relayed = CouplingError("", peer="CFD solver")
+            relayed.args = (msg,)
+            raise relayed
+        self.flags = int(head[1])
+        n = int(head[2])
+        sc = np.full(max(n, 0), -np.inf) if scalars is None or scalars.size != n else np.asarray(scalars, float)
+        if R.comm is not None and n > 0:
+            sc = R.comm.allreduce(sc, op=_mpi_max())
+        return sc
+
+    def _collect(self, step, t, eps_change, accept=False):
+        """The gas frame of ``step`` on this rank: own cells from the gas, checked; halo from
+        the owners (collective)."""
+        cs = self.cells
+        fluid, scalars, err = {"_n": cs.n_cells}, None, None
+        try:
+            if self.pending is not None:
+                raise self.pending
+            if accept:
+                self.ex.accept(step)
+            scalars = self.ex.receive(step, fluid)
+            fluid.pop("_n")
+            for k, comp in (("U", 3), ("T", 1), ("gradp", 3), ("p", 1)):
+                if k not in fluid:   # a rank that owns no cell
+                    fluid[k] = np.zeros((cs.n_cells, 3) if comp == 3 else cs.n_cells)
+            h = self.ex.last_header
+            self.flags = int(h["flags"]) if h is not None else 0
+            own = cs.owned
+            check_gas_fields({k: fluid[k][own] for k in self.FIELDS}, step, time_value=t, mesh=self.mesh,
+                             cfg=self.cfg, eps_change=eps_change, cells=own)
+        except CouplingError as e:
+            err = e
+        self.pending = None
+        fluid["scalars"] = self._agree(err, scalars)
+        cs.update(*(fluid[k] for k in self.FIELDS))
         return fluid
 
+    def first(self, i0, t_start, cstate):
+        with self.timer("gas_wait"):
+            fluid = self._collect(i0, t_start, None, accept=True)
+        if cstate is None:
+            return fluid
+        own = self.cells.owned
+        saved = cstate["fluid"]
+        diff = max(float(np.max(np.abs(np.asarray(fluid[k])[own] - np.asarray(saved[k])[own]), initial=0.0))
+                   for k in self.FIELDS)
+        cstate["frame_difference"] = self.cells.allmax(diff)
+        return dict(fluid, **saved)
+
     def send(self, step, frame, time_value, final):
-        pass
+        with self.timer("exchange"):
+            try:
+                self.ex.send(step, frame, time_value=time_value, final=final)
+            except CouplingError as e:   # told to every rank at the next receive
+                self.pending = e
 
     def receive(self, step, t, eps_change, stop_sig):
-        return self._receive(step)
+        with self.timer("gas_wait"):
+            fluid = self._collect(step, t, eps_change)
+        if self.R.root:
+            from dem import outdir
+            outdir.adopt_solver_entries(self.out)
+        f = self.flags
+        final = bool(f & 1)
+        return fluid, final, int((f >> 8) & 0xFF) if final else 0
 
     def finish(self, step):
-        pass
+        """The solver must exit cleanly after the last step (rank 0 waits; every rank learns)."""
+        err = None
+        if self.R.root:
+            try:
+                _SolverLink.finish(self, step)
+            except CouplingError as e:
+                err = e
+        self._agree(err, None)
 
     def fail(self, e):
         pass
 
     def explain(self, e, sim):
-        pass
+        if self.R.root:
+            _SolverLink.explain(self, e, sim)
+
+    def stats(self):
+        """This rank's message and memory figures (bytes per run; peak RSS in MiB)."""
+        import resource
+        cs, ex = self.cells, self.ex
+        return dict(owned_cells=int(cs.owned.size), halo_cells=cs.halo_cells, gas_partners=len(ex.pairs),
+                    gas_bytes_sent=ex.bytes_sent, gas_bytes_received=ex.bytes_received,
+                    dem_bytes_sent=cs.bytes_sent, dem_messages=cs.messages,
+                    peak_rss_mib=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0)
 
     def close(self, status, write_timings):
-        pass
+        from dem import outdir
+        R = self.R
+        if R.root and self.proc.poll() is None and status != "finished":
+            self.proc.kill()
+            self.proc.wait()
+        self.ex.close()
+        ranks = [self.stats()] if R.comm is None else R.comm.gather(self.stats(), root=0)
+        if R.root:
+            outdir.adopt_solver_entries(self.out)
+            write_timings(status != "finished", dict(ranks=ranks))
 
+
+def _mpi_max():
+    from mpi4py import MPI
+    return MPI.MAX
 
 def _first_frame(ex, i0, t_start, mesh, cfg, cstate):
     """The gas state the first DEM interval uses: the solver's first frame, checked (after a
@@ -248,28 +396,3 @@ def _peer_signal(ex):
     """The signal number that stopped the gas solver (flags bits 8-15 of its last frame)."""
     h = ex.last_header
     return int((h["flags"] >> 8) & 0xFF) if h and (h["flags"] & 1) else 0
-
-
-def _share(R, receive, ex, stop_sig=lambda: 0):
-    """Rank 0 receives the gas fields and passes them (or the failure) to every DEM rank,
-    with the FINAL flag and the number of the signal that ends the run (0 if none)."""
-    fluid, err = None, None
-    try:
-        fluid = receive()
-    except Exception as e:  # noqa: BLE001
-        err = e
-    if R.comm is not None:
-        R.comm.bcast((fluid, bool(ex.peer_final), None if err is None else repr(err), int(stop_sig())),
-                     root=0)
-        R.failure_shared = err is not None
-    if err is not None:
-        raise err
-    return fluid
-
-
-def _share_failure(R, e):
-    """Rank 0 failed outside a receive: the other ranks wait in one; tell them."""
-    try:
-        R.comm.bcast((None, True, repr(e), 0), root=0)
-    except Exception:  # noqa: BLE001
-        pass
