@@ -5,10 +5,14 @@ starts (dem.parallel.decomposition, fixed for the whole run, also when the DEM b
 re-cut later). The owner alone exchanges the cell with the gas processor that holds it
 (coupling.m2m): it sends the cell's summed exchange terms and receives its gas fields.
 
-Each rank also *sees* the cells its particles' stencils can reach: the cells within
-``margin`` of its box (the particle halo, plus the stencil's reach in cells: one cell for
-the divided and centre models, the kernel's width for the smoothed one, plus one cell for
-the neighbours a gradient or an interpolation reads). The cells it sees but does not own are
+Each rank also *sees* the cells its particles' stencils can reach: the cells whose centre
+lies within the particle halo (dem.world.World.halo: the farthest an owned particle's surface
+can be from its box between two neighbour rebuilds, with margin) plus two cell diagonals of
+its box. A stencil reaches the particle's cell and the cells its volume overlaps (divided,
+centre) or the cells sharing a point with its cell (smoothed): centres within 1.5 diagonals;
+the gradient and the interpolations read the face neighbours of the particle's cell, within
+the same distance. :meth:`CellShare.check_stencil` refuses a stencil that reaches farther
+(never seen; it would lose that cell's sum). The cells a rank sees but does not own are
 its *halo cells*; the pattern (which cells each pair of neighbouring ranks shares) is built
 once, collectively, and again only when the DEM boxes are re-cut.
 
@@ -108,7 +112,13 @@ class CellShare:
 
     @property
     def halo_cells(self) -> int:
+        """Cells this rank sees and other ranks own (it receives their totals)."""
         return int(sum(ids.size for ids in self.halo.values()))
+
+    @property
+    def served_cells(self) -> int:
+        """Owned cells other ranks see, counted once per such rank (it sends them the totals)."""
+        return int(sum(ids.size for ids in self.serve.values()))
 
     # ------------------------------------------------------------------ per step
     @staticmethod

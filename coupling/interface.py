@@ -138,9 +138,7 @@ class CouplingInterface:
         self.V = self.mesh.cell_volumes
         # the gas cells this DEM rank owns and sees (coupling.cells; serial: all of them)
         from .cells import CellShare
-        from .voidfraction import KERNEL_WIDTH
-        reach = 2.0 + (KERNEL_WIDTH if self.void_fraction == "smoothed" else 0.0)
-        self.cells = CellShare(self.mesh, self.sim.par, reach_cells=reach)
+        self.cells = CellShare(self.mesh, self.sim.par)
         if self.sim.par is not None:
             self.cells.plan(self.sim.world.halo())
         self.hint = None

@@ -58,6 +58,7 @@ class M2MExchange:
         self.last_header = None
         self.bytes_sent = 0
         self.bytes_received = 0
+        self._t0 = None
         s = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
         s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         s.bind((host, 0))
@@ -86,18 +87,24 @@ class M2MExchange:
                 raise self._err(f"process exited with code {rc}", step)
 
     # ------------------------------------------------------------------ set-up
-    def accept(self, step):
-        """Accept every gas processor of the plan and tell it its cells (at the first frame)."""
-        t0 = time.monotonic()
+    def accept(self, step, wait: float | None = None) -> bool:
+        """Accept the gas processors of the plan and tell each its cells (at the first frame).
+        Returns True once every one is connected; with ``wait`` (s) it returns False when that
+        time passed first (the caller checks with the other ranks, then calls again)."""
+        if self._t0 is None:
+            self._t0 = time.monotonic()
+        t_end = time.monotonic() + (wait if wait is not None else self.timeout + 1.0)
         want = set(self.pairs)
         while want - set(self.socks):
             r, _, _ = select.select([self._listen], [], [], 0.1)
             if not r:
                 self._check_process(step)
-                if time.monotonic() - t0 > self.timeout:
+                if time.monotonic() - self._t0 > self.timeout:
                     left = sorted(want - set(self.socks))
                     raise self._err(f"timeout ({self.timeout:g} s) waiting for gas processor(s) {left} to connect "
                                     f"to DEM rank {self.rank} at {self.host}:{self.port}", step)
+                if time.monotonic() > t_end:
+                    return False
                 continue
             conn, _ = self._listen.accept()
             conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
@@ -119,6 +126,8 @@ class M2MExchange:
             conn.sendall(struct.pack("<Q", len(body)) + body)
             conn.setblocking(False)
             self.socks[g] = conn
+        if self._listen is None:
+            return True
         self._listen.close()
         self._listen = None
         for conn in self.socks.values():   # one frame fits the kernel buffers: sends return at once
@@ -127,6 +136,7 @@ class M2MExchange:
                     conn.setsockopt(socket.SOL_SOCKET, opt, 1 << 22)
                 except OSError:
                     pass
+        return True
 
     # ------------------------------------------------------------------ per step
     def send(self, step, fields, *, time_value=0.0, final=False):

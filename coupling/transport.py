@@ -286,7 +286,27 @@ class _M2MLink:
             sc = R.comm.allreduce(sc, op=_mpi_max())
         return sc
 
-    def _collect(self, step, t, eps_change, accept=False):
+    def _accept(self, step):
+        """Every rank accepts its gas processors; the ranks check together every 0.2 s, so that
+        a failure seen by one (the solver exited: rank 0 watches it) ends the wait of all."""
+        R = self.R
+        if R.comm is None:
+            self.ex.accept(step)
+            return
+        done, err = False, None
+        while True:
+            if not done and err is None:
+                try:
+                    done = self.ex.accept(step, wait=0.2)
+                except CouplingError as e:
+                    err = e
+            failed, waiting = R.comm.allreduce(np.array([err is not None, not done], float), op=_mpi_max())
+            if failed:
+                self._agree(err, None)
+            if not waiting:
+                return
+
+    def _collect(self, step, t, eps_change):
         """The gas frame of ``step`` on this rank: own cells from the gas, checked; halo from
         the owners (collective)."""
         cs = self.cells
@@ -294,8 +314,6 @@ class _M2MLink:
         try:
             if self.pending is not None:
                 raise self.pending
-            if accept:
-                self.ex.accept(step)
             scalars = self.ex.receive(step, fluid)
             fluid.pop("_n")
             for k, comp in (("U", 3), ("T", 1), ("gradp", 3), ("p", 1)):
@@ -315,7 +333,8 @@ class _M2MLink:
 
     def first(self, i0, t_start, cstate):
         with self.timer("gas_wait"):
-            fluid = self._collect(i0, t_start, None, accept=True)
+            self._accept(i0)   # raises on every rank alike
+            fluid = self._collect(i0, t_start, None)
         if cstate is None:
             return fluid
         own = self.cells.owned
