@@ -232,3 +232,60 @@ def test_exchange_terms_on_three_dem_ranks_match_serial(tmp_path):
     for owned, halo, served, sent in stats:
         assert 0 < halo and 0 < served
         assert sent == 8 * (14 * (halo + served) + 2 * served)
+
+
+def test_sigterm_on_two_by_two_continues_on_three_by_one(reference, tmp_path):
+    """A scheduler's SIGTERM to ``mpirun -np 2`` of a run with 2 gas processes: every DEM rank
+    stops at the same coupling step, the solver writes its fields there, the run exits 143 with
+    the command that continues it. Continued on 3 DEM ranks and 1 gas process (the gas fields
+    reconstructed by OpenFOAM's reconstructPar), it ends where the uninterrupted (1, 1) run
+    ends, within the bound of the gas's parallel solve (module docstring)."""
+    import signal
+    import time
+    base, ref = reference
+    case = case_with(tmp_path, "fluidized_bed_heating", 2, tag="_sig")
+    out = tmp_path / "out"
+    env = dict(_env(), OMPI_MCA_odls_base_sigkill_timeout="20")
+    cmd = ["mpirun", "-np", "2", sys.executable, "-m", "coupling.run", "run", str(case), "--out", str(out),
+           "--end-time", "0.02"]
+    p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, cwd=str(ROOT))
+    log = out / "log.thermoDemFoam"
+    t0 = time.monotonic()
+    while not (log.exists() and "Time = 0.0015" in log.read_text()):
+        assert p.poll() is None, p.communicate()
+        assert time.monotonic() - t0 < 600
+        time.sleep(0.2)
+    p.send_signal(signal.SIGTERM)
+    so, se = p.communicate(timeout=300)
+    assert p.returncode == 143, so[-2000:] + se[-3000:]
+    assert "SIGTERM" in se and "--restart" in se, se[-2000:]
+    steps = sorted(int(f.name[11:19]) for f in (out / "checkpoints").glob("checkpoint_*.npz"))
+    assert steps and 3 <= steps[-1] < 4 * int(float(END) / 5e-4), steps
+    # continue on (3, 1): the user edits gas_processes and restarts with more DEM ranks
+    t = case / "coupling.toml"
+    t.write_text(t.read_text().replace("gas_processes = 2", "gas_processes = 1"))
+    q = coupled(3, case, out, "--restart")
+    assert "reconstructPar" in q.stdout + q.stderr or "moved from 2 to 1" in q.stdout, q.stdout[-2000:]
+    a, b = final(ref[1]), final(out)
+    vscale = np.abs(a["velocity"]).max()
+    assert_close(a, b, 1e-7, 1e-4 * vscale, 1e-6)
+    balance_closed(out)
+
+
+def test_coarse_grained_bed_on_two_by_two(tmp_path, solver):
+    """The coarse-grained bed (37,100 parcels) on (2, 2) against (1, 1): two coupling steps equal
+    within the gas's parallel-solve bound; each DEM rank owns part of the mesh."""
+    outs = {}
+    for m, gas in ((1, 1), (2, 2)):
+        case = case_with(tmp_path, "fluidized_bed_cg", gas)
+        outs[m] = tmp_path / f"cg_{m}x{gas}"
+        cmd = [sys.executable, "-m", "coupling.run", "run", str(case), "--out", str(outs[m]), "--end-time", "0.0005"]
+        if m > 1:
+            cmd = ["mpirun", "-np", str(m)] + cmd
+        p = subprocess.run(cmd, capture_output=True, text=True, env=_env(), timeout=1200, cwd=str(ROOT))
+        assert p.returncode == 0, p.stdout[-2000:] + p.stderr[-3000:]
+    a, b = final(outs[1]), final(outs[2])
+    vscale = np.abs(a["velocity"]).max()
+    assert_close(a, b, 1e-7, 1e-4 * vscale, 1e-6)
+    ranks = json.loads((outs[2] / "timings.json").read_text())["ranks"]
+    assert len(ranks) == 2 and all(r["owned_cells"] > r["halo_cells"] > 0 for r in ranks)
