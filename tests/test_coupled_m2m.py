@@ -289,3 +289,32 @@ def test_coarse_grained_bed_on_two_by_two(tmp_path, solver):
     assert_close(a, b, 1e-7, 1e-4 * vscale, 1e-6)
     ranks = json.loads((outs[2] / "timings.json").read_text())["ranks"]
     assert len(ranks) == 2 and all(r["owned_cells"] > r["halo_cells"] > 0 for r in ranks)
+
+
+def test_a_dead_gas_processor_stops_every_dem_rank(reference, tmp_path):
+    """kill -9 of one of the two thermoDemFoam processes of a (2, 2) run: every DEM rank stops
+    (no hang), the run exits 3 with one line naming the DEM rank that saw it, the gas processor
+    and the coupling step, and a checkpoint is written."""
+    import signal
+    import time
+    case = case_with(tmp_path, "fluidized_bed_heating", 2, tag="_kill")
+    out = tmp_path / "out"
+    cmd = ["mpirun", "-np", "2", sys.executable, "-m", "coupling.run", "run", str(case), "--out", str(out),
+           "--end-time", "0.02"]
+    p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_env(), cwd=str(ROOT))
+    log = out / "log.thermoDemFoam"
+    t0 = time.monotonic()
+    while not (log.exists() and "Time = 0.001" in log.read_text()):
+        assert p.poll() is None, p.communicate()
+        assert time.monotonic() - t0 < 600
+        time.sleep(0.2)
+    pids = subprocess.run(["pgrep", "-f", f"thermoDemFoam -case {out}"], capture_output=True, text=True).stdout.split()
+    solvers = [int(x) for x in pids if "mpirun" not in open(f"/proc/{x}/cmdline").read().replace("\0", " ")]
+    assert len(solvers) == 2, pids
+    os.kill(max(solvers), signal.SIGKILL)
+    so, se = p.communicate(timeout=300)
+    assert p.returncode == 3, so[-2000:] + se[-3000:]
+    lines = [ln for ln in se.splitlines() if ln.startswith("coupling: error")]
+    assert len(lines) == 1, se[-3000:]
+    assert "DEM rank" in lines[0] and "CFD solver" in lines[0] and "coupling step" in lines[0], lines[0]
+    assert (out / "checkpoint.npz").exists()
