@@ -308,7 +308,7 @@ def test_a_dead_gas_processor_stops_every_dem_rank(reference, tmp_path):
         assert p.poll() is None, p.communicate()
         assert time.monotonic() - t0 < 600
         time.sleep(0.2)
-    pids = subprocess.run(["pgrep", "-f", f"thermoDemFoam -case {out}"], capture_output=True, text=True).stdout.split()
+    pids = subprocess.run(["pgrep", "-f", f"thermoDemFoam -case {out.resolve()}"], capture_output=True, text=True).stdout.split()
     solvers = [int(x) for x in pids if "mpirun" not in open(f"/proc/{x}/cmdline").read().replace("\0", " ")]
     assert len(solvers) == 2, pids
     os.kill(max(solvers), signal.SIGKILL)
