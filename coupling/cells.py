@@ -188,15 +188,18 @@ class CellShare:
         return x if self.par is None else self.par.allmin(x)
 
     def argmax(self, value, cell):
-        """(largest value, its cell) over the ranks (one small message per rank)."""
+        """(largest value, its cell) over the ranks (MAXLOC: a reduction of one pair)."""
         if self.par is None:
             return value, cell
-        return max(self.comm.allgather((float(value), int(cell))))
+        from mpi4py import MPI
+        return self.comm.allreduce((float(value), int(cell)), op=MPI.MAXLOC)
 
     def argmin(self, value, cell):
+        """(smallest value, its cell) over the ranks (MINLOC)."""
         if self.par is None:
             return value, cell
-        return min(self.comm.allgather((float(value), int(cell))))
+        from mpi4py import MPI
+        return self.comm.allreduce((float(value), int(cell)), op=MPI.MINLOC)
 
     def gather_owned(self, a, root=0):
         """The whole per-cell array on ``root`` from each rank's owned cells (restart points

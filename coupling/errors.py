@@ -19,7 +19,22 @@ from pathlib import Path
 from dem.interrupt import StopRequested
 
 
-class CaseError(ValueError):
+def _rebuilt(cls, args, state):
+    e = cls.__new__(cls)
+    Exception.__init__(e, *args)
+    e.__dict__.update(state)
+    return e
+
+
+class _Picklable:
+    """Rebuilt as it was (message and attributes) when sent between MPI ranks (pickled): the
+    constructors below take other arguments than the message they store."""
+
+    def __reduce__(self):
+        return _rebuilt, (self.__class__, self.args, dict(self.__dict__))
+
+
+class CaseError(_Picklable, ValueError):
     """A problem with an OpenFOAM case; the message names the offending file."""
 
     def __init__(self, path, message: str):
@@ -35,11 +50,11 @@ class CaseConfigError(CaseError):
         self.key = key
 
 
-class FoamError(RuntimeError):
+class FoamError(_Picklable, RuntimeError):
     """An OpenFOAM command failed."""
 
 
-class CouplingError(RuntimeError):
+class CouplingError(_Picklable, RuntimeError):
     """Failure of the coupling exchange; the message names the peer and the step."""
 
     def __init__(self, message: str, *, peer: str = "CFD", step: int | None = None):
@@ -55,11 +70,11 @@ class GasFieldError(CouplingError):
     sudden change of the void fraction forced it."""
 
 
-class CouplingRunError(RuntimeError):
+class CouplingRunError(_Picklable, RuntimeError):
     pass
 
 
-class RunInterrupted(StopRequested):
+class RunInterrupted(_Picklable, StopRequested):
     """A coupled run stopped cleanly on SIGINT/SIGTERM (of the DEM or of the gas solver)
     after writing a restart point; ``message`` is the one line for the user."""
 

@@ -621,8 +621,8 @@ def check_case(case, *, coupled: bool = True) -> None:
         if not cd.exists():
             raise CaseError(cd, "missing (write it with write_coupling_dict)")
         tr = parse_foam_dict(cd).get("transport", "none")
-        if tr not in ("file", "socket", "none"):
-            raise CaseError(cd, f"transport {tr!r} unknown (use file, socket or none)")
+        if tr not in ("file", "socket", "m2m", "none"):
+            raise CaseError(cd, f"transport {tr!r} unknown (use file, socket, m2m or none)")
 
     patches = set(patch_names(case))
     for fld in fields:

@@ -267,7 +267,7 @@ class _M2MLink:
         n_sc = -1 if scalars is None else int(scalars.size)
         head = np.array([1.0 if err is not None else 0.0, float(self.flags), float(n_sc)])
         if R.comm is not None:
-            head = R.comm.allreduce(head, op=_mpi_max())
+            head = _allmax(R.comm, head)
         if head[0] > 0:
             errs = [err] if R.comm is None else R.comm.allgather(None if err is None else str(err))
             k, msg = next((k, e) for k, e in enumerate(errs) if e is not None)
@@ -283,7 +283,7 @@ class _M2MLink:
         n = int(head[2])
         sc = np.full(max(n, 0), -np.inf) if scalars is None or scalars.size != n else np.asarray(scalars, float)
         if R.comm is not None and n > 0:
-            sc = R.comm.allreduce(sc, op=_mpi_max())
+            sc = _allmax(R.comm, sc)
         return sc
 
     def _accept(self, step):
@@ -300,7 +300,10 @@ class _M2MLink:
                     done = self.ex.accept(step, wait=0.2)
                 except CouplingError as e:
                     err = e
-            failed, waiting = R.comm.allreduce(np.array([err is not None, not done], float), op=_mpi_max())
+                except Exception as e:  # noqa: BLE001 - a failure here must reach every rank
+                    err = CouplingError(f"accepting the gas processors failed: {type(e).__name__}: {e}",
+                                        peer="CFD solver", step=step)
+            failed, waiting = _allmax(R.comm, np.array([err is not None, not done], float))
             if failed:
                 self._agree(err, None)
             if not waiting:
@@ -326,6 +329,9 @@ class _M2MLink:
                              cfg=self.cfg, eps_change=eps_change, cells=own)
         except CouplingError as e:
             err = e
+        except Exception as e:  # noqa: BLE001 - any failure on one rank must reach every rank
+            err = CouplingError(f"receiving the gas frame failed: {type(e).__name__}: {e}", peer="CFD solver",
+                                step=step)
         self.pending = None
         fluid["scalars"] = self._agree(err, scalars)
         cs.update(*(fluid[k] for k in self.FIELDS))
@@ -403,6 +409,14 @@ class _M2MLink:
 def _mpi_max():
     from mpi4py import MPI
     return MPI.MAX
+
+
+def _allmax(comm, a):
+    """Element-wise maximum of a float64 array over the ranks (a buffer: nothing pickled)."""
+    a = np.ascontiguousarray(a, dtype=np.float64)
+    out = np.empty_like(a)
+    comm.Allreduce(a, out, op=_mpi_max())
+    return out
 
 def _first_frame(ex, i0, t_start, mesh, cfg, cstate):
     """The gas state the first DEM interval uses: the solver's first frame, checked (after a
