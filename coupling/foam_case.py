@@ -51,6 +51,9 @@ __all__ = [
 ]
 
 
+# system/couplingDict transport
+TRANSPORTS = ("file", "socket", "m2m", "none")
+
 # constant/turbulenceProperties simulationType (OpenFOAM's incompressible turbulence models)
 SIMULATION_TYPES = ("laminar", "RAS", "LES")
 # fields of the turbulence models checked for boundary conditions when present in 0/
@@ -136,9 +139,8 @@ def block_mesh(case) -> None:
 
 
 def decompose(case, n: int | None = None, *, method: str | None = None,
-              split: tuple[int, int, int] | None = None, time: str | None = None) -> None:
-    """Run decomposePar (-force). Optionally set numberOfSubdomains / method / split n;
-    ``time``: decompose the fields of that time folder only (a restart on more processes)."""
+              split: tuple[int, int, int] | None = None) -> None:
+    """Run decomposePar (-force). Optionally set numberOfSubdomains / method / split n."""
     case = Path(case)
     d = case / "system" / "decomposeParDict"
     if n is not None or method is not None or split is not None:
@@ -157,8 +159,7 @@ def decompose(case, n: int | None = None, *, method: str | None = None,
             if m and int(m.group(1)) * int(m.group(2)) * int(m.group(3)) != n:
                 text = re.sub(r"(\bn\s+)\([^)]*\)", rf"\g<1>(1 1 {int(n)})", text)
         d.write_text(text)
-    run_foam(["decomposePar", "-force"] + (["-time", str(time)] if time is not None else []), case,
-             log="log.decomposePar")
+    run_foam(["decomposePar", "-force"], case, log="log.decomposePar")
 
 
 # --------------------------------------------------------------------------- parsing
@@ -272,7 +273,8 @@ class LinkOptions:
     """The rest of system/couplingDict's transport settings (the defaults are the coupled
     run's): ``connect_timeout`` (s; None: ``timeout``), the file transport's ``directory``,
     ``poll_interval`` (s) and ``keep_files``, the socket's ``path`` (a Unix socket instead of
-    a port), ``host`` and the solver's ``role`` (client: it connects to the DEM)."""
+    a port), ``host`` and the solver's ``role`` (client: it connects to the DEM), the m2m
+    transport's plan folder ``m2m_directory`` (absolute, or relative to the case)."""
 
     connect_timeout: float | None = None
     directory: str = "coupling"
@@ -281,33 +283,41 @@ class LinkOptions:
     path: str | None = None
     host: str = "127.0.0.1"
     role: str = "client"
-    m2m_directory: str = "coupling/m2m"
+    m2m_directory: str | None = None
 
 
 def write_coupling_dict(case, transport: str = "file", *, timeout: float = 60, port: int | None = None,
                         send_velocity: str = "cell", tied: dict | None = None,
-                        options: LinkOptions = LinkOptions()) -> Path:
-    """Write ``system/couplingDict`` (transport file | socket | none).
+                        options: LinkOptions = LinkOptions(),
+                        m2m_directory: str | os.PathLike | None = None) -> Path:
+    """Write ``system/couplingDict`` (transport file | socket | m2m | none).
 
     ``port``: the socket transport's TCP port (or ``options.path``). ``send_velocity``: "cell" (momentum velocity, default) or "flux" (reconstructed from
     the face fluxes, exact mass flow). ``tied``: {patches, fixed_flux, fluxes} of the walls
     tied to DEM walls (coupling.energy.FluxSplit): two frame columns each (the particles'
-    contact and gas-gap heat per cell), and a fixed-flux one gives the gas the rest of q_w."""
+    contact and gas-gap heat per cell), and a fixed-flux one gives the gas the rest of q_w.
+    ``m2m_directory`` (or ``options.m2m_directory``): the m2m transport's plan folder, written
+    by the DEM ranks (docs/coupling_protocol.md, "Many-to-many transport (m2m)"); that
+    dictionary has an ``m2m { directory ...; }`` block instead of the file and socket ones."""
     o = options
     connect_timeout, directory, poll_interval, keep_files = o.connect_timeout, o.directory, o.poll_interval, o.keep_files
     path, host, role = o.path, o.host, o.role
     if send_velocity not in ("cell", "flux"):
         raise ValueError("send_velocity must be cell or flux")
-    if transport not in ("file", "socket", "m2m", "none"):
+    if transport not in TRANSPORTS:
         raise ValueError("transport must be file, socket, m2m or none")
     if transport == "socket" and (port is None) == (path is None):
         raise ValueError("socket transport needs exactly one of port or path")
+    if m2m_directory is None:
+        m2m_directory = o.m2m_directory
+    if transport == "m2m" and m2m_directory is None:
+        raise ValueError("m2m transport needs m2m_directory (the DEM ranks' plan folder)")
     sock = f'        host        "{host}";\n        role        {role};\n'
     if port is not None:
         sock += f"        port        {int(port)};\n"
     if path is not None:
         sock += f'        path        "{path}";\n'
-    body = (
+    head = (
         f"transport       {transport};\n"
         f"timeout         {timeout};\n"
         f"connectTimeout  {connect_timeout if connect_timeout is not None else timeout};\n"
@@ -317,13 +327,17 @@ def write_coupling_dict(case, transport: str = "file", *, timeout: float = 60, p
            f"tiedHeatFlux    ({' '.join(repr(float(q)) for q in tied['fluxes'])});\n"
            if tied and tied.get("patches") else "")
         + "\n"
-        "file\n{\n"
-        f'    directory   "{directory}";\n'
-        f"    pollInterval {poll_interval};\n"
-        f"    keepFiles   {'true' if keep_files else 'false'};\n"
-        "}\n\nsocket\n{\n" + sock.replace("        ", "    ") + "}\n"
-        + (f'\nm2m\n{{\n    directory   "{o.m2m_directory}";\n}}\n' if transport == "m2m" else "")
     )
+    if transport == "m2m":
+        body = head + f'm2m\n{{\n    directory   "{os.fspath(m2m_directory)}";\n}}\n'
+    else:
+        body = head + (
+            "file\n{\n"
+            f'    directory   "{directory}";\n'
+            f"    pollInterval {poll_interval};\n"
+            f"    keepFiles   {'true' if keep_files else 'false'};\n"
+            "}\n\nsocket\n{\n" + sock.replace("        ", "    ") + "}\n"
+        )
     out = Path(case) / "system" / "couplingDict"
     out.write_text(_HEADER.format(cls="dictionary", loc="system", obj="couplingDict") + body)
     return out
@@ -621,7 +635,7 @@ def check_case(case, *, coupled: bool = True) -> None:
         if not cd.exists():
             raise CaseError(cd, "missing (write it with write_coupling_dict)")
         tr = parse_foam_dict(cd).get("transport", "none")
-        if tr not in ("file", "socket", "m2m", "none"):
+        if tr not in TRANSPORTS:
             raise CaseError(cd, f"transport {tr!r} unknown (use file, socket, m2m or none)")
 
     patches = set(patch_names(case))

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import os
 import signal
+import struct
 import subprocess
 import sys
 import textwrap
@@ -624,3 +625,388 @@ def test_e_energy_balance(tmp_path, solver):
     assert t_lay[-1] == pytest.approx(Tp - (Tp - T_in) * np.exp(-ntu), rel=0.02)
     # steady: the last steps no longer change T
     assert np.abs(out[-1]["T"] - out[-50]["T"]).max() < 1e-3
+
+
+# --------------------------------------------------------------------------- (g) m2m transport
+
+def _recv_exact(sock, n: int) -> bytes:
+    buf = bytearray()
+    while len(buf) < n:
+        chunk = sock.recv(n - len(buf))
+        if not chunk:
+            raise ConnectionError("the gas processor closed the connection")
+        buf += chunk
+    return bytes(buf)
+
+
+class FakeDemRanks:
+    """DEM ranks of the m2m transport (docs/coupling_protocol.md), faked in this process: one
+    listening TCP socket per rank, each served by its own thread (the ranks run concurrently,
+    like separate processes). ``owner``: the DEM rank of each global cell; ``addr``: each gas
+    processor's cellProcAddressing (one identity for a serial run). The pairs' cells go in a
+    shuffled order (``pairs[(g, r)]``, local cell ids; a test may edit them before
+    :meth:`write_plan`). ``kill``: {rank: step}: that rank closes its connections, as a dying
+    process does, instead of sending the frame of that step. ``pause``: {rank: (step, event)}:
+    that rank sets ``self.paused`` and waits for the event before it sends the frame of that
+    step. A rank stops after the solver's FINAL frame (which all its pairs must agree on)."""
+
+    def __init__(self, plan_dir: Path, owner: np.ndarray, addr: list[np.ndarray], *,
+                 timeout: float = 20.0, kill: dict | None = None, pause: dict | None = None):
+        import socket
+        import threading
+        self.plan_dir = Path(plan_dir)
+        self.addr = addr
+        self.timeout = timeout
+        self.kill = kill or {}
+        self.pause = pause or {}
+        self.paused = threading.Event()
+        self.n_ranks = int(owner.max()) + 1
+        rng = np.random.default_rng(11)
+        self.pairs: dict[tuple[int, int], np.ndarray] = {}
+        for g, a in enumerate(addr):
+            for r in range(self.n_ranks):
+                ids = np.flatnonzero(owner[a] == r)
+                if ids.size:
+                    self.pairs[(g, r)] = rng.permutation(ids)
+        self.listeners = [socket.create_server(("127.0.0.1", 0)) for _ in range(self.n_ranks)]
+        self.received: dict[tuple[int, int], list] = {}     # (g, r) -> [(header, fields)] per step
+        self.errors: dict[int, BaseException] = {}
+        self.threads = []
+
+    def write_plan(self) -> None:
+        for (g, r), ids in self.pairs.items():
+            d = self.plan_dir / f"gas{g}"
+            d.mkdir(parents=True, exist_ok=True)
+            port = self.listeners[r].getsockname()[1]
+            (d / f"dem{r}").write_text(f"127.0.0.1 {port} {ids.size}\n")
+        (self.plan_dir / "ready").write_text(f"{self.n_ranks}\n")
+
+    def start(self, n_steps: int, inputs) -> None:
+        import threading
+        for r in range(self.n_ranks):
+            t = threading.Thread(target=self._run, args=(r, n_steps, inputs), daemon=True)
+            t.start()
+            self.threads.append(t)
+
+    def join(self) -> None:
+        for t in self.threads:
+            t.join(timeout=self.timeout + 30)
+            assert not t.is_alive()
+        for lst in self.listeners:
+            lst.close()
+
+    def _run(self, r, n_steps, inputs):
+        conns = {}
+        try:
+            self._serve(r, n_steps, inputs, conns)
+        except BaseException as e:  # noqa: BLE001 - reported by the test
+            self.errors[r] = e
+        finally:
+            for c in conns.values():
+                c.close()
+
+    def _serve(self, r, n_steps, inputs, conns):
+        import socket
+        mine = sorted(g for (g, rr) in self.pairs if rr == r)
+        lst = self.listeners[r]
+        lst.settimeout(self.timeout)
+        while len(conns) < len(mine):                       # set-up: hello, reply
+            c, _ = lst.accept()
+            c.settimeout(self.timeout)
+            c.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            magic, g, n_cells = struct.unpack("<8sqq", _recv_exact(c, 24))
+            assert magic == b"TDEMHELO" and g in mine and n_cells == len(self.addr[g]), (magic, g)
+            ids = self.pairs[(g, r)]
+            body = struct.pack("<qq", r, ids.size) + ids.astype("<i8").tobytes()
+            c.sendall(struct.pack("<Q", len(body)) + body)
+            conns[g] = c
+            self.received[(g, r)] = []
+
+        def receive(step):
+            for g in mine:
+                (n,) = struct.unpack("<Q", _recv_exact(conns[g], 8))
+                h, f = decode_frame(_recv_exact(conns[g], n))
+                assert (h["kind"], h["step"], h["n_cells"]) == (2, step, self.pairs[(g, r)].size), h
+                self.received[(g, r)].append((h, f))
+
+        def solver_final(step):
+            flags = {self.received[(g, r)][-1][0]["flags"] for g in mine}
+            assert len(flags) == 1, (step, flags)   # every gas processor sends the same flags
+            return bool(flags.pop() & 1)
+
+        receive(0)
+        for s in range(1, n_steps + 1):
+            if self.kill.get(r) == s:
+                return
+            if r in self.pause and self.pause[r][0] == s:
+                self.paused.set()
+                self._hold(self.pause[r][1], conns)
+            glob = inputs(s, None)
+            for g in mine:
+                cells = self.addr[g][self.pairs[(g, r)]]
+                sub = {k: np.asarray(v)[cells] for k, v in glob.items()}
+                buf = encode_frame(1, s, sub, time_value=0.0, flags=int(s == n_steps))
+                conns[g].sendall(struct.pack("<Q", len(buf)) + buf)
+            receive(s)
+            if solver_final(s):
+                return
+
+    def _hold(self, event, conns):
+        """Wait for ``event``, or until a gas processor closes its connection (it died)."""
+        import select
+        import socket
+        t0 = time.monotonic()
+        while not event.wait(0.02):
+            ready, _, _ = select.select(list(conns.values()), [], [], 0)
+            for c in ready:
+                if not c.recv(1, socket.MSG_PEEK):
+                    raise ConnectionError("a gas processor closed the connection")
+            assert time.monotonic() - t0 < self.timeout + 20, "held too long"
+
+    def assemble(self, n_global: int) -> list[dict]:
+        """The frames the ranks received, per step, in global cell order (as one frame of the
+        file or socket transport would carry them)."""
+        n_steps = len(next(iter(self.received.values())))
+        out = []
+        for s in range(n_steps):
+            fl: dict = {}
+            for (g, r), frames in self.received.items():
+                h, f = frames[s]
+                cells = self.addr[g][self.pairs[(g, r)]]
+                for k, v in f.items():
+                    if k == "scalars":
+                        if "scalars" in fl:      # the global ledger, the same in every pair
+                            assert np.array_equal(fl[k].view(np.uint64), v.view(np.uint64))
+                        fl[k] = v
+                        continue
+                    if k not in fl:
+                        fl[k] = np.full((n_global,) + v.shape[1:], np.nan)
+                    fl[k][cells] = v
+                fl.setdefault("flags", set()).add(h["flags"])
+            out.append(fl)
+        return out
+
+
+def run_m2m(case: Path, solver: Path, n_steps: int, inputs, owner, *, nprocs=1, timeout=20.0,
+            plan_dir: str = "m2m", edit_pairs=None, kill=None, pause=None, during=None,
+            expect_rc0=True):
+    """Fake DEM of several ranks (FakeDemRanks) around thermoDemFoam with the m2m transport.
+    ``plan_dir``: relative to the case (as written into the couplingDict) or absolute;
+    ``during(proc, fake)``: called once the ranks run."""
+    fc.write_coupling_dict(case, "m2m", timeout=timeout, m2m_directory=plan_dir)
+    if nprocs > 1:
+        fc.decompose(case, nprocs, method="simple")
+        addr = fc.cell_proc_addressing(case)
+    else:
+        addr = [np.arange(len(owner))]
+    fc.check_case(case)
+    pd = Path(plan_dir) if os.path.isabs(plan_dir) else case / plan_dir
+    fake = FakeDemRanks(pd, owner, addr, timeout=timeout, kill=kill, pause=pause)
+    if edit_pairs:
+        edit_pairs(fake.pairs)
+    fake.write_plan()
+    proc = fc.start_solver(case, nprocs=nprocs, solver=solver)
+    t0 = time.monotonic()
+    try:
+        fake.start(n_steps, inputs)
+        if during:
+            during(proc, fake)
+        if kill:
+            fake.threads[min(kill)].join(timeout=timeout + 30)   # the killed rank is gone
+            t0 = time.monotonic()
+        rc = proc.wait(timeout=timeout + 60)
+        fake.t_end = time.monotonic()
+        elapsed = fake.t_end - t0
+        fake.join()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        for lst in fake.listeners:
+            lst.close()
+    log = (case / "log.thermoDemFoam").read_text()
+    if expect_rc0:
+        assert rc == 0, log[-3000:]
+        assert not fake.errors, fake.errors
+    return fake, addr, rc, elapsed, log
+
+
+def _assert_frames_identical(ref: list[dict], got: list[dict]):
+    assert len(ref) == len(got)
+    for s, (a, b) in enumerate(zip(ref, got)):
+        for k in ("U", "T", "gradp", "p", "scalars"):
+            assert a[k].shape == b[k].shape, (s, k)
+            assert np.array_equal(a[k].view(np.uint64), b[k].view(np.uint64)), (s, k)
+    assert got[-1]["flags"] == {1} and all(fl["flags"] == {0} for fl in got[:-1])
+
+
+def test_m2m_parallel_bit_identical_to_file(tmp_path, solver):
+    """2 gas processors (simple decomposition in z), 2 fake DEM ranks owning the x halves:
+    every processor exchanges with both ranks; the frames the ranks receive, put together in
+    global cell order, are bitwise those of the file transport on the same decomposition."""
+    n_steps, dt = 8, 1e-4
+    res = {}
+    for transport in ("file", "m2m"):
+        case, C, V = make_case(tmp_path, "ergun", n_steps=n_steps, dt=dt, name=transport)
+        eps, inputs = _bed_inputs(C, len(V))
+        fc.write_eps(case, eps)
+        if transport == "file":
+            res[transport] = run_coupled(case, solver, n_steps, inputs, nprocs=2, timeout=20)
+            continue
+        owner = (C[:, 0] > 0.5 * (C[:, 0].min() + C[:, 0].max())).astype(int)
+        fake, addr, rc, _, log = run_m2m(case, solver, n_steps, inputs, owner, nprocs=2,
+                                         plan_dir=str(tmp_path / "plan"))
+        assert {(g, r) for g, r in fake.pairs} == {(0, 0), (0, 1), (1, 0), (1, 1)}
+        assert "m2m exchange of gas processor 1" in log
+        res[transport] = fake.assemble(len(V))
+    _assert_frames_identical(res["file"], res["m2m"])
+    assert res["file"][-1]["T"].max() > 300.0
+
+
+def test_m2m_serial_bit_identical_to_socket(tmp_path, solver):
+    """Serial gas (processor 0), 2 fake DEM ranks owning the cells below / above mid-height;
+    plan folder relative to the case: bitwise the socket transport's frames."""
+    n_steps, dt = 8, 1e-4
+    res = {}
+    for transport in ("socket", "m2m"):
+        case, C, V = make_case(tmp_path, "ergun", n_steps=n_steps, dt=dt, name=transport)
+        eps, inputs = _bed_inputs(C, len(V))
+        fc.write_eps(case, eps)
+        if transport == "socket":
+            res[transport] = run_coupled(case, solver, n_steps, inputs, transport="socket",
+                                         timeout=20)
+            continue
+        owner = (C[:, 2] > 0.5 * (C[:, 2].min() + C[:, 2].max())).astype(int)
+        fake, addr, rc, _, log = run_m2m(case, solver, n_steps, inputs, owner, plan_dir="m2m")
+        assert set(fake.pairs) == {(0, 0), (0, 1)}
+        res[transport] = fake.assemble(len(V))
+    _assert_frames_identical(res["socket"], res["m2m"])
+
+
+@pytest.mark.parametrize("fault", ["uncovered", "twice"])
+def test_m2m_plan_must_cover_each_cell_once(tmp_path, solver, fault):
+    """A plan whose pairs leave a local cell of gas processor 1 uncovered, or cover one twice:
+    the solver refuses it at the set-up (non-zero exit) naming the local and global cell."""
+    case, C, V = make_case(tmp_path, "ergun", n_steps=5, dt=1e-4)
+    owner = (C[:, 0] > 0.5 * (C[:, 0].min() + C[:, 0].max())).astype(int)
+    picked = {}
+
+    def edit(pairs):
+        ids0 = pairs[(1, 0)]
+        picked["cell"] = int(ids0[3])
+        if fault == "uncovered":
+            pairs[(1, 0)] = np.delete(ids0, 3)
+        else:
+            pairs[(1, 1)] = np.append(pairs[(1, 1)], ids0[3])
+
+    fake, addr, rc, _, log = run_m2m(case, solver, 5, _bed_inputs(C, len(V))[1], owner, nprocs=2,
+                                     timeout=10, edit_pairs=edit, expect_rc0=False)
+    assert rc != 0
+    c = picked["cell"]
+    what = (f"local cell {c} (global cell {addr[1][c]}) of gas processor 1 is "
+            + ("covered by none of its DEM ranks (0 1)" if fault == "uncovered"
+               else "covered 2 times, by DEM ranks 0 and 1"))
+    assert what in log, log[-3000:]
+
+
+@pytest.mark.parametrize("fault", ["killed", "hung"])
+def test_m2m_dem_rank_killed(tmp_path, solver, fault):
+    """DEM rank 1, partner of gas processor 1 only, dies at step 4 (or hangs there, sending
+    nothing): processor 1 stops with a fatal error naming it, and the MPI job (processor 0 too)
+    ends non-zero at once (within the timeout when the rank hangs)."""
+    import threading
+    timeout = 3.0
+    case, C, V = make_case(tmp_path, "ergun", n_steps=50, dt=1e-4)
+    eps, inputs = _bed_inputs(C, len(V))
+    fc.write_eps(case, eps)
+    zmax, xmid = C[:, 2].max(), 0.5 * (C[:, 0].min() + C[:, 0].max())
+    owner = ((C[:, 2] > 0.75 * zmax) & (C[:, 0] > xmid)).astype(int)
+    t_fault = []
+
+    def during(proc, fake):
+        assert fake.paused.wait(30)
+        t_fault.append(time.monotonic())
+
+    fault_args = (dict(kill={1: 4}) if fault == "killed"
+                  else dict(pause={1: (4, threading.Event())}, during=during))
+    fake, addr, rc, elapsed, log = run_m2m(case, solver, 50, inputs, owner, nprocs=2,
+                                           timeout=timeout, expect_rc0=False, **fault_args)
+    assert set(fake.pairs) == {(0, 0), (1, 0), (1, 1)}
+    assert rc != 0
+    assert "[peer: DEM rank 1, coupling step 4]" in log, log[-3000:]
+    if fault == "killed":
+        assert elapsed < 2
+        assert "DEM rank 1 closed the connection" in log, log[-3000:]
+    else:
+        waited = fake.t_end - t_fault[0]
+        assert timeout - 0.5 < waited < timeout + 2
+        assert "timeout (3 s) waiting for the frame of DEM rank 1" in log, log[-3000:]
+
+
+def _mpi_rank_pid(mpirun_pid: int, rank: int) -> int:
+    """The pid of MPI rank ``rank`` among mpirun's children."""
+    for _ in range(100):
+        kids = Path(f"/proc/{mpirun_pid}/task/{mpirun_pid}/children").read_text().split()
+        for k in kids:
+            try:
+                env = Path(f"/proc/{k}/environ").read_bytes().split(b"\0")
+            except OSError:
+                continue
+            if f"OMPI_COMM_WORLD_RANK={rank}".encode() in env:
+                return int(k)
+        time.sleep(0.1)
+    raise AssertionError(f"no MPI rank {rank} under mpirun {mpirun_pid}")
+
+
+def test_m2m_stop_signal(tmp_path, solver):
+    """SIGTERM to gas processor 1 alone while it waits for step 3's frames: every processor
+    finishes step 3, writes it and sends each of its DEM ranks FINAL with the signal in flag
+    bits 8-15; the solver exits 0."""
+    import threading
+    dt = 1e-4
+    case, C, V = make_case(tmp_path, "ergun", n_steps=50, dt=dt)
+    eps, inputs = _bed_inputs(C, len(V))
+    fc.write_eps(case, eps)
+    owner = (C[:, 0] > 0.5 * (C[:, 0].min() + C[:, 0].max())).astype(int)
+    go = threading.Event()
+
+    def during(proc, fake):
+        assert fake.paused.wait(30)             # rank 0 holds back step 3's frames
+        os.kill(_mpi_rank_pid(proc.pid, 1), signal.SIGTERM)
+        time.sleep(0.3)
+        go.set()
+
+    fake, addr, rc, _, log = run_m2m(case, solver, 50, inputs, owner, nprocs=2, timeout=10,
+                                     pause={0: (3, go)}, during=during)
+    assert "Stopped by signal 15 after step 3" in log
+    for (g, r), frames in fake.received.items():
+        h = frames[-1][0]
+        assert (len(frames), h["step"], h["flags"]) == (4, 3, 1 | (15 << 8)), (g, r, h)
+    for g in (0, 1):
+        assert (case / f"processor{g}" / f"{3 * dt:g}" / "U").is_file()
+
+
+@pytest.mark.parametrize("missing", ["ready", "dem"])
+def test_m2m_plan_missing(tmp_path, solver, missing):
+    """No <directory>/ready within connectTimeout, or no dem<r> file in gas0/: a fatal error
+    naming the file or folder."""
+    case, C, V = make_case(tmp_path, "ergun", n_steps=5, dt=1e-4)
+    plan = tmp_path / "plan"
+    (plan / "gas0").mkdir(parents=True)
+    if missing == "dem":
+        (plan / "ready").write_text("1\n")
+        (plan / "gas1").mkdir()
+        (plan / "gas1" / "dem0").write_text("127.0.0.1 9 320\n")
+    fc.write_coupling_dict(case, "m2m", timeout=1, m2m_directory=str(plan))
+    proc = fc.start_solver(case, solver=solver)
+    try:
+        rc = proc.wait(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    log = (case / "log.thermoDemFoam").read_text()
+    assert rc != 0
+    what = (f"{plan}/ready did not appear within 1 s" if missing == "ready"
+            else f"no plan file dem<r> in the m2m plan folder {plan}/gas0")
+    assert what in log, log[-3000:]

@@ -22,7 +22,9 @@ Description
       loop  : receive step n (eps, Ksl, Us, Simp, Sexp) -> solve -> send step n
     Each frame to the DEM ends with the step's energy ledger (energyBalance.H):
     the heat through each boundary patch, the gas's energy, the particles' heat.
-    Transport selected in system/couplingDict (file | socket | none).
+    Transport selected in system/couplingDict (file | socket | m2m | none);
+    with m2m every processor exchanges its own cells directly with the DEM
+    ranks that own them (no gather / scatter through the master).
 
     Stop signals (coupled runs): SIGINT or SIGTERM finish the current step,
     write the fields at its time (a restart point), send its frame with FINAL
