@@ -139,8 +139,9 @@ def block_mesh(case) -> None:
 
 
 def decompose(case, n: int | None = None, *, method: str | None = None,
-              split: tuple[int, int, int] | None = None) -> None:
-    """Run decomposePar (-force). Optionally set numberOfSubdomains / method / split n."""
+              split: tuple[int, int, int] | None = None, time: str | None = None) -> None:
+    """Run decomposePar (-force). Optionally set numberOfSubdomains / method / split n;
+    ``time``: decompose the fields of that time folder only (a restart on more processes)."""
     case = Path(case)
     d = case / "system" / "decomposeParDict"
     if n is not None or method is not None or split is not None:
@@ -159,7 +160,8 @@ def decompose(case, n: int | None = None, *, method: str | None = None,
             if m and int(m.group(1)) * int(m.group(2)) * int(m.group(3)) != n:
                 text = re.sub(r"(\bn\s+)\([^)]*\)", rf"\g<1>(1 1 {int(n)})", text)
         d.write_text(text)
-    run_foam(["decomposePar", "-force"], case, log="log.decomposePar")
+    run_foam(["decomposePar", "-force"] + (["-time", str(time)] if time is not None else []), case,
+             log="log.decomposePar")
 
 
 # --------------------------------------------------------------------------- parsing
