@@ -187,9 +187,7 @@ class Outputs:
         with iface.timer("output"):
             row = sim.history_row()
             if sim.scene.output["vtk"]:   # every rank its own piece (a failure raised on all)
-                n = sim.state.n_owned
-                force = np.ascontiguousarray(iface.last.get("force", np.zeros((n, 3))))
-                sim.write_vtk(self.vtk, fluid_force=force)
+                sim.write_vtk(self.vtk, fluid_force=_fluid_force_now(sim, iface))
             diag = Diagnostics.sums_of(sim, iface, fluid, frame)   # collective
         totals = sim.wall_heat_totals()   # collective over the DEM ranks
         from dem.thermal.wall_heat import WallAngleFile, cylinder_flux_by_angle
@@ -208,6 +206,31 @@ class Outputs:
 
         with iface.timer("output"):
             sim.writers.each_rank_write(write)
+
+
+def _fluid_force_now(sim, iface):
+    """The fluid force on each owned particle at the last frame (iface.last), in the current
+    row order: under MPI particles may have moved between ranks during the interval; a
+    particle that arrived has no frame force here and shows the force the DEM applies to it
+    now, F_exp - beta_imp v (dem.schema: external_force, drag_beta)."""
+    st = sim.state
+    n = st.n_owned
+    force, ids = iface.last.get("force"), iface.last.get("ids")
+    if force is None:
+        return np.zeros((n, 3))
+    if ids is None or (ids.shape[0] == n and np.array_equal(ids, st.id[:n])):
+        return np.ascontiguousarray(force) if force.shape[0] == n else np.zeros((n, 3))
+    cur = st.id[:n]
+    out = np.empty((n, 3))
+    found = np.zeros(n, bool)
+    if ids.size:
+        order = np.argsort(ids)
+        k = np.minimum(np.searchsorted(ids[order], cur), ids.size - 1)
+        found = ids[order][k] == cur
+        out[found] = force[order[k[found]]]
+    miss = ~found
+    out[miss] = st.external_force[:n][miss] - st.drag_beta[:n][miss, None] * st.velocity[:n][miss]
+    return out
 
 
 # gas speed above which the (incompressible) gas solution is taken as diverged: the

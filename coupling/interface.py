@@ -343,7 +343,7 @@ class CouplingInterface:
             self.ksl_sent = ksl
             self.us_sent = us
         self.last = dict(beta=beta, force=force, hA=hA, eps_p=eps_p, uf=uf, eps_raw=eps_raw,
-                         Tg=tg, torque=tframe)
+                         Tg=tg, torque=tframe, ids=st.id[:n].copy())
         return dict(eps=eps, Ksl=ksl, Us=us, Simp=simp, Sexp=sexp)
 
     def advance_dem(self, k: int) -> None:
