@@ -13,8 +13,8 @@ it, the times do) and reads its timings.json. Printed per layout:
   it shares with other DEM ranks, the bytes it sends to the gas and to other DEM ranks per
   coupling step, its peak resident memory (MiB).
 
-The (1, 1) layout takes the one-frame socket exchange (every cell in one frame); its bytes
-per step are that frame's size: 8 bytes x 7 columns x cells + header.
+The (1, 1) layout takes the one-frame socket exchange (every cell in one frame, the same
+bytes).
 """
 from __future__ import annotations
 
@@ -49,13 +49,7 @@ def run_layout(case: str, m: int, n: int, end: float, work: Path) -> dict:
         raise SystemExit(f"{' '.join(cmd)} failed ({p.returncode}):\n{p.stdout[-2000:]}\n{p.stderr[-2000:]}")
     tm = json.loads((out / "timings.json").read_text())
     steps = max(int(tm["coupling_steps"]), 1)
-    ranks = tm.get("ranks")
-    if not ranks:   # the one-frame exchange (1, 1)
-        from coupling.mesh import read_polymesh
-        nc = read_polymesh(str(out)).n_cells
-        import resource
-        ranks = [dict(owned_cells=nc, halo_cells=0, gas_partners=1, gas_bytes_sent=steps * (8 * 7 * nc + 72),
-                      dem_bytes_sent=0, peak_rss_mib=float("nan"))]
+    ranks = tm["ranks"]
     per = [dict(owned=r["owned_cells"], halo=r["halo_cells"], gas_b=r["gas_bytes_sent"] / steps,
                 dem_b=r["dem_bytes_sent"] / steps, rss=r["peak_rss_mib"]) for r in ranks]
     return dict(dem=m, gas=n, steps=steps, particles=tm["particles"], pss=tm["particle_steps_per_s"],

@@ -187,6 +187,7 @@ class _Exchange:
         self.peer_final = False      # the peer flagged its last step
         self.last_header: dict | None = None
         self.last_time = 0.0
+        self.bytes_sent = 0
 
     def _err(self, msg: str, step) -> CouplingError:
         return CouplingError(msg, peer=self.peer, step=step)
@@ -200,10 +201,12 @@ class _Exchange:
 
     def _encode(self, step, fields, time_value, final):
         try:
-            return encode_frame(self.kind_out, step, fields, time_value=time_value,
-                                flags=FLAG_FINAL if final else 0, n_cells=self.n_cells)
+            buf = encode_frame(self.kind_out, step, fields, time_value=time_value,
+                               flags=FLAG_FINAL if final else 0, n_cells=self.n_cells)
         except ValueError as e:
             raise self._err(f"cannot encode frame: {e}", step) from None
+        self.bytes_sent += len(buf) + 8   # (the socket transport's length prefix; a file's name)
+        return buf
 
     def _decode(self, buf, step):
         try:

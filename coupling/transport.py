@@ -235,7 +235,11 @@ class _SolverLink:
             self.proc.wait()
         self.ex.close()
         outdir.adopt_solver_entries(self.out)
-        write_timings(status != "finished", None)
+        import resource
+        nc = self.mesh.n_cells
+        write_timings(status != "finished", dict(ranks=[dict(
+            owned_cells=nc, halo_cells=0, gas_partners=1, gas_bytes_sent=self.ex.bytes_sent, dem_bytes_sent=0,
+            dem_messages=0, peak_rss_mib=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0)]))
 
 
 class _M2MLink:

@@ -330,3 +330,14 @@ def test_a_dead_gas_processor_stops_every_dem_rank(reference, tmp_path):
     assert len(lines) == 1, se[-3000:]
     assert "DEM rank" in lines[0] and "CFD solver" in lines[0] and "coupling step" in lines[0], lines[0]
     assert (out / "checkpoint.npz").exists()
+
+
+def test_file_transport_with_two_dem_ranks_is_refused(tmp_path):
+    """The file transport runs with one DEM rank: under ``mpirun -np 2`` the run is refused
+    before anything is written, exit 2, naming coupling.toml and what to use."""
+    case = case_with(tmp_path, "fluidized_bed_heating", 1, transport="file")
+    out = tmp_path / "out"
+    p = coupled(2, case, out, check=False)
+    assert p.returncode == 2, p.stdout[-2000:] + p.stderr[-2000:]
+    assert "coupling.toml" in p.stderr and 'transport = "socket"' in p.stderr, p.stderr[-2000:]
+    assert not out.exists()
