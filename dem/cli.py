@@ -112,7 +112,9 @@ def cmd_run(args):
             print(f"parallel: {stats['ghosts']} ghosts ({100 * stats['ghosts'] / max(n, 1):.1f} % of the particles), "
                   f"halo traffic {stats['halo_bytes'] / 1024:.1f} KiB per step in {stats['messages']} messages, "
                   f"{stats['exchanges']} exchanges, {stats['migrated']} migrations, {stats['rebalances']} "
-                  f"re-balancings, load imbalance {stats['imbalance']:.3f}")
+                  f"re-balancings, load imbalance {stats['imbalance']:.3f}; exchanges sent "
+                  f"{stats['bytes_migrated'] / 1024:.1f} KiB of migrating particles ({stats['records_migrated']} "
+                  f"contact records) and {stats['bytes_ghosts'] / 1024:.1f} KiB of ghosts")
         print(f"done: t = {sim.time:.6g} s, {steps} steps, {n} particles{ranks}, wall {wall:.2f} s "
               f"(kernels compile/load {c:.2f} s), {n * max(steps, 1) / max(sim.wall_seconds, 1e-9):.3g} "
               f"particle-steps/s; output in {out}")

@@ -35,6 +35,17 @@ def mpirun(n, *args, cwd=None, check=True):
     return p
 
 
+def mpi_python(n, code, *args):
+    """`python -c CODE ARGS` on n ranks (the environment of :func:`mpirun`)."""
+    env = dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1",
+               OMPI_MCA_rmaps_base_oversubscribe="1", OMPI_MCA_mpi_yield_when_idle="1")
+    cmd = ["mpirun", "-np", str(n), sys.executable, "-c", code, *map(str, args)]
+    p = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=600)
+    if p.returncode != 0:
+        raise AssertionError(f"mpirun -np {n} python -c ... failed ({p.returncode}):\n{p.stdout}\n{p.stderr}")
+    return p
+
+
 def run(n, scene, out, *extra):
     mpirun(n, "run", os.path.join(SCENES, scene), "--out", str(out), "--quiet", *extra)
     return np.load(os.path.join(out, "final.npz"))
@@ -207,3 +218,121 @@ def test_a_damaged_piece_is_refused_on_every_rank(tmp_path):
         assert "Traceback" not in p.stderr
         errs = [s for s in p.stderr.splitlines() if s.startswith("error:")]   # (mpirun adds its own banner)
         assert len(errs) == 1 and str(piece) in errs[0] and "does not match the sha256" in errs[0], p.stderr
+
+
+# Runs a scene with every call on the communicator inside ParallelDomain._migrate and
+# _send_ghosts noted (method, destination, tag, bytes of the buffer), and what the exchanges
+# sent counted independently of the domain's counters: the records R.involving handed over
+# (bytes from their declared dtypes) and the rows of every ghost message.
+_SPY = r"""
+import json, sys
+import numpy as np
+from dem.simulation import Simulation
+from dem.parallel import domain as D
+from dem import schema as S
+
+sim = Simulation.from_file(sys.argv[1])
+par, st = sim.par, sim.world.state
+calls = []
+seen = dict(migrates=0, ghost_exchanges=0, records=0, record_bytes=0, ghost_rows=0, foreign=0)
+stage = [None]
+
+
+class Spy:
+    def __init__(self, comm):
+        self._comm = comm
+
+    def __getattr__(self, name):
+        attr = getattr(self._comm, name)
+        if not callable(attr):
+            return attr
+
+        def call(*args, **kw):
+            if stage[0]:
+                buf = args[0] if args and isinstance(args[0], np.ndarray) else None
+                calls.append((stage[0], name, kw.get("dest"), kw.get("tag"), 0 if buf is None else int(buf.nbytes)))
+            return attr(*args, **kw)
+        return call
+
+
+def staged(name, count):
+    inner = getattr(D.ParallelDomain, name)
+
+    def wrapped(self, *args):
+        stage[0] = name
+        first = len(calls)
+        try:
+            return inner(self, *args)
+        finally:
+            stage[0] = None
+            seen[count] += 1
+            if name == "_send_ghosts":
+                seen["ghost_rows"] += sum(rows.size for _, rows, _ in self.sends)
+                seen["foreign"] += sum(c[1] == "Isend" and c[2] not in self.neigh for c in calls[first:])
+    setattr(D.ParallelDomain, name, wrapped)
+
+
+def involving(rec, ids, _inner=D.R.involving):
+    sub = _inner(rec, ids)
+    ids_bytes = 2 * S.BY_NAME["id"].dtype.itemsize
+    per = ids_bytes + sum(f.dtype.itemsize * int(np.prod(f.tail[1:])) for f in D.R.HISTORY if sub[f.name] is not None)
+    seen["records"] += int(sub["a"].size)
+    seen["record_bytes"] += int(sub["a"].size) * per
+    return sub
+
+
+base = dict(migrated=par.migrated, records=par.records_migrated, bytes_migrated=par.bytes_migrated,
+            bytes_ghosts=par.bytes_ghosts)
+par.comm = Spy(par.comm)
+staged("_migrate", "migrates")
+staged("_send_ghosts", "ghost_exchanges")
+D.R.involving = involving
+sim.run(end_time=float(sys.argv[2]))
+declared = [f for f in S.of("particle") if f.migrate and S.enabled(f, st.features)]
+assert all(getattr(st, f.name).dtype == f.dtype for f in declared)
+row = {f.name: f.dtype.itemsize * int(np.prod(getattr(st, f.name).shape[1:])) for f in declared}
+stats = par.stats(sim.world)
+json.dump(dict(calls=calls, seen=seen, stats=stats, neigh=list(par.neigh),
+               particle_bytes=sum(row.values()), ghost_bytes=sum(b for k, b in row.items() if S.BY_NAME[k].ghost),
+               count_tag=D._TAG_GHOST_COUNT,
+               migrated=par.migrated - base["migrated"], records=par.records_migrated - base["records"],
+               bytes_migrated=par.bytes_migrated - base["bytes_migrated"],
+               bytes_ghosts=par.bytes_ghosts - base["bytes_ghosts"],
+               totals=dict(bytes_migrated=par.bytes_migrated, bytes_ghosts=par.bytes_ghosts,
+                           records=par.records_migrated)),
+          open(f"{sys.argv[3]}/rank{par.rank}.json", "w"))
+"""
+
+
+def test_rebuild_sends_typed_buffers_only(tmp_path):
+    """At each exchange of a 3-rank run in which every bead crosses every rank boundary with
+    its contact (tests/scenes/par_periodic.toml), migration and ghosts call only the typed
+    (buffer) methods of the communicator, never a pickling one (alltoall, send, allgather:
+    those gather the message of a failed rank only); ghosts go to neighbour ranks only, and
+    migration buffers only where there is something to send. What a rank sent equals, to the
+    byte, its migrated particles times the bytes of one particle's declared arrays (dem.schema)
+    plus its records' ids and history, and its ghost rows times the declared ghost arrays;
+    the counters say so, summed over the ranks in ``stats``."""
+    import json
+    mpi_python(3, _SPY, os.path.join(SCENES, "par_periodic.toml"), 0.01, tmp_path)
+    ranks = [json.load(open(tmp_path / f"rank{r}.json")) for r in range(3)]
+    for r, d in enumerate(ranks):
+        pickled = [c for c in d["calls"] if c[1][0].islower()]
+        assert not pickled, (r, pickled[:5])
+        mig = [c for c in d["calls"] if c[0] == "_migrate"]
+        gho = [c for c in d["calls"] if c[0] == "_send_ghosts"]
+        assert sum(c[1] == "Alltoall" for c in mig) == d["seen"]["migrates"] > 10
+        sends = [c for c in mig if c[1] == "Isend"]
+        assert all(c[4] > 0 and c[2] != r for c in sends)
+        assert sum(c[4] for c in sends) == d["bytes_migrated"]
+        assert d["bytes_migrated"] == d["migrated"] * d["particle_bytes"] + d["seen"]["record_bytes"]
+        assert d["records"] == d["seen"]["records"]
+        assert d["seen"]["foreign"] == 0
+        payload = sum(c[4] for c in gho if c[1] == "Isend" and c[3] != d["count_tag"])
+        assert payload == d["bytes_ghosts"] == d["seen"]["ghost_rows"] * d["ghost_bytes"] > 0
+    assert sum(d["migrated"] for d in ranks) > 36  # every bead crossed at least one rank boundary
+    assert sum(d["records"] for d in ranks) > 0  # bead-bead contacts travelled with them
+    st = ranks[0]["stats"]  # the run totals (any exchange before the spy included)
+    assert st["bytes_migrated"] == sum(d["totals"]["bytes_migrated"] for d in ranks)
+    assert st["bytes_ghosts"] == sum(d["totals"]["bytes_ghosts"] for d in ranks)
+    assert st["records_migrated"] == sum(d["totals"]["records"] for d in ranks)

@@ -183,19 +183,23 @@ class Decomposition:
         return np.sqrt(d2), shift
 
     def neighbours(self, me, halo):
-        """Ranks whose box lies within ``halo`` of box ``me`` (periodic images included)."""
+        """Ranks whose box lies within ``halo`` of box ``me`` (periodic images included).
+        Symmetric to the last bit (q is a neighbour of me exactly when me is one of q: the
+        distance of a pair is computed in one order, lower rank first), as the ghost messages,
+        which go only between neighbours, need."""
         out = []
         L = self.hi - self.lo
         for q in range(self.nranks):
             if q == me:
                 continue
+            i, j = min(me, q), max(me, q)
             d2 = 0.0
             for k in range(3):
-                best = max(self.blo[q, k] - self.bhi[me, k], self.blo[me, k] - self.bhi[q, k], 0.0)
+                best = max(self.blo[j, k] - self.bhi[i, k], self.blo[i, k] - self.bhi[j, k], 0.0)
                 if self.periodic[k]:
                     for s in (-L[k], L[k]):
-                        best = min(best, max(self.blo[q, k] - self.bhi[me, k] - s,
-                                             self.blo[me, k] + s - self.bhi[q, k], 0.0))
+                        best = min(best, max(self.blo[j, k] - self.bhi[i, k] - s,
+                                             self.blo[i, k] + s - self.bhi[j, k], 0.0))
                 d2 += best * best
             if d2 < halo * halo:
                 out.append(q)

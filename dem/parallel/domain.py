@@ -8,6 +8,13 @@
   records), then each rank sends as ghosts its particles within one halo
   (2 r_max + reach + skin) of a neighbour's box, shifted by the periodic image that
   brings them next to it.
+  Nothing is pickled on this path: migration sends an ``Alltoall`` of int64 counts (particles,
+  records and which record fields, per rank pair), then typed buffers (one per dtype, the
+  particles' declared arrays and their records) only between ranks with something to send;
+  ghosts go only to and from the neighbour ranks (``neigh``), first one count per
+  neighbour, then one typed buffer per dtype. A failure on one rank is agreed on through the
+  counts (migration) or one flag (``Allreduce``: ghosts, cost), and only then are the
+  messages gathered, so that every rank raises the same error.
 * Forward communication (every step): positions, velocities, angular velocities (and
   temperatures) of the ghosts, one message per neighbour rank.
 A pair of an owned particle and a ghost is computed on both ranks ("newton off" across
@@ -22,6 +29,85 @@ from .. import schema as S
 
 class ParallelError(RuntimeError):
     pass
+
+
+# message tags (the per-step forward message uses 11); a typed buffer's tag is its base plus
+# the index of its dtype in the exchange's dtype order
+_TAG_GHOST_COUNT = 21
+_TAG_GHOST = 30
+_TAG_MIGRATE = 50
+
+
+class _Rows:
+    """Where the values of one row (a particle, a contact record) sit in typed buffers: the
+    arrays' columns grouped by dtype, one 2-D buffer ``(rows, width[dtype])`` per dtype, so that
+    every value travels with its own MPI datatype and arrives bit for bit (ids as int64,
+    materials as int32, ...). ``specs``: (name, dtype, shape after the first axis), in the
+    declared order; ``width`` keeps the dtypes in the order first met."""
+
+    def __init__(self, specs):
+        self.width = {}
+        self.cols = []  # (name, dtype, first column, columns, shape after the first axis)
+        for name, dt, tail in specs:
+            dt = np.dtype(dt)
+            tail = tuple(int(t) for t in tail)
+            w = int(np.prod(tail, dtype=np.int64))
+            c = self.width.get(dt, 0)
+            self.cols.append((name, dt, c, w, tail))
+            self.width[dt] = c + w
+
+    def pack(self, bufs, values):
+        """Copy ``values`` (name -> array with one row per row of the buffers) into ``bufs``."""
+        for name, dt, c, w, _ in self.cols:
+            v = values[name]
+            bufs[dt][:, c:c + w] = v.reshape(v.shape[0], w)
+
+    def unpack(self, bufs, n):
+        """name -> the ``n`` rows of each array, as views of ``bufs``."""
+        return {name: bufs[dt][:, c:c + w].reshape((n,) + tail) for name, dt, c, w, tail in self.cols}
+
+
+_ALL_RECORD_FIELDS = (1 << len(R.HISTORY)) - 1
+
+
+def _record_mask(rec):
+    """The history fields a set of records holds, one bit per :data:`records.HISTORY` field
+    (a field is None on a rank whose arrays had no rows: records.extract)."""
+    if rec is None:
+        return 0
+    return sum(1 << k for k, f in enumerate(R.HISTORY) if rec.get(f.name) is not None)
+
+
+_RECORD_ROWS = {}
+
+
+def _record_rows(mask):
+    """Layout of a contact record: the two ids (int64), then the fields of ``mask`` (a
+    pair array's shape without its slot axis: ``hist`` (S, 3) -> 3 columns)."""
+    rows = _RECORD_ROWS.get(mask)
+    if rows is None:
+        rows = _RECORD_ROWS[mask] = _Rows([("a", S.I8, ()), ("b", S.I8, ())] + [
+            (f.name, f.dtype, f.tail[1:]) for k, f in enumerate(R.HISTORY) if mask >> k & 1])
+    return rows
+
+
+def _union(*layouts):
+    """The dtypes of the layouts, in the order first met (one message per dtype and peer)."""
+    out = []
+    for lay in layouts:
+        out += [dt for dt in lay.width if dt not in out]
+    return out
+
+
+def _head(bufs, rows, n):
+    """2-D views of the first ``n`` rows of layout ``rows`` in the 1-D per-dtype buffers."""
+    return {dt: bufs[dt][:n * w].reshape(n, w) for dt, w in rows.width.items()}
+
+
+def _tail(bufs, rows, n, recs, m):
+    """2-D views of the ``m`` records (layout ``recs``) after ``n`` rows of layout ``rows``."""
+    return {dt: bufs[dt][n * rows.width.get(dt, 0):n * rows.width.get(dt, 0) + m * w].reshape(m, w)
+            for dt, w in recs.width.items()}
 
 
 class ParallelDomain:
@@ -40,6 +126,9 @@ class ParallelDomain:
         self.exchanges = 0
         self.rebalances = 0
         self.migrated = 0
+        self.records_migrated = 0  # contact records sent with the migrating particles
+        self.bytes_migrated = 0  # typed payload this rank sent in migrations (particles + records)
+        self.bytes_ghosts = 0  # typed payload this rank sent as ghosts at the exchanges
         self.sort_pending = False
         self.imbalance = 1.0
         self._bufs = {}
@@ -111,9 +200,11 @@ class ParallelDomain:
             cost = float(weights.sum())
         except Exception as exc:  # noqa: BLE001 - shared below, raised on every rank
             err = self._error_text(world, exc, "dropping the ghosts")
-        costs = self.comm.allgather((cost, err))
-        _raise_shared([e for _, e in costs])
-        self._rebalance(world, np.array([c for c, _ in costs]), weights, halo)
+        costs = np.empty((self.size, 2))
+        self.comm.Allgather(np.array([cost, 1.0 if err else 0.0]), costs)
+        if np.any(costs[:, 1] != 0.0):
+            _raise_shared(self.comm.allgather(err))
+        self._rebalance(world, np.ascontiguousarray(costs[:, 0]), weights, halo)
         rec = self._migrate(world, rec)
         self._send_ghosts(world, halo)
         self.exchanges += 1
@@ -136,30 +227,75 @@ class ParallelDomain:
 
     def _migrate(self, world, rec):
         """Send the particles that left this rank's box to their owners, with their contact
-        records; take in the particles that arrive."""
+        records; take in the particles that arrive (after the owned ones that stay, in the
+        order of the source ranks).
+
+        An ``Alltoall`` of three int64 per rank pair (particles, records, the record fields
+        the sender holds: a bit per :data:`records.HISTORY` field; particles = -1: the sender
+        failed), then, only between the ranks that send something, one buffer per dtype
+        holding the particles' declared arrays (:class:`_Rows`) followed by their records."""
+        MPI = _mpi()
         st = world.state
-        out = [None] * self.size
+        counts = np.zeros((self.size, 3), np.int64)
+        out = {}
         leave = np.zeros(0, bool)
+        err = None
         try:
+            moving = list(self._moving(st))
+            rows_of = _Rows((name, a.dtype, a.shape[1:]) for name, a in moving)
+            dtypes = _union(rows_of, _record_rows(_ALL_RECORD_FIELDS))
             dest = self.dec.owner(st.position)
             leave = dest != self.rank
+            mask = _record_mask(rec)
+            rrows = _record_rows(mask)
+            arrays = dict(moving)
             for q in np.unique(dest[leave]):
                 rows = np.nonzero(dest == q)[0]
-                pkg = {name: a[rows] for name, a in self._moving(st)}
-                pkg["__records"] = R.involving(rec, st.id[rows]) if rec is not None else None
-                out[q] = pkg
-        except Exception as exc:  # noqa: BLE001
-            out = [{"__error": self._error_text(world, exc, "packing the migrating particles")}] * self.size
-        inc = self.comm.alltoall(out)
-        _raise_shared([p.get("__error") if p is not None else None for p in inc])
-        inc = [p for p in inc if p is not None]
+                sub = R.involving(rec, st.id[rows]) if rec is not None else None
+                m = sub["a"].shape[0] if sub is not None else 0
+                bufs = {dt: np.empty(rows.size * rows_of.width.get(dt, 0) + m * rrows.width.get(dt, 0), dt)
+                        for dt in dtypes}
+                rows_of.pack(_head(bufs, rows_of, rows.size), {k: a[rows] for k, a in arrays.items()})
+                if m:
+                    rrows.pack(_tail(bufs, rows_of, rows.size, rrows, m), sub)
+                out[int(q)] = bufs
+                counts[q] = (rows.size, m, mask)
+        except Exception as exc:  # noqa: BLE001 - shared below, raised on every rank
+            err = self._error_text(world, exc, "packing the migrating particles")
+            counts[:] = (-1, 0, 0)
+            out = {}
+        inc = np.empty_like(counts)
+        self.comm.Alltoall(counts, inc)
+        if np.any(inc[:, 0] < 0):  # the failing rank sent -1 to every rank, itself included
+            _raise_shared(self.comm.allgather(err))
+        got = {}
+        reqs = []
+        for q in range(self.size):
+            n, m, qmask = (int(v) for v in inc[q])
+            if n > 0:
+                rr = _record_rows(qmask)
+                bufs = {dt: np.empty(n * rows_of.width.get(dt, 0) + m * rr.width.get(dt, 0), dt) for dt in dtypes}
+                got[q] = (n, m, rr, bufs)
+                reqs += [self.comm.Irecv(b, source=q, tag=_TAG_MIGRATE + k)
+                         for k, (dt, b) in enumerate(bufs.items()) if b.size]
+        for q, bufs in out.items():
+            reqs += [self.comm.Isend(b, dest=q, tag=_TAG_MIGRATE + k)
+                     for k, (dt, b) in enumerate(bufs.items()) if b.size]
+            self.bytes_migrated += sum(b.nbytes for b in bufs.values())
+            self.records_migrated += int(counts[q, 1])
+        MPI.Request.Waitall(reqs)
+        parts, recs = [], []
+        for q in sorted(got):
+            n, m, rr, bufs = got[q]
+            parts.append(rows_of.unpack(_head(bufs, rows_of, n), n))
+            r = rr.unpack(_tail(bufs, rows_of, n, rr, m), m)
+            recs.append({k: r.get(k) for k in R.FIELDS})
         keep = np.nonzero(~leave)[0]
         self.migrated += int(leave.sum())
-        for name, a in list(self._moving(st)):
-            parts = [a[keep]] + [p[name] for p in inc]
-            setattr(st, name, np.ascontiguousarray(np.concatenate(parts)))
+        for name, a in moving:
+            setattr(st, name, np.ascontiguousarray(np.concatenate([a[keep]] + [p[name] for p in parts])))
         if rec is not None:
-            rec = R.concat([rec] + [p["__records"] for p in inc])
+            rec = R.concat([rec] + recs)
         st.n_owned = st.id.shape[0]
         if self.sort_pending:  # spatial sort of the owned rows (cache locality)
             from ..neighbors import sort_permutation
@@ -169,38 +305,62 @@ class ParallelDomain:
 
     def _send_ghosts(self, world, halo):
         """Send every neighbour rank this rank's particles within one halo of its box
-        (shifted by the periodic image nearest to it); append the ghosts received."""
+        (shifted by the periodic image nearest to it); append the ghosts received, in the
+        order of ``neigh``.
+
+        One flag (``Allreduce``: did any rank fail to pack?), then to and from each neighbour
+        one int64 count and one buffer per dtype of the declared ghost arrays (:class:`_Rows`)."""
+        MPI = _mpi()
         st = world.state
         nown = st.n_owned
         self.sends = []
-        out = [None] * self.size
+        out = []
+        err = None
         try:
-            ghost = {name: a for name, a in self._moving(st) if S.BY_NAME[name].ghost}
+            ghost = [(name, a) for name, a in self._moving(st) if S.BY_NAME[name].ghost]
+            rows_of = _Rows((name, a.dtype, a.shape[1:]) for name, a in ghost)
             for q in self.neigh:
                 d, shift = self.dec.box_distance(st.position, q)
                 rows = np.nonzero(d < halo)[0]
                 sh = np.ascontiguousarray(shift[rows])
                 self.sends.append((q, rows, sh))
-                out[q] = {name: (a[rows] + sh if name == "position" else a[rows]) for name, a in ghost.items()}
-        except Exception as exc:  # noqa: BLE001
-            out = [{"__error": self._error_text(world, exc, "packing the ghosts")}] * self.size
-        inc = self.comm.alltoall(out)
-        _raise_shared([p.get("__error") if p is not None else None for p in inc])
+                bufs = {dt: np.empty((rows.size, w), dt) for dt, w in rows_of.width.items()}
+                rows_of.pack(bufs, {name: (a[rows] + sh if name == "position" else a[rows]) for name, a in ghost})
+                out.append(bufs)
+        except Exception as exc:  # noqa: BLE001 - shared below, raised on every rank
+            err = self._error_text(world, exc, "packing the ghosts")
+        failed = np.empty(1, np.int64)
+        self.comm.Allreduce(np.array([1 if err else 0], np.int64), failed, op=MPI.MAX)
+        if failed[0]:
+            _raise_shared(self.comm.allgather(err))
+        nq = len(self.neigh)
+        sent = np.array([rows.size for _, rows, _ in self.sends], np.int64)
+        cnt = np.zeros(nq, np.int64)
+        reqs = [self.comm.Irecv(cnt[k:k + 1], source=q, tag=_TAG_GHOST_COUNT) for k, q in enumerate(self.neigh)]
+        reqs += [self.comm.Isend(sent[k:k + 1], dest=q, tag=_TAG_GHOST_COUNT) for k, q in enumerate(self.neigh)]
+        MPI.Request.Waitall(reqs)
+        got = [{dt: np.empty((int(cnt[k]), w), dt) for dt, w in rows_of.width.items()} for k in range(nq)]
+        reqs = []
+        for k, q in enumerate(self.neigh):
+            reqs += [self.comm.Irecv(b, source=q, tag=_TAG_GHOST + g) for g, b in enumerate(got[k].values()) if b.size]
+        for k, q in enumerate(self.neigh):
+            reqs += [self.comm.Isend(b, dest=q, tag=_TAG_GHOST + g) for g, b in enumerate(out[k].values()) if b.size]
+            self.bytes_ghosts += sum(b.nbytes for b in out[k].values())
+        MPI.Request.Waitall(reqs)
         self.recvs = []
         off = nown
-        got = []
-        for q in self.neigh:
-            pkg = inc[q]
-            cnt = pkg["id"].shape[0]
-            self.recvs.append((q, off, cnt))
-            off += cnt
-            got.append(pkg)
+        parts = []
+        for k, q in enumerate(self.neigh):
+            c = int(cnt[k])
+            self.recvs.append((q, off, c))
+            off += c
+            parts.append(rows_of.unpack(got[k], c))
         for name, a in list(self._moving(st)):
             if S.BY_NAME[name].ghost:
-                parts = [a] + [p[name] for p in got]
+                pieces = [a] + [p[name] for p in parts]
             else:
-                parts = [a, np.zeros((off - nown,) + a.shape[1:], a.dtype)]
-            setattr(st, name, np.ascontiguousarray(np.concatenate(parts)))
+                pieces = [a, np.zeros((off - nown,) + a.shape[1:], a.dtype)]
+            setattr(st, name, np.ascontiguousarray(np.concatenate(pieces)))
         st.n_ghost = off - nown
 
     def _error_text(self, world, exc, doing):
@@ -284,14 +444,17 @@ class ParallelDomain:
 
     def stats(self, world):
         """Run totals over the ranks (collective): ghosts, forward-communication bytes and
-        messages per step, exchanges, migrations, re-balancings, current imbalance."""
+        messages per step, exchanges, migrations (particles, contact records and the bytes
+        of their typed buffers), bytes sent as ghosts at the exchanges, re-balancings,
+        current imbalance."""
         st = world.state
         loc = np.array([st.n_ghost, self.halo_bytes(world.thermal is not None), len(self.sends),
-                        self.migrated], float)
+                        self.migrated, self.records_migrated, self.bytes_migrated, self.bytes_ghosts], float)
         tot = self.allsum(loc)
         own = np.array(self.comm.allgather(st.n_owned), float)
         return dict(ghosts=int(tot[0]), halo_bytes=float(tot[1]), messages=int(tot[2]),
-                    migrated=int(tot[3]), exchanges=self.exchanges, rebalances=self.rebalances,
+                    migrated=int(tot[3]), records_migrated=int(tot[4]), bytes_migrated=int(tot[5]),
+                    bytes_ghosts=int(tot[6]), exchanges=self.exchanges, rebalances=self.rebalances,
                     imbalance=float(own.max() / max(own.mean(), 1e-300)))
 
 
