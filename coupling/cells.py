@@ -35,6 +35,10 @@ from __future__ import annotations
 import numpy as np
 
 
+# MPI's DOUBLE_INT pair (a value and the cell it belongs to) as a NumPy record
+_VALUE_CELL = np.dtype([("v", "f8"), ("c", "i4")], align=True)
+
+
 class CellShare:
     """Ownership and halo of the gas cells among the DEM ranks (serial: one rank owns every
     cell, nothing is sent)."""
@@ -178,28 +182,48 @@ class CellShare:
         return arrays
 
     # ------------------------------------------------------------------ reductions of O(1)
+    def _reduce(self, x, op):
+        """x (a number or a small array) reduced over the ranks as a float64 buffer."""
+        if self.par is None:
+            return x
+        a = np.atleast_1d(np.asarray(x, dtype=np.float64))
+        out = np.empty_like(a)
+        self.comm.Allreduce(np.ascontiguousarray(a), out, op=op)
+        return out if np.ndim(x) else type(x)(out[0]) if isinstance(x, (int, float, bool)) else out[0]
+
     def allsum(self, x):
-        return x if self.par is None else self.par.allsum(x)
+        from mpi4py import MPI
+        return self._reduce(x, MPI.SUM) if self.par is not None else x
 
     def allmax(self, x):
-        return x if self.par is None else self.par.allmax(x)
+        from mpi4py import MPI
+        return self._reduce(x, MPI.MAX) if self.par is not None else x
 
     def allmin(self, x):
-        return x if self.par is None else self.par.allmin(x)
+        from mpi4py import MPI
+        return self._reduce(x, MPI.MIN) if self.par is not None else x
+
+    def _loc(self, value, cell, op):
+        from mpi4py import MPI
+        a = np.zeros(1, _VALUE_CELL)
+        a["v"], a["c"] = float(value), int(cell)
+        b = np.zeros(1, _VALUE_CELL)
+        self.comm.Allreduce([a, MPI.DOUBLE_INT], [b, MPI.DOUBLE_INT], op=op)
+        return float(b["v"][0]), int(b["c"][0])
 
     def argmax(self, value, cell):
-        """(largest value, its cell) over the ranks (MAXLOC: a reduction of one pair)."""
+        """(largest value, its cell) over the ranks (MAXLOC of one double-int pair)."""
         if self.par is None:
             return value, cell
         from mpi4py import MPI
-        return self.comm.allreduce((float(value), int(cell)), op=MPI.MAXLOC)
+        return self._loc(value, cell, MPI.MAXLOC)
 
     def argmin(self, value, cell):
         """(smallest value, its cell) over the ranks (MINLOC)."""
         if self.par is None:
             return value, cell
         from mpi4py import MPI
-        return self.comm.allreduce((float(value), int(cell)), op=MPI.MINLOC)
+        return self._loc(value, cell, MPI.MINLOC)
 
     def gather_owned(self, a, root=0):
         """The whole per-cell array on ``root`` from each rank's owned cells (restart points

@@ -190,7 +190,7 @@ class CouplingInterface:
         same = (prev is not None and prev[0].shape == pos.shape and np.array_equal(prev[0], pos)
                 and np.array_equal(prev[1], rad))
         if par is not None:
-            same = bool(par.allmin(int(same)))   # the sums below are collective: every rank agrees
+            same = bool(self.cells.allmin(int(same)))   # the sums below are collective: every rank agrees
             self.cells.refresh(self.sim.world.halo())   # the DEM boxes were re-cut: who sees what
         if same:
             # particles have not moved (held bed, mechanics = false): same stencil, exactly

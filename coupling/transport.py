@@ -257,21 +257,24 @@ class _M2MLink:
         self.cells = cells
         self.pending = None     # a failure of this rank in a send, raised with the next agreement
         self.flags = 0
+        self.stop = 0           # a stop request of any rank, agreed with each gas frame
         self.frame_difference = None
 
     def own_stop(self):
-        """A stop request of any rank (Open MPI passes a Ctrl-C to every rank as SIGTERM)."""
-        return int(self.R.comm.allreduce(int(stop_requested()), op=_mpi_max())) if self.R.comm is not None \
-            else stop_requested()
+        """A stop request of any rank (a scheduler signals every rank; Open MPI passes a Ctrl-C on
+        to every rank as SIGTERM), as agreed with the last gas frame (no message of its own: a
+        signal that arrives after that agreement ends the next coupling step)."""
+        return self.stop
 
     def _agree(self, err, scalars):
         """Every rank learns whether any failed (then raises the first failure, naming its rank),
         the solver's flags and its ledger scalars (one reduction of a few numbers)."""
         R = self.R
         n_sc = -1 if scalars is None else int(scalars.size)
-        head = np.array([1.0 if err is not None else 0.0, float(self.flags), float(n_sc)])
+        head = np.array([1.0 if err is not None else 0.0, float(self.flags), float(n_sc), float(stop_requested())])
         if R.comm is not None:
             head = _allmax(R.comm, head)
+        self.stop = max(self.stop, int(head[3]))
         if head[0] > 0:
             errs = [err] if R.comm is None else R.comm.allgather(None if err is None else str(err))
             k, msg = next((k, e) for k, e in enumerate(errs) if e is not None)
@@ -291,7 +294,7 @@ class _M2MLink:
         return sc
 
     def _accept(self, step):
-        """Every rank accepts its gas processors; the ranks check together every 0.2 s, so that
+        """Every rank accepts its gas processors; the ranks check together every 0.02 s, so that
         a failure seen by one (the solver exited: rank 0 watches it) ends the wait of all."""
         R = self.R
         if R.comm is None:
@@ -301,7 +304,7 @@ class _M2MLink:
         while True:
             if not done and err is None:
                 try:
-                    done = self.ex.accept(step, wait=0.2)
+                    done = self.ex.accept(step, wait=0.02)
                 except CouplingError as e:
                     err = e
                 except Exception as e:  # noqa: BLE001 - a failure here must reach every rank
