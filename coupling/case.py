@@ -99,6 +99,7 @@ class CouplingConfig:
     torque: str = "none"
     lift: str = "none"
     virtual_mass: bool = False
+    exchange_host: str = "127.0.0.1"   # where the DEM ranks listen for the gas processors (m2m); "auto": the node's address
     walls: list = field(default_factory=list)   # [[walls]] ties of DEM walls to gas patches (coupling.energy)
 
 
@@ -123,7 +124,27 @@ _KEYS = {
     "torque": (str, tuple(TORQUE_MODELS)),
     "lift": (str, tuple(LIFT_MODELS)),
     "virtual_mass": (bool, None),
+    "exchange_host": (str, "an IPv4 address (such as 127.0.0.1, the default: every process on this machine) or "
+                           "\"auto\" (each DEM rank its node's address, for gas processes on other nodes)"),
 }
+
+
+def exchange_address(host: str) -> str:
+    """The IPv4 address a DEM rank listens on for coupling.exchange_host (``auto``: this
+    node's address, as its host name resolves)."""
+    import socket
+    return socket.gethostbyname(socket.gethostname()) if host == "auto" else host
+
+
+def _valid_host(val) -> bool:
+    import ipaddress
+    if val == "auto":
+        return True
+    try:
+        ipaddress.IPv4Address(val)
+    except ValueError:
+        return False
+    return True
 
 
 def load_config(path: Path) -> CouplingConfig:
@@ -163,6 +184,9 @@ def load_config(path: Path) -> CouplingConfig:
         if typ is bool:
             if not isinstance(val, bool):
                 raise CaseConfigError(path, f"must be true or false, got {val!r}", k)
+        elif typ is str and isinstance(allowed, str):   # a free value, described by ``allowed``
+            if not isinstance(val, str) or not _valid_host(val):
+                raise CaseConfigError(path, f"{val!r} is not {allowed}", k)
         elif typ is str:
             if not isinstance(val, str) or val not in allowed:
                 raise CaseConfigError(path, f"{val!r} is not one of {', '.join(allowed)}", k)

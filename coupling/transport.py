@@ -147,11 +147,22 @@ def open_exchange(out: Path, cfg, n_cells: int, tied, *, m2m: bool = False):
 def open_m2m(R, out: Path, cfg, cells):
     """Every rank's many-to-many exchange (listening) and its plan lines; rank 0 writes
     ``ready`` once all are written (collective; before the solver starts)."""
+    from .case import exchange_address
     from .m2m import M2MExchange, gas_pairs
     folder = out / "coupling" / "m2m"
-    ex = R.everywhere(lambda: M2MExchange(0 if R.comm is None else R.comm.Get_rank(),
-                                          gas_pairs(out, cfg.gas_processes, cells.owned_mask), folder,
-                                          timeout=cfg.timeout))
+    from .errors import CouplingRunError
+    rank = 0 if R.comm is None else R.comm.Get_rank()
+
+    def listen():
+        host = cfg.exchange_host
+        try:
+            return M2MExchange(rank, gas_pairs(out, cfg.gas_processes, cells.owned_mask), folder,
+                               timeout=cfg.timeout, host=exchange_address(host))
+        except OSError as e:
+            raise CouplingRunError(f"coupling.exchange_host = {host!r}: DEM rank {rank} cannot listen there "
+                                   f"({e.strerror or e}); give an address of this node, or \"auto\"") from None
+
+    ex = R.everywhere(listen)
     R.everywhere(ex.write_plan)
     R.barrier()
     if R.root:

@@ -341,3 +341,30 @@ def test_file_transport_with_two_dem_ranks_is_refused(tmp_path):
     assert p.returncode == 2, p.stdout[-2000:] + p.stderr[-2000:]
     assert "coupling.toml" in p.stderr and 'transport = "socket"' in p.stderr, p.stderr[-2000:]
     assert not out.exists()
+
+
+def test_exchange_host(reference, tmp_path):
+    """coupling.exchange_host: an IPv4 address or "auto" (each DEM rank its node's address, for gas
+    processes on other nodes). "auto" on (2, 1) gives the (1, 1) result to round-off, the plan
+    names the node's address; a value that is neither is refused naming the key; an address of
+    another machine is refused before the solver starts, exit 2, naming the key and the rank."""
+    import socket
+    from coupling.case import CaseConfigError, load_config
+    base, ref = reference
+    bad = tmp_path / "bad.toml"
+    bad.write_text('[coupling]\nexchange_host = "my-laptop"\n')
+    with pytest.raises(CaseConfigError, match=r"coupling.exchange_host: 'my-laptop' is not an IPv4 address"):
+        load_config(bad)
+    case = case_with(tmp_path, "fluidized_bed_heating", 1, tag="_auto")
+    t = case / "coupling.toml"
+    t.write_text(t.read_text().replace("[coupling]\n", '[coupling]\nexchange_host = "auto"\n', 1))
+    out = tmp_path / "auto"
+    coupled(2, case, out)
+    assert_close(final(ref[1]), final(out), 1e-13, 1e-10, 1e-10)
+    node = socket.gethostbyname(socket.gethostname())
+    lines = [f.read_text().split()[0] for f in (out / "coupling" / "m2m" / "gas0").glob("dem*")]
+    assert lines and set(lines) == {node}, lines
+    t.write_text(t.read_text().replace('exchange_host = "auto"', 'exchange_host = "192.0.2.1"'))
+    p = coupled(2, case, tmp_path / "far", check=False)
+    assert p.returncode == 2, p.stderr[-2000:]
+    assert "coupling.exchange_host = '192.0.2.1': DEM rank" in p.stderr and "cannot listen there" in p.stderr
