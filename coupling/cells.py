@@ -35,6 +35,13 @@ from __future__ import annotations
 import numpy as np
 
 
+class _Cells:
+    """A mesh of n cells, for a serial CellShare."""
+
+    def __init__(self, n):
+        self.n_cells = n
+
+
 # MPI's DOUBLE_INT pair (a value and the cell it belongs to) as a NumPy record
 _VALUE_CELL = np.dtype([("v", "f8"), ("c", "i4")], align=True)
 
@@ -43,7 +50,10 @@ class CellShare:
     """Ownership and halo of the gas cells among the DEM ranks (serial: one rank owns every
     cell, nothing is sent)."""
 
-    def __init__(self, mesh, par=None, *, reach_cells: float = 2.0):
+    def __init__(self, mesh, par=None, *, halo: float = 0.0, reach_cells: float = 2.0):
+        """``mesh``: the gas mesh (coupling.mesh.PolyMesh; serial: anything with ``n_cells``),
+        ``par``: the DEM's ParallelDomain or None, ``halo``: the particle halo (m,
+        dem.world.World.halo), ``reach_cells``: the stencil's reach in cell diagonals."""
         self.n_cells = int(mesh.n_cells)
         self.par = par
         self.bytes_sent = 0          # bytes this rank sent between DEM ranks (assemble, update)
@@ -65,17 +75,20 @@ class CellShare:
         h = np.sqrt(((mesh.cell_vhi - mesh.cell_vlo) ** 2).sum(axis=1))
         self.cell_reach = float(h.max(initial=0.0)) * float(reach_cells)
         self._planned = None
-        self.plan()
+        self.plan(halo)
+
+    @classmethod
+    def serial(cls, n_cells: int):
+        """One rank owning every one of ``n_cells`` cells (nothing is sent)."""
+        return cls(_Cells(n_cells))
 
     # ------------------------------------------------------------------ the pattern
-    def plan(self, halo=None):
-        """Which cells this rank sees and which ranks own them (collective; at start-up and
-        after the DEM boxes were re-cut)."""
+    def plan(self, halo):
+        """Which cells this rank sees (within ``halo`` plus the stencil's reach of its box) and
+        which ranks own them (collective; at start-up and after the DEM boxes were re-cut)."""
         par = self.par
-        if par is None:
-            return
         from mpi4py import MPI
-        halo = float(halo if halo is not None else getattr(self, "particle_halo", 0.0))
+        halo = float(halo)
         self.particle_halo = halo
         d, _ = par.dec.box_distance(self.mesh.cell_centres, self.rank)
         view = (d <= halo + self.cell_reach) | self.owned_mask
@@ -189,7 +202,7 @@ class CellShare:
         a = np.atleast_1d(np.asarray(x, dtype=np.float64))
         out = np.empty_like(a)
         self.comm.Allreduce(np.ascontiguousarray(a), out, op=op)
-        return out if np.ndim(x) else type(x)(out[0]) if isinstance(x, (int, float, bool)) else out[0]
+        return out if np.ndim(x) else float(out[0])
 
     def allsum(self, x):
         from mpi4py import MPI

@@ -22,13 +22,11 @@ class Diagnostics:
                "E_conv_particles", "dp", "bed_height", "v_max", "n_outside", "eps_raw_min",
                "eps_clipped_cells", "wall"]
 
-    def __init__(self, path, mesh, gas, keep_until=None, ledger=None):
+    def __init__(self, path, keep_until=None, ledger=None):
         from dem.output import History
         from .energy import BALANCE_COLUMNS
         self.ledger = ledger
         self.hist = History(str(path), self.COLUMNS + (BALANCE_COLUMNS if ledger is not None else []), keep_until)
-        self.mesh = mesh
-        self.gas = gas
 
     @staticmethod
     def particle_records(sim):
@@ -47,7 +45,7 @@ class Diagnostics:
         return a
 
     @staticmethod
-    def sums_of(sim, iface, fluid, frame):
+    def sums_of(sim, iface, fluid, frame, ends):
         """The sums a coupling.csv row needs, over the ranks (collective): (particle sums,
         particle_records, gas_sums). The particles' energy and convective heat are
         particle_records' (the balance's own)."""
@@ -61,7 +59,7 @@ class Diagnostics:
         loc[6] = iface.n_lost
         if sim.thermal is not None:
             loc[1] = float((1.0 / st.inv_heat_capacity[:n]).sum())
-        gas = Diagnostics.gas_sums(iface, fluid, frame)   # this rank's owned cells
+        gas = Diagnostics.gas_sums(iface, fluid, frame, ends)   # this rank's owned cells
         if sim.par is not None:
             vmax = sim.par.allmax(loc[5])
             loc = sim.par.allsum(loc)
@@ -71,23 +69,25 @@ class Diagnostics:
         return loc, precs, gas
 
     @staticmethod
-    def gas_sums(iface, fluid, frame):
+    def owned_ends(iface):
+        """(bottom, top): the cells of the mesh's lowest and highest layer of cell centres that
+        this rank owns (the pressure drop's ends)."""
+        z = np.round(iface.mesh.cell_centres[:, 2], 12)
+        zl = np.unique(z)
+        own = iface.cells.owned_mask
+        return np.flatnonzero((z == zl[0]) & own), np.flatnonzero((z == zl[-1]) & own)
+
+    @staticmethod
+    def gas_sums(iface, fluid, frame, ends):
         """[E_gas, sum rho cp eps V, Q_to_gas, sum p bottom, n bottom, sum p top, n top] over the
-        cells this rank owns (coupling.cells; serial: every cell)."""
-        cs = iface.cells
-        own = cs.owned
+        cells this rank owns (coupling.cells; serial: every cell); ``ends``: owned_ends."""
+        own = iface.cells.owned
         g = iface.gas
         V = iface.V[own]
         T = fluid["T"][own]
         mg = g.rho * g.cp * frame["eps"][own] * V
         p = fluid["p"]
-        bot = getattr(cs, "_bottom", None)
-        if bot is None:
-            z = np.round(iface.mesh.cell_centres[:, 2], 12)
-            zl = np.unique(z)
-            cs._bottom = bot = np.flatnonzero((z == zl[0]) & cs.owned_mask)
-            cs._top = np.flatnonzero((z == zl[-1]) & cs.owned_mask)
-        top = cs._top
+        bot, top = ends
         return np.array([float((mg * T).sum()), float(mg.sum()),
                          float(((frame["Sexp"][own] - frame["Simp"][own] * T) * V).sum()),
                          float(p[bot].sum()), float(bot.size), float(p[top].sum()), float(top.size)])
@@ -168,6 +168,7 @@ class Outputs:
         sim = iface.sim
         self.sim, self.iface, self.ledger, self.t_wall0 = sim, iface, ledger, t_wall0
         self.hist = self.vtk = self.diag = self.walls = self.walls_by_angle = None
+        self.ends = Diagnostics.owned_ends(iface)   # every rank: its cells of the pressure drop's ends
         if sim.scene.output["vtk"]:   # every rank: under MPI each writes its own piece (collective)
             self.vtk = sim.vtk_series(str(out))
         if not root:
@@ -178,7 +179,7 @@ class Outputs:
             self.walls = WallHeatFile(str(out / "wall_heat.csv"), sim.scene, keep)
             if WallAngleFile.wanted(sim.scene):
                 self.walls_by_angle = WallAngleFile(str(out / "wall_heat_angle.csv"), sim.scene, keep)
-        self.diag = Diagnostics(out / "coupling.csv", iface.mesh, case.gas, keep, ledger)
+        self.diag = Diagnostics(out / "coupling.csv", keep, ledger)
 
     def __call__(self, fluid, frame, t, step):
         """One output step (collective): the sums over the ranks first, then rank 0's files; a
@@ -188,7 +189,7 @@ class Outputs:
             row = sim.history_row()
             if sim.scene.output["vtk"]:   # every rank its own piece (a failure raised on all)
                 sim.write_vtk(self.vtk, fluid_force=_fluid_force_now(sim, iface))
-            diag = Diagnostics.sums_of(sim, iface, fluid, frame)   # collective
+            diag = Diagnostics.sums_of(sim, iface, fluid, frame, self.ends)   # collective
         totals = sim.wall_heat_totals()   # collective over the DEM ranks
         from dem.thermal.wall_heat import WallAngleFile, cylinder_flux_by_angle
         by_angle = cylinder_flux_by_angle(sim) if WallAngleFile.wanted(sim.scene) else None   # collective
@@ -316,7 +317,6 @@ def check_gas_fields(fluid, step, *, time_value=None, mesh=None, cfg=None, eps_c
     naming the field, the number of bad cells, the first one (index and centre), the time
     and what to change. ``cells``: the global cell of each row (a many-to-many rank checks
     the cells it owns); None: row = cell."""
-    ids = cells
     bad = None
     for name, test, what in (
             ("U", lambda a: ~np.isfinite(a).all(axis=1), "non-finite"),
@@ -330,14 +330,13 @@ def check_gas_fields(fluid, step, *, time_value=None, mesh=None, cfg=None, eps_c
         with np.errstate(invalid="ignore", over="ignore"):
             m = test(a)
         if np.any(m):
-            cells = np.flatnonzero(m)
-            bad = (name, what, cells)
+            bad = (name, what, np.flatnonzero(m))
             break
     if bad is None:
         return fluid
-    name, what, cells = bad
-    val = np.asarray(fluid[name])[int(cells[0])]
-    c = int(cells[0]) if ids is None else int(ids[int(cells[0])])
+    name, what, rows = bad
+    val = np.asarray(fluid[name])[int(rows[0])]
+    c = int(rows[0]) if cells is None else int(cells[int(rows[0])])
     where = f"cell {c}"
     if mesh is not None:
         where += f" at {np.array2string(mesh.cell_centres[c], precision=6)}"
@@ -359,7 +358,7 @@ def check_gas_fields(fluid, step, *, time_value=None, mesh=None, cfg=None, eps_c
         if cfg.void_fraction == "centre":
             advice += " or use void_fraction = 'divided' or 'smoothed' (now 'centre')"
     raise GasFieldError(
-        f"gas field {name} received from the solver is {what} in {cells.size} cell(s) (first: {where}, "
+        f"gas field {name} received from the solver is {what} in {rows.size} cell(s) (first: {where}, "
         f"{name} = {np.array2string(np.atleast_1d(val), precision=6)}) at {when}: {cause}; the field is not "
         f"passed to the particles. Check log.thermoDemFoam; {advice}",
         peer="CFD solver", step=step)

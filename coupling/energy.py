@@ -427,7 +427,7 @@ class FluxSplit:
         wall (collective over the DEM ranks; ``share``: coupling.cells.CellShare, the cells
         each rank owns: valid there, each total summed over the ranks' owned cells)."""
         from .cells import CellShare
-        cs = share if share is not None else CellShare(_NoCells(self.n_cells))
+        cs = share if share is not None else CellShare.serial(self.n_cells)
         m = len(self.walls)
         out = np.zeros((self.n_cells, NPATH * m))
         if not m:
@@ -448,13 +448,6 @@ class FluxSplit:
                 out[:, NPATH * k + p] = e + shape * (owed / dt)
                 self.sent[k, p] += float(cs.allsum(out[own, NPATH * k + p].sum())) * dt
         return out
-
-
-class _NoCells:
-    """A mesh of n cells for a serial CellShare (every cell owned by the one rank)."""
-
-    def __init__(self, n):
-        self.n_cells = n
 
 
 def _contact_points(w, x):

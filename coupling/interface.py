@@ -138,9 +138,8 @@ class CouplingInterface:
         self.V = self.mesh.cell_volumes
         # the gas cells this DEM rank owns and sees (coupling.cells; serial: all of them)
         from .cells import CellShare
-        self.cells = CellShare(self.mesh, self.sim.par)
-        if self.sim.par is not None:
-            self.cells.plan(self.sim.world.halo())
+        self.cells = CellShare(self.mesh, self.sim.par,
+                               halo=self.sim.world.halo() if self.sim.par is not None else 0.0)
         self.hint = None
         self.eps_sent = None
         self.ksl_sent = None

@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from . import foam_case as fc
-from .exchange import FLAG_FINAL, KIND_TO_CFD, KIND_TO_DEM, decode_frame, encode_frame
+from .exchange import FLAG_FINAL, KIND_TO_CFD, KIND_TO_DEM, _Exchange, decode_frame, encode_frame
 from .errors import CouplingError
 
 HELLO = struct.Struct("<8sqq")
@@ -45,18 +45,15 @@ def gas_pairs(out: Path, n_gas: int, owned_mask: np.ndarray) -> dict:
     return pairs
 
 
-class M2MExchange:
-    """One DEM rank's frames with the gas processors it shares cells with."""
+class M2MExchange(_Exchange):
+    """One DEM rank's frames with the gas processors it shares cells with (the peer checks
+    and errors of coupling.exchange's transports; the frames are per gas processor)."""
 
     def __init__(self, rank: int, pairs: dict, folder: Path, *, timeout: float, host: str = "127.0.0.1"):
+        super().__init__(timeout=timeout, side="dem", n_cells=None)   # peer_process: rank 0's solver
         self.rank, self.pairs, self.folder = rank, pairs, Path(folder)
-        self.timeout = float(timeout)
         self.host = host
-        self.peer_process = None      # rank 0: the solver process (its exit ends a wait at once)
         self.socks: dict[int, socket.socket] = {}
-        self.peer_final = False
-        self.last_header = None
-        self.bytes_sent = 0
         self.bytes_received = 0
         self._t0 = None
         s = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
@@ -76,15 +73,7 @@ class M2MExchange:
             os.replace(tmp, d / f"dem{self.rank}")
 
     def _err(self, msg, step, g=None):
-        who = "CFD solver" + (f" processor {g}" if g is not None else "")
-        return CouplingError(msg, peer=who, step=step)
-
-    def _check_process(self, step):
-        pp = self.peer_process
-        if pp is not None:
-            rc = pp.poll()
-            if rc is not None:
-                raise self._err(f"process exited with code {rc}", step)
+        return CouplingError(msg, peer=self.peer + (f" processor {g}" if g is not None else ""), step=step)
 
     # ------------------------------------------------------------------ set-up
     def accept(self, step, wait: float | None = None) -> bool:

@@ -96,7 +96,7 @@ def _coupling_state(iface, step, t, fluid, ledger=None, split=None):
         per_cell[f"iface_{key}"] = cells.gather_owned(a) if a.shape[0] == nc and nc else a
     for key in FLUID_FIELDS:
         per_cell[f"fluid_{key}"] = cells.gather_owned(np.ascontiguousarray(fluid[key], dtype=np.float64))
-    if not iface.cells.rank == 0:
+    if cells.rank != 0:
         return None
     d = dict(format=np.str_(COUPLING_STATE_FORMAT), version=np.int64(COUPLING_STATE_VERSION),
              step=np.int64(step), time=np.float64(t))
@@ -229,16 +229,20 @@ def resume(R, out: Path, iface, ledger, split, dt, log):
     return i0, t_start, cstate
 
 
-def restored_frame(fluid, cstate):
+def restored_frame(fluid, cstate, cells=None):
     """The gas state the first DEM interval uses. After a restart the solver's frame is
     replaced by the one the DEM used at that step in the interrupted run (stored in the
     restart point), so the particles see exactly the same fluid data; the largest
-    difference between the two is kept (0 when the gas fields were restored exactly)."""
+    difference between the two is kept (0 when the gas fields were restored exactly).
+    ``cells`` (coupling.cells.CellShare, many-to-many): compared on this rank's owned cells,
+    the largest over the ranks (collective)."""
     if cstate is None:
         return fluid
     saved = cstate["fluid"]
-    cstate["frame_difference"] = max(float(np.max(np.abs(np.asarray(fluid[k]) - saved[k]), initial=0.0))
-                                     for k in FLUID_FIELDS)
+    own = slice(None) if cells is None else cells.owned
+    diff = max(float(np.max(np.abs(np.asarray(fluid[k])[own] - np.asarray(saved[k])[own]), initial=0.0))
+               for k in FLUID_FIELDS)
+    cstate["frame_difference"] = diff if cells is None else cells.allmax(diff)
     return dict(fluid, **saved)
 
 

@@ -58,7 +58,7 @@ from .diagnostics import check_gas_fields
 from .errors import CouplingError
 from .exchange import FileExchange, SocketExchange
 from .launch import log_tail
-from .restart import restored_frame
+from .restart import FLUID_FIELDS, restored_frame
 
 
 def _silent(*a, **k):
@@ -178,9 +178,6 @@ def open_link(R, ex, proc, mesh, cfg, out, timer, *, external=False, cells=None)
     if isinstance(ex, M2MExchange):
         ex.peer_process = proc if (R.root and not external) else None
         return _M2MLink(R, ex, proc, mesh, cfg, out, timer, cells)
-    if R.size > 1:
-        raise CouplingError(f"transport {cfg.transport!r} with {R.size} DEM ranks: use transport = \"socket\" "
-                            "(the many-to-many exchange)", peer="DEM", step=0)
     ex.peer_process = proc if not external else None
     return _SolverLink(R, ex, proc, mesh, cfg, out, timer)
 
@@ -239,6 +236,11 @@ class _SolverLink:
             e.args = (e.args[0] + f"\n  DEM checkpoint at t = {sim.time:.9g} s written to "
                       f"{out / 'checkpoint.npz'}" + (f"\n  solver log tail:\n{tail}" if tail else ""),)
 
+    def stats(self):
+        """This rank's message and memory figures (bytes per run; peak RSS in MiB)."""
+        return dict(owned_cells=self.mesh.n_cells, halo_cells=0, gas_partners=1, gas_bytes_sent=self.ex.bytes_sent,
+                    dem_bytes_sent=0, dem_messages=0, peak_rss_mib=_peak_rss_mib())
+
     def close(self, status, write_timings):
         from dem import outdir
         if self.proc.poll() is None and status != "finished":
@@ -246,14 +248,10 @@ class _SolverLink:
             self.proc.wait()
         self.ex.close()
         outdir.adopt_solver_entries(self.out)
-        import resource
-        nc = self.mesh.n_cells
-        write_timings(status != "finished", dict(ranks=[dict(
-            owned_cells=nc, halo_cells=0, gas_partners=1, gas_bytes_sent=self.ex.bytes_sent, dem_bytes_sent=0,
-            dem_messages=0, peak_rss_mib=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0)]))
+        write_timings(status != "finished", dict(ranks=[self.stats()]))
 
 
-class _M2MLink:
+class _M2MLink(_SolverLink):
     """A DEM rank's gas link in a many-to-many run: frames of the cells it owns to and from
     the gas processors holding them (coupling.m2m), the gas fields of the cells it sees but
     does not own from their owners (coupling.cells.update), and one small reduction per step
@@ -261,15 +259,12 @@ class _M2MLink:
     message, naming the rank, is raised on every rank), the solver's flags and its energy
     ledger (the same in every frame; a rank owning no cell gets it there)."""
 
-    FIELDS = ("U", "T", "gradp", "p")
-
     def __init__(self, R, ex, proc, mesh, cfg, out, timer, cells):
-        self.R, self.ex, self.proc, self.mesh, self.cfg, self.out, self.timer = R, ex, proc, mesh, cfg, out, timer
+        super().__init__(R, ex, proc, mesh, cfg, out, timer)
         self.cells = cells
         self.pending = None     # a failure of this rank in a send, raised with the next agreement
         self.flags = 0
         self.stop = 0           # a stop request of any rank, agreed with each gas frame
-        self.frame_difference = None
 
     def own_stop(self):
         """A stop request of any rank (a scheduler signals every rank; Open MPI passes a Ctrl-C on
@@ -283,8 +278,7 @@ class _M2MLink:
         R = self.R
         n_sc = -1 if scalars is None else int(scalars.size)
         head = np.array([1.0 if err is not None else 0.0, float(self.flags), float(n_sc), float(stop_requested())])
-        if R.comm is not None:
-            head = _allmax(R.comm, head)
+        head = self.cells.allmax(head)
         self.stop = max(self.stop, int(head[3]))
         if head[0] > 0:
             errs = [err] if R.comm is None else R.comm.allgather(None if err is None else str(err))
@@ -300,17 +294,11 @@ class _M2MLink:
         self.flags = int(head[1])
         n = int(head[2])
         sc = np.full(max(n, 0), -np.inf) if scalars is None or scalars.size != n else np.asarray(scalars, float)
-        if R.comm is not None and n > 0:
-            sc = _allmax(R.comm, sc)
-        return sc
+        return self.cells.allmax(sc) if n > 0 else sc
 
     def _accept(self, step):
         """Every rank accepts its gas processors; the ranks check together every 0.02 s, so that
         a failure seen by one (the solver exited: rank 0 watches it) ends the wait of all."""
-        R = self.R
-        if R.comm is None:
-            self.ex.accept(step)
-            return
         done, err = False, None
         while True:
             if not done and err is None:
@@ -321,7 +309,7 @@ class _M2MLink:
                 except Exception as e:  # noqa: BLE001 - a failure here must reach every rank
                     err = CouplingError(f"accepting the gas processors failed: {type(e).__name__}: {e}",
                                         peer="CFD solver", step=step)
-            failed, waiting = _allmax(R.comm, np.array([err is not None, not done], float))
+            failed, waiting = self.cells.allmax(np.array([err is not None, not done], float))
             if failed:
                 self._agree(err, None)
             if not waiting:
@@ -337,13 +325,13 @@ class _M2MLink:
                 raise self.pending
             scalars = self.ex.receive(step, fluid)
             fluid.pop("_n")
-            for k, comp in (("U", 3), ("T", 1), ("gradp", 3), ("p", 1)):
+            for k, comp in FLUID_FIELDS.items():
                 if k not in fluid:   # a rank that owns no cell
                     fluid[k] = np.zeros((cs.n_cells, 3) if comp == 3 else cs.n_cells)
             h = self.ex.last_header
             self.flags = int(h["flags"]) if h is not None else 0
             own = cs.owned
-            check_gas_fields({k: fluid[k][own] for k in self.FIELDS}, step, time_value=t, mesh=self.mesh,
+            check_gas_fields({k: fluid[k][own] for k in FLUID_FIELDS}, step, time_value=t, mesh=self.mesh,
                              cfg=self.cfg, eps_change=eps_change, cells=own)
         except CouplingError as e:
             err = e
@@ -352,21 +340,14 @@ class _M2MLink:
                                 step=step)
         self.pending = None
         fluid["scalars"] = self._agree(err, scalars)
-        cs.update(*(fluid[k] for k in self.FIELDS))
+        cs.update(*(fluid[k] for k in FLUID_FIELDS))
         return fluid
 
     def first(self, i0, t_start, cstate):
         with self.timer("gas_wait"):
             self._accept(i0)   # raises on every rank alike
             fluid = self._collect(i0, t_start, None)
-        if cstate is None:
-            return fluid
-        own = self.cells.owned
-        saved = cstate["fluid"]
-        diff = max(float(np.max(np.abs(np.asarray(fluid[k])[own] - np.asarray(saved[k])[own]), initial=0.0))
-                   for k in self.FIELDS)
-        cstate["frame_difference"] = self.cells.allmax(diff)
-        return dict(fluid, **saved)
+        return restored_frame(fluid, cstate, self.cells)
 
     def send(self, step, frame, time_value, final):
         with self.timer("exchange"):
@@ -390,26 +371,21 @@ class _M2MLink:
         err = None
         if self.R.root:
             try:
-                _SolverLink.finish(self, step)
+                super().finish(step)
             except CouplingError as e:
                 err = e
         self._agree(err, None)
 
-    def fail(self, e):
-        pass
-
     def explain(self, e, sim):
         if self.R.root:
-            _SolverLink.explain(self, e, sim)
+            super().explain(e, sim)
 
     def stats(self):
         """This rank's message and memory figures (bytes per run; peak RSS in MiB)."""
-        import resource
         cs, ex = self.cells, self.ex
         return dict(owned_cells=int(cs.owned.size), halo_cells=cs.halo_cells, gas_partners=len(ex.pairs),
                     gas_bytes_sent=ex.bytes_sent, gas_bytes_received=ex.bytes_received,
-                    dem_bytes_sent=cs.bytes_sent, dem_messages=cs.messages,
-                    peak_rss_mib=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0)
+                    dem_bytes_sent=cs.bytes_sent, dem_messages=cs.messages, peak_rss_mib=_peak_rss_mib())
 
     def close(self, status, write_timings):
         from dem import outdir
@@ -424,17 +400,10 @@ class _M2MLink:
             write_timings(status != "finished", dict(ranks=ranks))
 
 
-def _mpi_max():
-    from mpi4py import MPI
-    return MPI.MAX
+def _peak_rss_mib():
+    import resource
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
-
-def _allmax(comm, a):
-    """Element-wise maximum of a float64 array over the ranks (a buffer: nothing pickled)."""
-    a = np.ascontiguousarray(a, dtype=np.float64)
-    out = np.empty_like(a)
-    comm.Allreduce(a, out, op=_mpi_max())
-    return out
 
 def _first_frame(ex, i0, t_start, mesh, cfg, cstate):
     """The gas state the first DEM interval uses: the solver's first frame, checked (after a
