@@ -1,6 +1,8 @@
-"""Stop requests: SIGINT (Ctrl-C) and SIGTERM (a scheduler's end of wall time) set a flag
-that the run loops poll between compiled chunks, so a signal never lands inside a kernel or
-half way through a file; the loop then checkpoints, closes its outputs and exits 130 / 143.
+"""Stop requests: SIGINT (Ctrl-C), SIGTERM (a scheduler's end of wall time) and SIGUSR1 (a
+scheduler's warning before it, e.g. Slurm's ``--signal=USR1@120``; the one stop signal Open MPI's
+mpirun forwards to every rank at once) set a flag that the run loops poll between compiled
+chunks, so a signal never lands inside a kernel or half way through a file; the loop then
+checkpoints, closes its outputs and exits 128 + the signal's number (130 / 143 / 138).
 
     with StopSignals():           # installs the handlers, restores the old ones on exit
         while ...:
@@ -15,12 +17,15 @@ is atomic (dem.output.atomic_write).
 import signal
 import threading
 
+# the signals that ask a run to stop at its next safe point
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGUSR1)
+
 _pending = 0
 _installed = 0
 
 
 class StopRequested(Exception):
-    """Raised by a run loop at a safe point after SIGINT or SIGTERM."""
+    """Raised by a run loop at a safe point after a stop signal (STOP_SIGNALS)."""
 
     def __init__(self, signum):
         self.signum = int(signum)
@@ -39,7 +44,7 @@ def signal_name(signum):
 
 
 def exit_code(signum):
-    """The shell's convention: 128 + signal number (130 for SIGINT, 143 for SIGTERM)."""
+    """The shell's convention: 128 + signal number (130 SIGINT, 143 SIGTERM, 138 SIGUSR1)."""
     return 128 + int(signum)
 
 
@@ -67,14 +72,14 @@ def clear():
 
 
 class StopSignals:
-    """Context manager: SIGINT and SIGTERM set the stop flag while inside (main thread only;
+    """Context manager: the STOP_SIGNALS set the stop flag while inside (main thread only;
     elsewhere, and when nested, it does nothing)."""
 
     def __enter__(self):
         global _installed
         self._old = None
         if threading.current_thread() is threading.main_thread() and not _installed:
-            self._old = {s: signal.signal(s, _handler) for s in (signal.SIGINT, signal.SIGTERM)}
+            self._old = {s: signal.signal(s, _handler) for s in STOP_SIGNALS}
             _installed = 1
             clear()
         return self

@@ -284,6 +284,47 @@ def test_sigterm_on_two_by_two_continues_on_three_by_one(reference, tmp_path):
     balance_closed(out)
 
 
+def test_sigusr1_to_mpirun_stops_at_once_and_continues(tmp_path, solver):
+    """The prompt way to stop an mpirun job: Open MPI forwards SIGUSR1 to every rank at once
+    (Ctrl-C reaches them as SIGTERM only odls_base_sigkill_timeout seconds later; here 60 s, so
+    a stop on anything but SIGUSR1 would show as 143). Every DEM rank stops at the same coupling
+    step and exits 138, the solver writes its fields there, a restart point is written, and the
+    printed command continues the run."""
+    import re
+    import signal
+    import time
+    case = case_with(tmp_path, "fluidized_bed_heating", 1, tag="_usr1")
+    out = tmp_path / "out"
+    env = dict(_env(), OMPI_MCA_odls_base_sigkill_timeout="60")
+    rank = "trap '' INT TERM USR1; \"$@\"; echo $? > " + str(tmp_path) + "/rc.$OMPI_COMM_WORLD_RANK"
+    cmd = ["mpirun", "-np", "2", "sh", "-c", rank, "sh", sys.executable, "-m", "coupling.run", "run", str(case),
+           "--out", str(out), "--end-time", "0.5"]
+    p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, cwd=str(ROOT))
+    t0 = time.monotonic()
+    while not (out / "coupling.csv").exists() or len((out / "coupling.csv").read_text().splitlines()) < 3:
+        assert p.poll() is None, p.communicate()
+        assert time.monotonic() - t0 < 600
+        time.sleep(0.1)
+    p.send_signal(signal.SIGUSR1)   # to mpirun, as `kill -USR1 <mpirun>` or a scheduler's warning
+    so, se = p.communicate(timeout=300)
+    codes = [int((tmp_path / f"rc.{k}").read_text()) for k in (0, 1)]
+    assert codes == [138, 138], so[-2000:] + se[-3000:]
+    m = re.search(r"stopped by SIGUSR1 at t = (\S+) s \(coupling step (\d+)\); restart point (\S+) .*"
+                  r"continue with: (.*)$", se, re.M)
+    assert m, se[-3000:]
+    step = int(m.group(2))
+    assert Path(m.group(3)).is_file() and step < 1000
+    assert not subprocess.run(["pgrep", "-f", f"thermoDemFoam.*{out}"], capture_output=True).stdout
+    argv = m.group(4).split()
+    assert argv[:5] == ["mpirun", "-np", "2", "coupling", "run"] and "--restart" in argv, argv
+    end = repr((step + 2) * 5e-4)   # two coupling steps more
+    argv[argv.index("--end-time") + 1] = end
+    q = subprocess.run(argv[:3] + [sys.executable, "-m", "coupling.run"] + argv[4:], capture_output=True, text=True, env=_env(), timeout=900, cwd=str(ROOT))
+    assert q.returncode == 0, q.stdout[-2000:] + q.stderr[-3000:]
+    assert float(np.load(out / "final.npz")["time"]) == pytest.approx(float(end), rel=1e-9)
+    balance_closed(out)
+
+
 def test_coarse_grained_bed_on_two_by_two(tmp_path, solver):
     """The coarse-grained bed (37,100 parcels) on (2, 2) against (1, 1): two coupling steps equal
     within the gas's parallel-solve bound; each DEM rank owns part of the mesh."""

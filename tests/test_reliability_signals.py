@@ -1,7 +1,7 @@
 """Interruptions, kills and full disks of `dem run`, on real processes through the command line
 (docs/reliability/signals.md).
 
-- SIGINT / SIGTERM to a running `dem run` (serial, and `mpirun -np 2`): exit 130 / 143, one line
+- SIGINT / SIGTERM / SIGUSR1 to a running `dem run` (serial, and `mpirun -np 2`): exit 130 / 143 / 138, one line
   with the time reached, the checkpoint and the command to continue; that command runs to the end
   and gives the final state of an uninterrupted run. Serial: bit-identical (the step arithmetic does
   not depend on where the loop pauses and the serial checkpoint holds every array the next step
@@ -125,7 +125,7 @@ def test_chunk_size_does_not_change_the_result(tmp_path, monkeypatch):
     assert np.ptp(res[0]["temperature"]) > 0.0  # the floor heated some beads
 
 
-@pytest.mark.parametrize("sig,code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+@pytest.mark.parametrize("sig,code", [(signal.SIGINT, 130), (signal.SIGTERM, 143), (signal.SIGUSR1, 138)])
 def test_signal_checkpoints_and_continues_exactly(reference, tmp_path, sig, code):
     out = tmp_path / "out"
     p = subprocess.Popen(dem("run", SCENE, "--out", str(out), "--end-time", str(END), "--quiet"),
@@ -153,26 +153,29 @@ def test_signal_checkpoints_and_continues_exactly(reference, tmp_path, sig, code
 
 
 @pytest.mark.skipif(shutil.which("mpirun") is None, reason="needs Open MPI (mpirun)")
-def test_mpirun_sigint_stops_every_rank_with_a_checkpoint(tmp_path):
-    """Ctrl-C to mpirun: Open MPI 4.1 sends SIGTERM to every rank (odls_base_sigkill_timeout
-    seconds later); the ranks stop at the same step, the root writes the checkpoint, every rank
-    exits 143. Continued 100 steps further, the run ends where an uninterrupted run on 2 ranks
-    ends, to round-off."""
+@pytest.mark.parametrize("sig,seen,code,timeout", [(signal.SIGINT, "SIGTERM", 143, "3"),
+                                                   (signal.SIGUSR1, "SIGUSR1", 138, "60")])
+def test_mpirun_signal_stops_every_rank_with_a_checkpoint(tmp_path, sig, seen, code, timeout):
+    """Ctrl-C to mpirun: Open MPI 4.1 sends SIGCONT to every rank at once and SIGTERM only
+    odls_base_sigkill_timeout seconds later. SIGUSR1 to mpirun is forwarded to every rank at
+    once: with a 60 s timeout the ranks can only have stopped on it (exit 138, not 143). Either
+    way the ranks stop at the same step, the root writes the checkpoint, and continued 100 steps
+    further the run ends where an uninterrupted run on 2 ranks ends, to round-off."""
     out, ref = tmp_path / "out", tmp_path / "ref"
     base = ["mpirun", "-np", "2"]
-    mpi_env = env(**MPI_ENV, THERMODEM_CHUNK_SECONDS="0.2")
+    mpi_env = env(**dict(MPI_ENV, OMPI_MCA_odls_base_sigkill_timeout=timeout), THERMODEM_CHUNK_SECONDS="0.2")
     # each rank's exit status, recorded by a shell that ignores the signals itself
-    rank = ("trap '' INT TERM; \"$@\"; echo $? > " + shlex.quote(str(tmp_path)) +
+    rank = ("trap '' INT TERM USR1; \"$@\"; echo $? > " + shlex.quote(str(tmp_path)) +
             "/rc.$OMPI_COMM_WORLD_RANK")
     p = subprocess.Popen(base + ["sh", "-c", rank, "sh"] +
                          dem("run", SCENE, "--out", str(out), "--end-time", "0.5", "--quiet"),
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=mpi_env)
     wait_for_rows(p, out, 2)
-    p.send_signal(signal.SIGINT)
+    p.send_signal(sig)
     _, err = p.communicate(timeout=120)
     codes = [int(open(tmp_path / f"rc.{k}").read()) for k in (0, 1)]
-    assert codes == [143, 143], err
-    t, step, line = assert_one_stop_line(err, "SIGTERM", out)
+    assert codes == [code, code], err
+    t, step, line = assert_one_stop_line(err, seen, out)
     assert int(load_all(out / "checkpoint.npz")["step_count"]) == step
     prefix, argv = continue_argv(line)
     assert prefix == ["mpirun", "-np", "2"] and argv[-3:] == ["--end-time", "0.5", "--quiet"]
