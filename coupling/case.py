@@ -360,8 +360,9 @@ COORDINATION_AT_REST = 3.0
 TOUCH_GAP = 1e-3      # touching: centre distance <= (1 + TOUCH_GAP) (R_i + R_j)
 
 
-def _coordination(x, r) -> float:
-    """Mean number of particles each particle touches (walls not counted)."""
+def _touches(x, r) -> float:
+    """Particle ends of the touching pairs among these particles (2 per pair; walls not
+    counted): divided by the particle count, the mean coordination number."""
     from scipy.spatial import cKDTree
     n = len(r)
     if n < 2:
@@ -371,10 +372,10 @@ def _coordination(x, r) -> float:
         return 0.0
     i, j = pairs[:, 0], pairs[:, 1]
     touch = np.linalg.norm(x[i] - x[j], axis=1) <= (1 + TOUCH_GAP) * (r[i] + r[j])
-    return 2.0 * float(touch.sum()) / n
+    return 2.0 * float(touch.sum())
 
 
-def _particle_speeds(sim, gas, u_s, d, n) -> tuple[dict, dict]:
+def _particle_speeds(sim, gas, u_s, d, n, red) -> tuple[dict, dict]:
     """The speeds that can move the particles of a mechanics run in the first coupling steps
     (the particle Courant rule takes the largest; docs/models.md "Particle Courant number"):
 
@@ -392,25 +393,31 @@ def _particle_speeds(sim, gas, u_s, d, n) -> tuple[dict, dict]:
       bubbles, which carry the particles (two-phase theory, Toomey & Johnstone 1952): the
       particle speed scale is u_s - U_mf. Below U_mf: 0 (the drag does not lift the bed).
     Returns (speeds, info): info holds ``coordination_number``, ``packing_fraction`` phi and
-    ``u_mf``."""
+    ``u_mf``. ``red``: the reductions over the DEM ranks (coupling.cells.CellShare), each of
+    which holds its own ``n`` particles; a pair of particles on two ranks is not counted in the
+    coordination number (a few % of the pairs, at the cuts: it only decides loose or at rest)."""
     from .drag import wen_yu_1966_umf
     st = sim.state
     out, info = {}, {}
-    if not n:
+    n_all = red.allsum(float(n))
+    if not n_all:
         return out, info
-    out["particle_speed_initial"] = float(np.sqrt((st.velocity[:n] ** 2).sum(1)).max())
+    out["particle_speed_initial"] = red.allmax(float(np.sqrt((st.velocity[:n] ** 2).sum(1)).max(initial=0.0)))
     g = np.asarray(sim.scene.simulation["gravity"], float)
     gmag = float(np.linalg.norm(g))
     r = st.radius[:n]
     if gmag > 0:
         e = g / gmag
         z = st.position[:n] @ e
-        H = float((z + r).max() - (z - r).min())
+        top = red.allmax(float((z + r).max(initial=-np.inf)))
+        bottom = red.allmin(float((z - r).min(initial=np.inf)))
+        v_solid, touches = red.allsum(np.array([(4.0 / 3.0 * math.pi * r ** 3).sum(), _touches(st.position[:n], r)]))
+        H = top - bottom
         lo, hi = np.asarray(sim.scene.domain["min"], float), np.asarray(sim.scene.domain["max"], float)
         box = hi - lo
         A = float(np.prod(box)) / float(np.abs(box * e).sum())   # volume / extent along g
-        phi = float((4.0 / 3.0 * math.pi * r ** 3).sum()) / (H * A)
-        z_c = _coordination(st.position[:n], r)
+        phi = float(v_solid) / (H * A)
+        z_c = float(touches) / n_all
         h_fall = max(0.0, H * (1.0 - phi / RANDOM_CLOSE_PACKING)) if z_c < COORDINATION_AT_REST else 0.0
         info["coordination_number"] = z_c
         info["packing_fraction"] = phi
@@ -418,13 +425,14 @@ def _particle_speeds(sim, gas, u_s, d, n) -> tuple[dict, dict]:
     if u_s > 0:
         rho_p = st.mass[:n] / (4.0 / 3.0 * math.pi * r ** 3)
         pairs = np.unique(np.stack([d, rho_p], axis=1), axis=0)
-        umf = min(wen_yu_1966_umf(float(dd), float(rr), gas.rho, gas.mu, gmag) for dd, rr in pairs)
+        umf = red.allmin(min((wen_yu_1966_umf(float(dd), float(rr), gas.rho, gas.mu, gmag) for dd, rr in pairs),
+                             default=math.inf))
         info["u_mf"] = umf
         out["gas_excess_speed"] = max(0.0, u_s - umf)
     return out, info
 
 
-def _biot_check(case, thermal, u_s, d, eps0, cells, n, vals, warnings):
+def _biot_check(case, thermal, u_s, d, eps0, cells, n, vals, warnings, red):
     """Bi = h L_c / k_p with L_c = V/A = R/3 (lumped-capacitance convention) for every
     particle, h = Nu k_f / d from the case's convection correlation (the compiled function
     the heat step uses, dem.thermal kernel.convection_biot) at the case's gas speed: u_s,
@@ -432,30 +440,33 @@ def _biot_check(case, thermal, u_s, d, eps0, cells, n, vals, warnings):
     in the bed the interstitial gas speed is u_s / eps, so for particles at rest the
     correlations' Re = eps rho |u_f - v_p| d / mu = rho u_s d / mu; eps (Gunn, Li-Mason) is
     the initial void fraction of the particle's cell. Reports the particle with the largest
-    Bi; warns above 0.1."""
+    Bi (over every DEM rank: ``red``, coupling.cells.CellShare.best); warns above 0.1."""
     from dem.thermal.convection import BIOT_LUMPED
     gas = case.gas
     eps_p = eps0[np.maximum(cells, 0)] if eps0 is not None else np.ones(n)
     re = gas.rho * u_s * d / gas.mu
     nu, h, bi = thermal.convection_biot(re, eps_p)
-    if not n:
+    mine = [-np.inf, 0.0, 0.0, 0.0, 0.0, 0.0]
+    if n:
+        i = int(np.argmax(bi))
+        mine = [bi[i], re[i], nu[i], h[i], d[i], case.sim.state.id[i]]
+    best, (re_i, nu_i, h_i, d_i, id_i) = red.best(mine[0], mine[1:])
+    if best == -np.inf:   # no particle on any rank
         return
-    i = int(np.argmax(bi))
     vals["biot_gas_speed"] = float(u_s)
-    vals["biot_reynolds"] = float(re[i])
-    vals["biot_nusselt"] = float(nu[i])
-    vals["biot_h"] = float(h[i])
-    vals["biot"] = float(bi[i])
-    if bi[i] > BIOT_LUMPED:
-        st = case.sim.state
-        kp = float(h[i] * d[i] / (6 * bi[i]))   # Bi = h (d/2) / (3 k_p)
+    vals["biot_reynolds"] = float(re_i)
+    vals["biot_nusselt"] = float(nu_i)
+    vals["biot_h"] = float(h_i)
+    vals["biot"] = float(best)
+    if best > BIOT_LUMPED:
+        kp = float(h_i * d_i / (6 * best))   # Bi = h (d/2) / (3 k_p)
         name = thermal.cfg["convection"]
         warnings.append(
-            f"Biot number h (V/A) / k_p = h R / (3 k_p) = {bi[i]:.3g} > {BIOT_LUMPED:g} (particle id "
-            f"{int(st.id[i])}: d = {d[i]:.3g} m, k_p = {kp:.3g} W/(m K); {name} Nu = {nu[i]:.3g} at Re = "
-            f"{re[i]:.4g} from the {u_s:.3g} m/s of 0/U, h = {h[i]:.3g} W/(m2 K)): the DEM gives each particle "
+            f"Biot number h (V/A) / k_p = h R / (3 k_p) = {best:.3g} > {BIOT_LUMPED:g} (particle id "
+            f"{int(id_i)}: d = {d_i:.3g} m, k_p = {kp:.3g} W/(m K); {name} Nu = {nu_i:.3g} at Re = "
+            f"{re_i:.4g} from the {u_s:.3g} m/s of 0/U, h = {h_i:.3g} W/(m2 K)): the DEM gives each particle "
             f"one (lumped) temperature and ignores the temperature gradients inside it; its surface, which "
-            f"exchanges the heat, differs from the mean by about 0.6 Bi = {60 * bi[i]:.2g} % of the "
+            f"exchanges the heat, differs from the mean by about 0.6 Bi = {60 * best:.2g} % of the "
             f"surface-to-gas difference (quasi-steady sphere), so the heat exchanged is off by about as much. "
             f"Bi < {BIOT_LUMPED:g} needs smaller particles, a slower gas or a more conductive material "
             f"(thermal_conductivity in dem.toml, only if the material has it); otherwise read the particle "
@@ -520,12 +531,16 @@ def _cell_size_advice(mesh, cfg: CouplingConfig, dmax: float, dx_min: float) -> 
 
 
 def check_coupled_case(case: CoupledCase, mesh, *, eps0: np.ndarray | None = None,
-                       clip: dict | None = None) -> dict:
+                       clip: dict | None = None, ranks=None) -> dict:
     """Run the coupling checks on a loaded case and its mesh. Returns a report dict with
     'values', 'warnings', 'problems'. Raises :class:`CaseConfigError` on the first hard
     error (inconsistent input); failed limits go to 'problems' (the caller refuses to run
     unless coupling.force = true). ``eps0``: initial void fraction (after clipping);
-    ``clip``: its clipping (CouplingInterface.clip)."""
+    ``clip``: its clipping (CouplingInterface.clip). ``ranks``: the DEM ranks' reductions
+    (coupling.cells.CellShare, the interface's) when each rank holds its own particles: every
+    rank then gets the same report, over all particles; None: one process."""
+    from .cells import CellShare
+    red = ranks if ranks is not None else CellShare.serial(mesh.n_cells)
     cfg, sim, gas = case.config, case.sim, case.gas
     vals, warnings, problems = {}, [], []
     cf = case.config_file
@@ -573,15 +588,16 @@ def check_coupled_case(case: CoupledCase, mesh, *, eps0: np.ndarray | None = Non
     st = sim.state
     n = st.n_owned
     d = 2 * st.radius[:n]
-    vals["particles"] = n
+    d_max = red.allmax(float(d.max(initial=0.0)))
+    vals["particles"] = int(red.allsum(float(n)))
     vals["cells"] = mesh.n_cells
     vals["cell_size_min"] = dx_min
-    vals["cell_over_diameter"] = dx_min / float(d.max())
-    cell_advice = _cell_size_advice(mesh, cfg, float(d.max()), dx_min)
+    vals["cell_over_diameter"] = dx_min / d_max
+    cell_advice = _cell_size_advice(mesh, cfg, d_max, dx_min)
     vals["averaging_length"] = cell_advice["length"]
-    vals["averaging_over_diameter"] = cell_advice["length"] / float(d.max())
-    if dx_min < d.max() * (1 - 1e-9):
-        warnings.append(f"smallest cell {dx_min:.3g} m is {dx_min / d.max():.2f} particle diameters: particles "
+    vals["averaging_over_diameter"] = cell_advice["length"] / d_max
+    if dx_min < d_max * (1 - 1e-9):
+        warnings.append(f"smallest cell {dx_min:.3g} m is {dx_min / d_max:.2f} particle diameters: particles "
                         f"larger than the cells are outside the unresolved model (void fraction clipped at "
                         f"eps_min, drag and heat exchange inconsistent between gas and particles, with every "
                         f"void_fraction model); {cell_advice['advice']}")
@@ -599,17 +615,21 @@ def check_coupled_case(case: CoupledCase, mesh, *, eps0: np.ndarray | None = Non
                    f"{cell_advice['clip_advice']}")
             (problems if clip["fraction"] > CLIPPED_VOLUME else warnings).append(
                 msg + (f" (refused above {100 * CLIPPED_VOLUME:g} %)" if clip["fraction"] > CLIPPED_VOLUME else ""))
-    vals["cell_over_particle_volume"] = float(V.min() / ((math.pi / 6) * d.max() ** 3))
-    # particles in the mesh
+    vals["cell_over_particle_volume"] = float(V.min() / ((math.pi / 6) * d_max ** 3))
+    # particles in the mesh (the one of smallest id named, on every rank)
     cells = mesh.locate(st.position[:n])
     out = np.flatnonzero(cells < 0)
-    if out.size:
-        raise CaseConfigError(case.dem_file, f"{out.size} particle(s) outside the OpenFOAM mesh "
-                              f"(first: id {int(st.id[out[0]])} at {st.position[out[0]].tolist()}); mesh "
+    first = int(out[np.argmin(st.id[out])]) if out.size else -1
+    n_out = int(red.allsum(float(out.size)))
+    if n_out:
+        id_out, x_out = red.best(float(st.id[first]) if first >= 0 else np.inf,
+                                 st.position[first] if first >= 0 else np.zeros(3), largest=False)
+        raise CaseConfigError(case.dem_file, f"{n_out} particle(s) outside the OpenFOAM mesh "
+                              f"(first: id {int(id_out)} at {x_out.tolist()}); mesh "
                               f"bounding box {mesh.bbox_lo.tolist()} .. {mesh.bbox_hi.tolist()}")
     # --- gas CFL (interstitial speed ~ superficial / eps)
     umax = _max_speed_of_field(case.dir / "0" / "U", mesh.n_cells)
-    emin = float(eps0.min()) if eps0 is not None else 1.0
+    emin = red.allmin(float(eps0.min())) if eps0 is not None else 1.0
     u_int = umax / max(emin, cfg.eps_min)
     cfl = u_int * dt_cfd / dx_edge
     vals["gas_speed_max"] = u_int
@@ -623,10 +643,10 @@ def check_coupled_case(case: CoupledCase, mesh, *, eps0: np.ndarray | None = Non
     # (parcels: the real particles' diameter, whose laws they follow; docs/models.md "Coarse graining")
     d_real = 2 * st.real_radius(n)
     if thermal is not None and cfg.heat:
-        _biot_check(case, thermal, umax, d_real, eps0, cells, n, vals, warnings)
+        _biot_check(case, thermal, umax, d_real, eps0, cells, n, vals, warnings, red)
     # --- particle Courant number: displacement per coupling step / cell size
     mech = bool(sim.scene.simulation["mechanics"])
-    speeds, info = _particle_speeds(sim, gas, umax, d_real, n) if mech else ({}, {})
+    speeds, info = _particle_speeds(sim, gas, umax, d_real, n, red) if mech else ({}, {})
     vals.update(info)
     vals.update(speeds)
     v_char = max(speeds.values(), default=0.0)
@@ -666,9 +686,10 @@ def check_coupled_case(case: CoupledCase, mesh, *, eps0: np.ndarray | None = Non
         if case.model_type == "B":
             beta = beta / eps_c
         beta_imp = beta / eps_c if case.model_type == "B" else beta / eps_c ** 2
-        tau = float((mass / beta).min())
-        k = int(np.argmin(mass / beta_imp))
-        tau_imp = float(mass[k] / beta_imp[k])
+        tau = red.allmin(float((mass / beta).min(initial=np.inf)))
+        k = int(np.argmin(mass / beta_imp)) if n else -1
+        tau_imp, (eps_k,) = red.best(float(mass[k] / beta_imp[k]) if n else np.inf, [eps_c[k] if n else 0.0],
+                                     largest=False)
         vals["particle_relaxation_time"] = tau
         vals["coupling_over_relaxation"] = dt_cfd / tau
         vals["bed_relaxation_time"] = tau_imp
@@ -677,7 +698,7 @@ def check_coupled_case(case: CoupledCase, mesh, *, eps0: np.ndarray | None = Non
             k_cfd = max(1, math.floor(tau_imp / dt_dem))
             warnings.append(
                 f"coupling step {dt_cfd:g} s is {dt_cfd / tau_imp:.3g} x the drag relaxation time of the bed "
-                f"m/beta_imp = {tau_imp:.3g} s (void fraction {float(eps_c[k]):.3g}, |u| = {ur[0]:.3g} m/s): "
+                f"m/beta_imp = {tau_imp:.3g} s (void fraction {float(eps_k):.3g}, |u| = {max(umax, 1e-3):.3g} m/s): "
                 f"stable and exact at steady state, but the particles see the gas one coupling step late, "
                 f"longer than the bed takes to respond; for transients (fluidization, bubbles) use deltaT <= "
                 f"{k_cfd * dt_dem:.3g} s in system/controlDict with coupling_interval = {k_cfd}")

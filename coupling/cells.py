@@ -238,6 +238,20 @@ class CellShare:
         from mpi4py import MPI
         return self._loc(value, cell, MPI.MINLOC)
 
+    def best(self, key, record, largest=True):
+        """(key, record) of the rank whose ``key`` is the largest (``largest=False``: the
+        smallest), ties to the lowest rank: one Allgather of a float64 vector per rank. A rank
+        with nothing to offer passes key = -inf (+inf) and a record of the same length. For the
+        worst particle of a check (its value and what its message names)."""
+        rec = np.asarray(record, dtype=np.float64).ravel()
+        if self.par is None:
+            return float(key), rec
+        buf = np.concatenate([[float(key)], rec])
+        every = np.empty((self.size, buf.size))
+        self.comm.Allgather(buf, every)
+        k = int(np.argmax(every[:, 0]) if largest else np.argmin(every[:, 0]))
+        return float(every[k, 0]), every[k, 1:].copy()
+
     def gather_owned(self, a, root=0):
         """The whole per-cell array on ``root`` from each rank's owned cells (restart points
         only; None elsewhere)."""

@@ -140,7 +140,8 @@ def run_case(case_dir, out=None, *, transport=None, end_time=None, restart=False
 def _check(R, case, mesh, iface, eps0, quiet, log):
     """The coupling checks on every rank (report on rank 0); CouplingRunError if refused."""
     from .case import check_coupled_case, format_report
-    rep = R.everywhere(check_coupled_case, case, mesh, eps0=eps0, clip=dict(iface.clip))
+    rep = R.everywhere(check_coupled_case, case, mesh, eps0=eps0, clip=dict(iface.clip),
+                       ranks=iface.cells)
     rep = R.bcast(rep)
     if not quiet and R.root:
         log(format_report(case, rep))

@@ -26,13 +26,16 @@ def check(world, stepper):
     sc = world.scene
     st = world.state
     dt = world.dt
+    par = stepper.par
+    n = st.n_owned
     rep = {"particles": world.n_total, "walls": world.nwalls, "materials": len(sc.materials)}
-    rep["mass_total"] = float(st.mass.sum())
-    rep["mass_min"] = float(st.mass.min())
-    rep["mass_max"] = float(st.mass.max())
-    rep["radius_min"] = float(st.radius.min())
-    rep["radius_max"] = float(st.radius.max())
-    tr, th, ovmax = time_scales(world)
+    m, r = st.mass[:n], st.radius[:n]
+    rep["mass_total"] = _over_ranks(par, "sum", float(m.sum()))
+    rep["mass_min"] = _over_ranks(par, "min", float(m.min(initial=math.inf)))
+    rep["mass_max"] = _over_ranks(par, "max", float(m.max(initial=-math.inf)))
+    rep["radius_min"] = _over_ranks(par, "min", float(r.min(initial=math.inf)))
+    rep["radius_max"] = _over_ranks(par, "max", float(r.max(initial=-math.inf)))
+    tr, th, ovmax = time_scales(world, par)
     vchar = st.fp[K.FP.vchar]
     rep["impact_overlap_ratio"] = ovmax
     rep["rayleigh_time"] = tr
@@ -107,19 +110,28 @@ def models_report(world, par):
     return runs, skipped
 
 
-def time_scales(world):
+def _over_ranks(par, op, x):
+    """x (a number) over every rank (``par``: dem.parallel.domain.ParallelDomain, None: one process)."""
+    if par is None:
+        return x
+    return {"sum": par.allsum, "min": par.allmin, "max": par.allmax}[op](x)
+
+
+def time_scales(world, par=None):
     """(Rayleigh time, Hertz collision time at the characteristic velocity, largest Hertz
-    impact overlap / radius) of the smallest particle of each material (and its walls)."""
+    impact overlap / radius) of the smallest particle of each material (and its walls), over
+    every rank's particles (``par``)."""
     sc = world.scene
     st = world.state
     vchar = st.fp[K.FP.vchar]
     tr, th = math.inf, math.inf
     ovmax = 0.0
+    n = st.n_owned
     for k, m in enumerate(sc.materials):
-        sel = st.material == k
-        if not np.any(sel):
+        sel = st.material[:n] == k
+        rmin = _over_ranks(par, "min", float(st.radius[:n][sel].min(initial=math.inf)))
+        if rmin == math.inf:   # no particle of this material
             continue
-        rmin = float(st.radius[sel].min())
         G = m["youngs_modulus"] / (2 * (1 + m["poisson_ratio"]))
         tr = min(tr, rayleigh_time(rmin, m["density"], G, m["poisson_ratio"]))
         mmin = 4 / 3 * math.pi * rmin ** 3 * m["density"]

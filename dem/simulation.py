@@ -105,7 +105,7 @@ class Simulation:
         return reports.models_report(self.world, self.par)
 
     def time_scales(self):
-        return reports.time_scales(self.world)
+        return reports.time_scales(self.world, self.par)
 
     # ------------------------------------------------------------------ stepping
     def warmup(self):
