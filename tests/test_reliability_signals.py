@@ -364,3 +364,32 @@ def test_coupled_run_on_a_full_disk(tmp_path, solver):
                 load_all(f)
         # the gas solver was stopped: no process left running on this case
         assert not processes_mentioning(str(out))
+
+
+@pytest.mark.skipif(shutil.which("mpirun") is None, reason="needs Open MPI (mpirun)")
+def test_coupled_two_by_two_on_a_full_disk(tmp_path, solver):
+    """`mpirun -np 2 coupling run` with 2 gas processes whose output disk fills (3 MiB tmpfs:
+    the run needs about 5): every DEM rank and every gas processor ends, exit 4, one error
+    line naming the file (and the DEM rank that could not write it), no traceback, no
+    temporary file, no process left running on the case."""
+    with tiny_disk(tmp_path, "3m") as disk:
+        case = tmp_path / "case"
+        shutil.copytree(os.path.join(ROOT, "openfoam_cases", "fluidized_bed_heating"), case)
+        t = case / "coupling.toml"
+        t.write_text(t.read_text().replace("[coupling]\n", "[coupling]\ngas_processes = 2\n", 1))
+        out = disk / "out"
+        p = subprocess.run(["mpirun", "-np", "2", sys.executable, "-m", "coupling.run", "run", str(case),
+                            "--out", str(out), "--end-time", "0.05", "--quiet"], capture_output=True, text=True,
+                           env=env(**MPI_ENV), timeout=900)
+        assert p.returncode != 0 and "Traceback" not in p.stderr, p.stderr[-3000:]
+        errs = [s for s in p.stderr.splitlines() if "error" in s.lower()]
+        assert len(errs) == 1, p.stderr[-3000:]
+        m = re.match(r"coupling: error: cannot write (\S+): the disk is full\. .*", errs[0])
+        assert m and m.group(1).startswith(str(out)), errs[0]
+        if "pieces" in m.group(1):   # a DEM rank's own piece: the line names the rank
+            assert re.search(r"\[rank [01] of 2\]$", errs[0]), errs[0]
+        assert not glob.glob(str(out / "**" / ".tmp_*"), recursive=True)
+        deadline = time.monotonic() + 30
+        while processes_mentioning(str(out)) and time.monotonic() < deadline:
+            time.sleep(0.5)
+        assert not processes_mentioning(str(out))
