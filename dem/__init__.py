@@ -9,6 +9,12 @@ Public API::
 """
 __version__ = "0.1.0"
 
+import os as _os
+
+# Numba colours its error messages with colorama, whose exit hook then writes an ANSI reset
+# to stdout: a stray "ESC[0m" at the end of MPI runs' output (and of a pipe). Plain text.
+_os.environ.setdefault("NUMBA_DISABLE_ERROR_MESSAGE_HIGHLIGHTING", "1")
+
 
 def _numba_cache_dir():
     """Numba's on-disk cache keyed by a hash of this package's sources.
