@@ -467,3 +467,34 @@ def test_interpolation_linear_exact_and_bounded():
     assert interpolate(m, f, m.cell_centres[c0:c0 + 1], [c0], "idw")[0] == pytest.approx(f[c0], rel=1e-12)
     with pytest.raises(ValueError, match="cell, idw, linear"):
         interpolate(m, f, pts, cells, "cubic")
+
+
+@pytest.mark.parametrize("distorted", [False, True])
+def test_local_mesh_locates_like_the_whole_mesh(distorted):
+    """PolyMesh.subset (a DEM rank's local mesh): the cells of one half, numbered locally, keep
+    the whole mesh's volumes and centres bit for bit, each cell stays closed (its outward face
+    areas sum to zero, the cut faces turned to point out of it), a point in one of its cells is
+    located in that cell (the lattice fast path and the general walk alike) and a point in a
+    cell it does not hold in none; the real patches keep their names, the cut faces none."""
+    m = mesh_from_X(distorted_X(perturb=0.2) if distorted else uniform_X())
+    keep = np.flatnonzero(m.cell_centres[:, 0] < np.median(m.cell_centres[:, 0]))
+    s = m.subset(keep)
+    assert s.n_cells == keep.size < m.n_cells and np.array_equal(s.global_ids, keep) and s.n_global == m.n_cells
+    assert np.array_equal(s.cell_volumes, m.cell_volumes[keep]) and np.array_equal(s.cell_centres, m.cell_centres[keep])
+    assert (s.uniform_grid is not None) == (not distorted)
+    S = np.zeros((s.n_cells, 3))
+    np.add.at(S, s.owner, s.face_areas)
+    np.add.at(S, s.neighbour, -s.face_areas[:s.n_internal_faces])
+    assert np.abs(S).max() <= 1e-12 * np.abs(s.face_areas).max()
+    assert [p["name"] for p in s.boundary] == [p["name"] for p in m.boundary]
+    assert sum(p["nFaces"] for p in s.boundary) + s.n_cut_faces + s.n_internal_faces == s.n_faces
+    assert s.n_cut_faces > 0
+    pts = random_points_in_hull(m, 3000, seed=3)
+    g = m.locate(pts)
+    inside = np.isin(g, keep)
+    assert inside.any() and (~inside).any()
+    for method in ("auto", "general"):
+        c = s.locate(pts, method=method)
+        assert np.array_equal(s.global_ids[c[inside]], g[inside]), method
+        assert np.all(c[~inside] == -1), method
+    assert s.nbytes() < m.nbytes()
