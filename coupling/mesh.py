@@ -71,6 +71,142 @@ __all__ = [
 # --------------------------------------------------------------------------
 # Reader (the files: coupling.polymesh_files)
 # --------------------------------------------------------------------------
+class MeshPieces:
+    """The gas mesh of a decomposed case read by pieces: the processor meshes
+    (``processor<g>/constant/polyMesh`` with their cell, face and point addressing, written by
+    decomposePar) whose box overlaps a region. ``grid`` and ``tol``: the whole mesh's uniform
+    lattice (or None) and location tolerance, kept by the caller from set-up so that a local
+    mesh cut from the pieces locates exactly as one cut from the whole mesh."""
+
+    def __init__(self, case_dir, n_cells: int, grid=None, tol: float = 0.0):
+        self.case = str(case_dir)
+        self.n_global = int(n_cells)
+        self.grid, self.tol = grid, float(tol)
+        self._boxes = None
+        self.last_read = []
+
+    @staticmethod
+    def procs(case_dir) -> list:
+        """The processor folders of a decomposed case (sorted by number), or [] when the mesh
+        is not decomposed (no cellProcAddressing)."""
+        ps = sorted((p for p in os.listdir(case_dir) if p.startswith("processor") and p[9:].isdigit()),
+                    key=lambda p: int(p[9:]))
+        ok = all(os.path.exists(os.path.join(case_dir, p, "constant", "polyMesh", "cellProcAddressing"))
+                 for p in ps)
+        return [os.path.join(case_dir, p, "constant", "polyMesh") for p in ps] if ps and ok else []
+
+    def boxes(self):
+        """Each piece's box (its points' bounds), read once (the points files only)."""
+        if self._boxes is None:
+            self._pieces = self.procs(self.case)
+            b = []
+            for d in self._pieces:
+                x = read_foam_list(os.path.join(d, "points"))
+                b.append((x.min(axis=0), x.max(axis=0)) if len(x) else (np.full(3, np.inf), np.full(3, -np.inf)))
+            self._boxes = b
+        return self._boxes
+
+    def read(self, regions) -> "PolyMesh":
+        """The mesh of the pieces whose box overlaps one of ``regions`` [(lo, hi)]: cells and
+        faces in the whole mesh's numbering and orientation, in its order (so every cell's
+        geometry is the whole mesh's, bit for bit), a phantom last cell on the far side of the
+        faces to pieces not read; ``global_ids`` gives each real cell's global id. Meant for
+        :meth:`PolyMesh.subset` (the phantom is never one of the cells kept)."""
+        boxes = self.boxes()
+        which = [k for k, (blo, bhi) in enumerate(boxes)
+                 if any(np.all(blo <= hi) and np.all(bhi >= lo) for lo, hi in regions)]
+        self.last_read = [os.path.basename(os.path.dirname(os.path.dirname(self._pieces[k]))) for k in which]
+        gf, go, gn, gpatch, loops, lens, cells, pts, pids = [], [], [], [], [], [], [], [], []
+        names = None
+        for k in which:
+            d = self._pieces[k]
+            x = read_foam_list(os.path.join(d, "points"))
+            off, fp = read_foam_list(os.path.join(d, "faces"))
+            own = read_foam_list(os.path.join(d, "owner"))
+            nb = read_foam_list(os.path.join(d, "neighbour"))
+            bnd = read_boundary(os.path.join(d, "boundary"))
+            cpa = read_foam_list(os.path.join(d, "cellProcAddressing"))
+            fpa = read_foam_list(os.path.join(d, "faceProcAddressing"))
+            ppa = read_foam_list(os.path.join(d, "pointProcAddressing"))
+            real = [p for p in bnd if p.get("type") != "processor"]
+            if names is None:
+                names = real
+            nf, ni = len(own), len(nb)
+            flip = fpa < 0
+            # each face's point loop in global points and the whole mesh's orientation
+            # (decomposePar turns a face with reverseFace: the first point stays)
+            ln = np.diff(off)
+            first = np.repeat(off[:-1], ln)
+            kk = np.arange(off[-1]) - first
+            fl = np.repeat(flip, ln)
+            lnr = np.repeat(ln, ln)
+            src = first + np.where(fl & (kk > 0), lnr - kk, kk)
+            loops.append(ppa[fp[src]])
+            lens.append(ln)
+            co = cpa[own]
+            cn = np.full(nf, -1, np.int64)
+            cn[:ni] = cpa[nb]
+            o = np.where(flip, cn, co)
+            n_ = np.where(flip, co, cn)
+            pat = np.full(nf, -1, np.int64)
+            for j, p in enumerate(real):
+                f0 = int(p["startFace"])
+                pat[f0:f0 + int(p["nFaces"])] = j
+            # a processor face: the local cell is the global owner (kept turn) or neighbour (turned)
+            gf.append(np.abs(fpa) - 1)
+            go.append(o)
+            gn.append(n_)
+            gpatch.append(pat)
+            cells.append(cpa)
+            pts.append(x)
+            pids.append(ppa)
+        gf = np.concatenate(gf)
+        go, gn, gpatch = np.concatenate(go), np.concatenate(gn), np.concatenate(gpatch)
+        lens = np.concatenate(lens)
+        loops = np.concatenate(loops)
+        rec_off = np.zeros(lens.size + 1, np.int64)
+        np.cumsum(lens, out=rec_off[1:])
+        order = np.argsort(gf, kind="stable")
+        uf, first_rec = np.unique(gf[order], return_index=True)
+        nrec = np.diff(np.r_[first_rec, order.size])
+        rec = order[first_rec]
+        o = np.maximum.reduceat(go[order], first_rec)
+        nb_ = np.maximum.reduceat(gn[order], first_rec)
+        pat = gpatch[rec]
+        del nrec
+        gcell = np.unique(np.concatenate(cells))
+        gpt_all = np.concatenate(pids)
+        xp_all = np.concatenate(pts)
+        gpt, ip = np.unique(gpt_all, return_index=True)
+        xp = xp_all[ip]
+        n = gcell.size
+        internal = pat < 0
+        n_int = int(internal.sum())
+        if not np.all(internal[:n_int]):
+            raise ValueError(f"{self.case}: the pieces' faces are not ordered internal first")
+        lo_ = np.where(o >= 0, np.searchsorted(gcell, np.maximum(o, 0)), n)
+        ln_ = np.where(nb_ >= 0, np.searchsorted(gcell, np.maximum(nb_, 0)), n)
+        rl = lens[rec]
+        foff = np.zeros(rec.size + 1, np.int64)
+        np.cumsum(rl, out=foff[1:])
+        idx = np.repeat(rec_off[rec] - foff[:-1], rl) + np.arange(foff[-1])
+        fpts = np.searchsorted(gpt, loops[idx]).astype(np.int64)
+        boundary, start = [], n_int
+        for j, p in enumerate(names):
+            cnt = int(np.sum(pat == j))
+            boundary.append(dict(p, startFace=start, nFaces=cnt))
+            start += cnt
+        phantom = bool(np.any(lo_[:n_int] == n) or np.any(ln_[:n_int] == n))
+        m = PolyMesh(xp, foff, fpts, lo_, ln_[:n_int], boundary, phantom=phantom)
+        m.global_ids = gcell
+        m.pieces = list(self.last_read)
+        m.n_global = self.n_global
+        m.tol = self.tol
+        m._uniform = None if self.grid is None else UniformGrid(self.grid.origin, self.grid.h, self.grid.dims,
+                                                                np.zeros(0, np.int64))
+        return m
+
+
 def read_polymesh(case_or_dir: str) -> "PolyMesh":
     """Read an ASCII polyMesh from a case directory, its ``constant`` dir or
     the ``polyMesh`` directory itself."""
@@ -410,7 +546,7 @@ class PolyMesh:
     ``cf_nbr`` (cell across the face, -1 on the boundary).
     """
 
-    def __init__(self, points, face_offsets, face_points, owner, neighbour, boundary=None):
+    def __init__(self, points, face_offsets, face_points, owner, neighbour, boundary=None, phantom=False):
         self.points = np.ascontiguousarray(points, dtype=np.float64)
         self.face_offsets = np.ascontiguousarray(face_offsets, dtype=np.int64)
         self.face_points = np.ascontiguousarray(face_points, dtype=np.int64)
@@ -428,8 +564,10 @@ class PolyMesh:
         self.face_centres, self.face_areas = fc, fa
         cc, cv = _cell_geometry(fc, fa, self.owner, self.neighbour, self.n_cells)
         self.cell_centres, self.cell_volumes = cc, cv
-        if np.any(cv <= 0):
-            raise ValueError(f"{int(np.sum(cv <= 0))} cells with non-positive volume "
+        # phantom: the last cell stands for the cells beyond a piece (read_pieces), no real cell
+        real = cv[:-1] if phantom else cv
+        if np.any(real <= 0):
+            raise ValueError(f"{int(np.sum(real <= 0))} cells with non-positive volume "
                              "(inverted faces / wrong owner-neighbour orientation?)")
         lo, hi = _cell_bboxes(self.points, self.face_offsets, self.face_points,
                               self.owner, self.neighbour, self.n_cells)
