@@ -85,7 +85,7 @@ class CellShare:
             self.owned_mask = np.ones(self.n_cells, bool)
             self.view_mask = self.owned_mask
             self.halo, self.serve = {}, {}
-            self._previous = self._held = None
+            self._previous = self._held = self.pieces_read = None
             self.view_reach = float("inf")
             return
         import copy
