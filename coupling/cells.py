@@ -310,7 +310,7 @@ class CellShare:
                 j += k
 
     def assemble(self, *arrays):
-        """Sum per-cell partial sums (arrays indexed by global cell, modified in place) over the
+        """Sum per-cell partial sums (arrays of the local mesh, modified in place) over the
         ranks that see each cell: every rank ends with the owner's total on every cell it sees.
         The owner adds the partials in rank order, so the totals are the same on every rank."""
         if self.par is None or self.size == 1:

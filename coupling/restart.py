@@ -1,6 +1,7 @@
 """Restart points of a coupled run: writing one (checkpoints/checkpoint_<step>.npz: the DEM;
 checkpoints/coupling_<step>.npz: the exchange-field state of the interface, the gas frame
-the next DEM interval uses and the energy ledger; the gas time folder is the solver's),
+the next DEM interval uses and the energy ledger; on several DEM ranks a manifest and one
+piece per rank in coupling_<step>.pieces/; the gas time folder is the solver's),
 finding and loading the latest one for ``--restart`` (later gas time folders are removed),
 the first frame of a continued run, and the one line that tells the user how to continue.
 """
@@ -89,9 +90,8 @@ def _restart_point_files(out: Path, step: int) -> tuple[Path, Path]:
 def _coupling_state(iface, step, t, fluid, ledger=None, split=None):
     """Arrays of checkpoints/coupling_<step>.npz: the exchange-field state of the
     interface (eps, Ksl as last sent: the time-smoothing relaxes from them) and the gas
-    frame of this step (U, T, grad p, p), which the next DEM interval uses. Collective: each
-    rank holds its owned cells' values (coupling.cells), rank 0 gets the whole arrays (None
-    elsewhere)."""
+    frame of this step (U, T, grad p, p), which the next DEM interval uses (a run on one DEM
+    rank; on several each writes its piece: _write_state_pieces)."""
     cells = iface.cells
     nc = cells.n_cells
     per_cell = {}
