@@ -10,8 +10,10 @@ it, the times do) and reads its timings.json. Printed per layout:
 
 * particle-steps/s of the coupled loop and wall time per coupling step;
 * per DEM rank (largest and smallest over the ranks): the gas cells it owns, the halo cells
-  it shares with other DEM ranks, the bytes it sends to the gas and to other DEM ranks per
-  coupling step, its peak resident memory (MiB).
+  it shares with other DEM ranks, the cells of its local mesh (of the mesh's cells) and the
+  bytes that mesh holds (geometry, connectivity, location tables: coupling.mesh.PolyMesh.
+  nbytes), the bytes it sends to the gas and to other DEM ranks per coupling step, its peak
+  resident memory (MiB).
 
 The (1, 1) layout takes the one-frame socket exchange (every cell in one frame, the same
 bytes).
@@ -51,7 +53,8 @@ def run_layout(case: str, m: int, n: int, end: float, work: Path) -> dict:
     steps = max(int(tm["coupling_steps"]), 1)
     ranks = tm["ranks"]
     per = [dict(owned=r["owned_cells"], halo=r["halo_cells"], gas_b=r["gas_bytes_sent"] / steps,
-                dem_b=r["dem_bytes_sent"] / steps, rss=r["peak_rss_mib"]) for r in ranks]
+                dem_b=r["dem_bytes_sent"] / steps, rss=r["peak_rss_mib"], local=r.get("local_cells"),
+                mesh_b=r.get("mesh_bytes")) for r in ranks]
     return dict(dem=m, gas=n, steps=steps, particles=tm["particles"], pss=tm["particle_steps_per_s"],
                 loop_per_step=tm["loop"] / steps, ranks=per)
 
@@ -74,7 +77,10 @@ def main(argv=None):
                 print(f"DEM {m} x gas {n}: {r['pss']:.3g} particle-steps/s, {1e3 * r['loop_per_step']:.1f} ms per "
                       f"coupling step; per DEM rank: owned cells {min(x['owned'] for x in rk)}-"
                       f"{max(x['owned'] for x in rk)}, halo cells {max(x['halo'] for x in rk)}, "
-                      f"to gas {max(x['gas_b'] for x in rk) / 1024:.1f} KiB/step, "
+                      + (f"local cells {min(x['local'] for x in rk)}-{max(x['local'] for x in rk)} of "
+                         f"{sum(x['owned'] for x in rk)} (mesh {min(x['mesh_b'] for x in rk) / 1024:.0f}-"
+                         f"{max(x['mesh_b'] for x in rk) / 1024:.0f} KiB), " if rk[0]["local"] is not None else "")
+                      + f"to gas {max(x['gas_b'] for x in rk) / 1024:.1f} KiB/step, "
                       f"to DEM ranks {max(x['dem_b'] for x in rk) / 1024:.1f} KiB/step, "
                       f"peak RSS {max(x['rss'] for x in rk):.0f} MiB", flush=True)
     if a.json:

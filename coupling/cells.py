@@ -26,9 +26,18 @@ Per coupling step two exchanges replace what used to be an Allreduce over every 
 
 Messages go only between ranks that share cells, as raw float64 buffers (no pickling);
 their size is the number of shared cells, which grows with a rank's surface, not with the
-mesh. ``bytes_sent`` counts them. Per-cell arrays are still indexed by global cell number on
-every rank (the mesh is read whole on every DEM rank at set-up: docs/scaling.md); only the
-entries of the cells a rank sees are valid there.
+mesh. ``bytes_sent`` counts them.
+
+Each rank holds a *local mesh* (coupling.mesh.PolyMesh.subset): the cells it sees, numbered
+0..n-1 in the order of their global ids (``global_ids``), with the whole mesh's geometry bit for
+bit; every per-cell array of the DEM side is of that size, and ranks agree on cells by global id
+(the plan) only. The whole mesh is read at set-up (once; rank 0 also writes the gas's initial
+void fraction from it) and dropped. When a re-cut of the DEM boxes moves a rank's view beyond
+its local mesh, the rank reads the cells again (``source``: the gas processors' meshes that
+overlap its new view and its owned cells when the gas is decomposed, else the whole mesh),
+cuts a new local mesh, and the state that persists moves to it: :meth:`carry` keeps the rows of
+the cells both meshes hold, :meth:`update` brings the owners' values to the new halo cells (the
+owned cells never change). Serial: the local mesh is the whole mesh (identity numbering).
 """
 from __future__ import annotations
 
@@ -40,6 +49,8 @@ class _Cells:
 
     def __init__(self, n):
         self.n_cells = n
+        self.n_global = n
+        self.global_ids = None
 
 
 # MPI's DOUBLE_INT pair (a value and the cell it belongs to) as a NumPy record
@@ -47,34 +58,52 @@ _VALUE_CELL = np.dtype([("v", "f8"), ("c", "i4")], align=True)
 
 
 class CellShare:
-    """Ownership and halo of the gas cells among the DEM ranks (serial: one rank owns every
-    cell, nothing is sent)."""
+    """Ownership and halo of the gas cells among the DEM ranks, and each rank's local mesh
+    (serial: one rank owns every cell of the whole mesh, nothing is sent)."""
 
-    def __init__(self, mesh, par=None, *, halo: float = 0.0, reach_cells: float = 2.0):
-        """``mesh``: the gas mesh (coupling.mesh.PolyMesh; serial: anything with ``n_cells``),
-        ``par``: the DEM's ParallelDomain or None, ``halo``: the particle halo (m,
-        dem.world.World.halo), ``reach_cells``: the stencil's reach in cell diagonals."""
-        self.n_cells = int(mesh.n_cells)
+    def __init__(self, mesh, par=None, *, halo: float = 0.0, reach_cells: float = 2.0, source=None):
+        """``mesh``: the whole gas mesh (coupling.mesh.PolyMesh; serial: anything with
+        ``n_cells``), ``par``: the DEM's ParallelDomain or None, ``halo``: the particle halo (m,
+        dem.world.World.halo), ``reach_cells``: the stencil's reach in cell diagonals,
+        ``source``: a callable giving a mesh that holds at least the cells of the regions
+        [(lo, hi)] it is given (the whole mesh, or the pieces of a decomposed case that overlap
+        them: coupling.mesh.MeshPieces), called when a re-cut of the DEM boxes needs cells this
+        rank does not hold (None: ``mesh`` is kept for that)."""
         self.par = par
         self.bytes_sent = 0          # bytes this rank sent between DEM ranks (assemble, update)
         self.messages = 0
+        self.layout = 0              # bumped when this rank's local mesh is rebuilt (carry)
+        self.plans = 0               # bumped by every plan (the same on every rank)
+        self.rebuilds = 0
         if par is None:
+            self.mesh = mesh
+            self.n_cells = self.n_global = int(mesh.n_cells)
+            self.global_ids = np.arange(self.n_cells, dtype=np.int64)
             self.rank, self.size = 0, 1
             self.owner = np.zeros(self.n_cells, np.int32)
             self.owned = np.arange(self.n_cells, dtype=np.int64)
             self.owned_mask = np.ones(self.n_cells, bool)
             self.view_mask = self.owned_mask
             self.halo, self.serve = {}, {}
+            self._previous = self._held = self.pieces_read = None
+            self.view_reach = float("inf")
             return
+        import copy
         self.comm = par.comm
         self.rank, self.size = par.rank, par.size
-        self.mesh = mesh
-        self.owner = par.dec.owner(mesh.cell_centres).astype(np.int32)
-        self.owned = np.flatnonzero(self.owner == self.rank).astype(np.int64)
-        self.owned_mask = self.owner == self.rank
+        # the owners are fixed at start-up: the boxes of now decide them for good
+        self._dec0 = copy.copy(par.dec)
+        self._dec0.nodes = [list(nd) for nd in par.dec.nodes]
+        self._dec0.blo, self._dec0.bhi = par.dec.blo.copy(), par.dec.bhi.copy()
+        self._source = source if source is not None else (lambda regions: mesh)
         h = np.sqrt(((mesh.cell_vhi - mesh.cell_vlo) ** 2).sum(axis=1))
-        self.cell_reach = float(h.max(initial=0.0)) * float(reach_cells)
+        self.cell_reach = float(self.allmax(float(h.max(initial=0.0)))) * float(reach_cells)
+        self.n_global = int(mesh.n_cells)
+        self.mesh = None
+        self.pieces_read = None      # the gas processors' meshes read for the last rebuild
+        self._held = None            # (box lo, box hi, halo) the local mesh was cut for
         self._planned = None
+        self._localize(mesh, float(halo))
         self.plan(halo)
 
     @classmethod
@@ -82,10 +111,82 @@ class CellShare:
         """One rank owning every one of ``n_cells`` cells (nothing is sent)."""
         return cls(_Cells(n_cells))
 
+    # ------------------------------------------------------------------ the local mesh
+    def _localize(self, whole, halo):
+        """The local mesh: the cells of ``whole`` within ``halo`` plus the stencil's reach of
+        this rank's box, and its owned cells (their owner: the box at start-up holding the
+        centre). The previous numbering is kept for :meth:`carry`."""
+        nreal = whole.n_cells if whole.global_ids is None else whole.global_ids.size   # (a phantom cell last)
+        x = whole.cell_centres[:nreal]
+        d, _ = self.par.dec.box_distance(x, self.rank)
+        owner = self._dec0.owner(x)
+        self.view_reach = halo + self.cell_reach   # the local mesh: cells within this of the box
+        ids = np.flatnonzero((d <= self.view_reach) | (owner == self.rank))
+        self._previous = None if self.mesh is None else self.global_ids
+        self.mesh = whole.subset(ids)
+        self.pieces_read = getattr(whole, "pieces", None)
+        self.global_ids = self.mesh.global_ids
+        self.n_cells = self.mesh.n_cells
+        self.owner = owner[ids].astype(np.int32)
+        self.owned_mask = self.owner == self.rank
+        self.owned = np.flatnonzero(self.owned_mask).astype(np.int64)
+        dec = self.par.dec
+        self._held = (dec.blo[self.rank].copy(), dec.bhi[self.rank].copy(), halo)
+        self.layout += 1
+
+    @property
+    def view_box(self):
+        """(lo, hi) of the DEM box the local mesh was cut around (None: serial, the whole mesh)."""
+        return None if self._held is None else (self._held[0], self._held[1])
+
+    def local(self, glob):
+        """Local cell of each global id (-1: not a cell of this rank's mesh)."""
+        glob = np.asarray(glob, np.int64)
+        gid = self.global_ids
+        if not gid.size:
+            return np.full(glob.shape, -1, np.int64)
+        i = np.minimum(np.searchsorted(gid, glob), gid.size - 1)
+        return np.where(gid[i] == glob, i, -1).astype(np.int64)
+
+    def carry(self, a):
+        """A per-cell array of the previous local mesh (before the last rebuild) on the current
+        one: the rows of the cells both hold, zeros elsewhere (the owners' values reach the
+        new halo cells with :meth:`update`). Unchanged when ``a`` already has this mesh's size."""
+        a = np.asarray(a)
+        if self._previous is None or (a.shape[0] != self._previous.size and a.shape[0] == self.n_cells):
+            return a
+        if a.shape[0] != self._previous.size:
+            raise ValueError(f"an array of {a.shape[0]} rows is not of this rank's previous local mesh "
+                             f"({self._previous.size} cells)")
+        out = np.zeros((self.n_cells,) + a.shape[1:], a.dtype)
+        j = self.local(self._previous)
+        keep = j >= 0
+        out[j[keep]] = a[keep]
+        return out
+
+    def localize(self, a):
+        """An array of the whole mesh (n_global rows) cut to this rank's cells; one of the
+        local mesh as it is (the Python API may hand either)."""
+        a = np.asarray(a)
+        if a.ndim and a.shape[0] == self.n_global and self.n_global != self.n_cells:
+            return np.ascontiguousarray(a[self.global_ids])
+        return a
+
+    def spread(self, a, fill):
+        """A local per-cell array on the whole mesh: ``fill`` on the cells this rank does not
+        hold (set-up checks only: O(cells))."""
+        a = np.asarray(a)
+        if self.n_global == self.n_cells:
+            return a
+        out = np.full((self.n_global,) + a.shape[1:], fill, a.dtype)
+        out[self.global_ids] = a
+        return out
+
     # ------------------------------------------------------------------ the pattern
     def plan(self, halo):
         """Which cells this rank sees (within ``halo`` plus the stencil's reach of its box) and
-        which ranks own them (collective; at start-up and after the DEM boxes were re-cut)."""
+        which ranks own them (collective; at start-up and after the DEM boxes were re-cut).
+        Halo and served cells are local indices; ranks agree on them by global id."""
         par = self.par
         from mpi4py import MPI
         halo = float(halo)
@@ -99,21 +200,44 @@ class CellShare:
         self.comm.Alltoall(counts, rcounts)          # set-up only: one number per rank pair
         halo_ids = {int(q): need[own == q] for q in np.flatnonzero(counts)}
         serve = {int(q): np.empty(int(rcounts[q]), np.int64) for q in np.flatnonzero(rcounts)}
+        asked = {q: np.ascontiguousarray(self.global_ids[ids]) for q, ids in halo_ids.items()}
         reqs = [self.comm.Irecv([serve[q], MPI.INT64_T], source=q, tag=71) for q in serve]
-        reqs += [self.comm.Isend([halo_ids[q], MPI.INT64_T], dest=q, tag=71) for q in halo_ids]
+        reqs += [self.comm.Isend([asked[q], MPI.INT64_T], dest=q, tag=71) for q in asked]
         MPI.Request.Waitall(reqs)
-        bad = [q for q, ids in serve.items() if ids.size and not np.all(self.owned_mask[ids])]
+        serve = {q: self.local(g) for q, g in serve.items()}
+        bad = [q for q, ids in serve.items() if ids.size and not (np.all(ids >= 0) and np.all(self.owned_mask[ids]))]
         if bad:
             raise RuntimeError(f"DEM rank {self.rank}: ranks {bad} asked for cells it does not own")
         self.view_mask = view
         self.halo, self.serve = halo_ids, serve
         self._planned = par.rebalances
+        self.plans += 1
 
-    def refresh(self, halo):
+    def needs_refresh(self, halo) -> bool:
+        """The DEM boxes were re-cut (or the halo grew) since the last plan (the same answer on
+        every rank)."""
+        return self.par is not None and (self._planned != self.par.rebalances or halo > self.particle_halo)
+
+    def refresh(self, halo) -> bool:
         """Re-plan when the DEM boxes were re-cut since the last plan (collective: every rank
-        sees the same re-cut count)."""
-        if self.par is not None and (self._planned != self.par.rebalances or halo > self.particle_halo):
-            self.plan(halo)
+        sees the same re-cut count). When this rank's new view reaches beyond its local mesh
+        (its box grew, or the halo), the local mesh is rebuilt from the whole mesh (``source``)
+        first: per-cell arrays then move to it with :meth:`carry` and :meth:`update`.
+        Returns True when re-planned."""
+        if not self.needs_refresh(halo):
+            return False
+        blo, bhi, h0 = self._held
+        dec = self.par.dec
+        self._previous = None
+        if not (np.all(dec.blo[self.rank] >= blo) and np.all(dec.bhi[self.rank] <= bhi) and halo <= h0):
+            h = max(float(halo), h0)
+            r = h + self.cell_reach
+            regions = [(dec.blo[self.rank] - r, dec.bhi[self.rank] + r),          # the cells it will see
+                       (self._dec0.blo[self.rank], self._dec0.bhi[self.rank])]    # the cells it owns
+            self._localize(self._source(regions), h)
+            self.rebuilds += 1
+        self.plan(halo)
+        return True
 
     def check_stencil(self, cells):
         """Every cell a stencil touches must be one this rank sees (else its sum would be lost)."""
@@ -123,9 +247,20 @@ class CellShare:
         if c.size and not np.all(self.view_mask[c]):
             bad = int(c[~self.view_mask[c]][0])
             raise RuntimeError(
-                f"DEM rank {self.rank}: a particle's stencil reaches gas cell {bad} at "
+                f"DEM rank {self.rank}: a particle's stencil reaches gas cell {int(self.global_ids[bad])} at "
                 f"{np.array2string(self.mesh.cell_centres[bad], precision=6)}, beyond the cells this rank "
                 f"sees ({self.cell_reach:g} m around its box plus the particle halo {self.particle_halo:g} m)")
+
+    def centre(self, cell):
+        """The centre of global ``cell`` on every rank (collective: its owner tells; for
+        messages)."""
+        if self.par is None:
+            return np.asarray(self.mesh.cell_centres[cell]) if cell >= 0 else np.full(3, np.nan)
+        j = int(self.local(np.array([cell]))[0]) if cell >= 0 else -1
+        mine = j >= 0 and self.owned_mask[j]
+        v = np.r_[self.mesh.cell_centres[j] if mine else np.zeros(3), 1.0 if mine else 0.0]
+        v = self.allsum(v)
+        return v[:3] / v[3] if v[3] > 0 else np.full(3, np.nan)
 
     @property
     def halo_cells(self) -> int:
@@ -175,7 +310,7 @@ class CellShare:
                 j += k
 
     def assemble(self, *arrays):
-        """Sum per-cell partial sums (arrays indexed by global cell, modified in place) over the
+        """Sum per-cell partial sums (arrays of the local mesh, modified in place) over the
         ranks that see each cell: every rank ends with the owner's total on every cell it sees.
         The owner adds the partials in rank order, so the totals are the same on every rank."""
         if self.par is None or self.size == 1:
@@ -253,15 +388,15 @@ class CellShare:
         return float(every[k, 0]), every[k, 1:].copy()
 
     def gather_owned(self, a, root=0):
-        """The whole per-cell array on ``root`` from each rank's owned cells (restart points
-        only; None elsewhere)."""
-        a = np.asarray(a)
+        """The whole per-cell array on ``root`` from each rank's owned cells (set-up: the
+        gas's initial void fraction; None elsewhere). ``a``: of the local mesh (or whole)."""
+        a = self.localize(a)
         if self.par is None:
             return a
-        parts = self.comm.gather((self.owned, np.ascontiguousarray(a[self.owned])), root=root)
+        parts = self.comm.gather((self.global_ids[self.owned], np.ascontiguousarray(a[self.owned])), root=root)
         if self.rank != root:
             return None
-        out = np.zeros((self.n_cells,) + a.shape[1:], a.dtype)
+        out = np.zeros((self.n_global,) + a.shape[1:], a.dtype)
         for ids, vals in parts:
             out[ids] = vals
         return out

@@ -71,11 +71,15 @@ class Diagnostics:
     @staticmethod
     def owned_ends(iface):
         """(bottom, top): the cells of the mesh's lowest and highest layer of cell centres that
-        this rank owns (the pressure drop's ends)."""
+        this rank owns (the pressure drop's ends; local cells; collective: the layers are the
+        whole mesh's)."""
+        cs = iface.cells
         z = np.round(iface.mesh.cell_centres[:, 2], 12)
-        zl = np.unique(z)
-        own = iface.cells.owned_mask
-        return np.flatnonzero((z == zl[0]) & own), np.flatnonzero((z == zl[-1]) & own)
+        own = cs.owned_mask
+        zo = z[own]
+        lo = cs.allmin(float(zo.min(initial=np.inf)))
+        hi = cs.allmax(float(zo.max(initial=-np.inf)))
+        return np.flatnonzero((z == lo) & own), np.flatnonzero((z == hi) & own)
 
     @staticmethod
     def gas_sums(iface, fluid, frame, ends):
@@ -169,6 +173,7 @@ class Outputs:
         self.sim, self.iface, self.ledger, self.t_wall0 = sim, iface, ledger, t_wall0
         self.hist = self.vtk = self.diag = self.walls = self.walls_by_angle = None
         self.ends = Diagnostics.owned_ends(iface)   # every rank: its cells of the pressure drop's ends
+        self._plans = iface.cells.plans
         if sim.scene.output["vtk"]:   # every rank: under MPI each writes its own piece (collective)
             self.vtk = sim.vtk_series(str(out))
         if not root:
@@ -186,6 +191,9 @@ class Outputs:
         write failure there (disk full) stops every rank with the same error, naming the rank."""
         sim, iface = self.sim, self.iface
         with iface.timer("output"):
+            if self._plans != iface.cells.plans:   # a re-cut (collective): the local numbering may have changed
+                self.ends = Diagnostics.owned_ends(iface)
+                self._plans = iface.cells.plans
             row = sim.history_row()
             if sim.scene.output["vtk"]:   # every rank its own piece (a failure raised on all)
                 sim.write_vtk(self.vtk, fluid_force=_fluid_force_now(sim, iface))
@@ -259,7 +267,9 @@ class RunWatch:
         self._said = set()
 
     def _at(self, c):
-        return f"cell {c} at {np.array2string(self.mesh.cell_centres[c], precision=6)}"
+        """Cell ``c`` (global id) and its centre (collective: every rank calls it alike)."""
+        x = self.cells.centre(c) if self.cells is not None else self.mesh.cell_centres[c]
+        return f"cell {c} at {np.array2string(x, precision=6)}"
 
     def after_prepare(self, iface, t):
         c = iface.clip
@@ -295,7 +305,8 @@ class RunWatch:
         u = u[own]
         s2 = (u * u).sum(axis=1)
         c = int(np.argmax(s2)) if s2.size else -1
-        v, c = float(np.sqrt(s2[c])) if c >= 0 else 0.0, int(own[c]) if c >= 0 else -1
+        gid = self.cells.global_ids if self.cells is not None else np.arange(u.shape[0])
+        v, c = float(np.sqrt(s2[c])) if c >= 0 else 0.0, int(gid[own[c]]) if c >= 0 else -1
         if self.cells is not None:
             v, c = self.cells.argmax(v, c)
         self.gas_speed = max(self.gas_speed, v)
@@ -311,12 +322,14 @@ class RunWatch:
         return dict(eps_clipping=self.clip, eps_change_max=self.eps_change, gas_speed_max=self.gas_speed)
 
 
-def check_gas_fields(fluid, step, *, time_value=None, mesh=None, cfg=None, eps_change=None, cells=None):
+def check_gas_fields(fluid, step, *, time_value=None, mesh=None, cfg=None, eps_change=None, cells=None,
+                     global_ids=None):
     """Guard on every gas frame received from the solver (before the DEM sees it): U, T,
     grad p and p finite, T > 0, |U| <= GAS_SPEED_LIMIT. Raises :class:`GasFieldError`
     naming the field, the number of bad cells, the first one (index and centre), the time
-    and what to change. ``cells``: the global cell of each row (a many-to-many rank checks
-    the cells it owns); None: row = cell."""
+    and what to change. ``cells``: the cell of ``mesh`` of each row (a many-to-many rank
+    checks the cells it owns); None: row = cell. ``global_ids``: the global cell of each cell
+    of ``mesh`` (a local mesh) for the message."""
     bad = None
     for name, test, what in (
             ("U", lambda a: ~np.isfinite(a).all(axis=1), "non-finite"),
@@ -337,7 +350,7 @@ def check_gas_fields(fluid, step, *, time_value=None, mesh=None, cfg=None, eps_c
     name, what, rows = bad
     val = np.asarray(fluid[name])[int(rows[0])]
     c = int(rows[0]) if cells is None else int(cells[int(rows[0])])
-    where = f"cell {c}"
+    where = f"cell {c if global_ids is None else int(global_ids[c])}"
     if mesh is not None:
         where += f" at {np.array2string(mesh.cell_centres[c], precision=6)}"
     when = f"t = {time_value:.9g} s" if time_value is not None else f"coupling step {step}"

@@ -364,20 +364,28 @@ class FluxSplit:
     negative (it gives the face heat), so the total stays exact."""
 
     def __init__(self, case, mesh, ties: dict[int, int]):
-        from scipy.spatial import cKDTree
         sc = case.sim.scene
         pats = _patches(mesh)
         self.walls = []   # (DEM wall index, patch index, patch name, fixed flux?, q_w)
-        self.faces = []   # per wall: (owner cells of the patch faces, their areas, kd-tree of centres)
         for wi, pi in sorted(ties.items(), key=lambda kv: kv[1]):
             th = sc.walls[wi].get("thermal") or {}
             ff = th.get("condition") == "fixed_heat_flux"
             self.walls.append((wi, pi, pats[pi]["name"], ff, float(th.get("heat_flux", 0.0)) if ff else 0.0))
+        self._on(mesh)
+        self.sent = np.zeros((len(self.walls), NPATH))   # J: cumulative energy sent per path
+
+    def _on(self, mesh):
+        """The tied patches' faces on ``mesh`` (a DEM rank's local mesh: the faces its cells
+        own): per wall (owner cells of the patch faces, their areas, kd-tree of centres)."""
+        from scipy.spatial import cKDTree
+        pats = _patches(mesh)
+        self.faces = []
+        for _wi, pi, *_rest in self.walls:
             f0, nf = int(pats[pi]["startFace"]), int(pats[pi]["nFaces"])
             self.faces.append((mesh.owner[f0:f0 + nf], np.linalg.norm(mesh.face_areas[f0:f0 + nf], axis=1),
                                cKDTree(mesh.face_centres[f0:f0 + nf])))
         self.n_cells = mesh.n_cells
-        self.sent = np.zeros((len(self.walls), NPATH))   # J: cumulative energy sent per path
+        self.mesh = mesh
 
     def __bool__(self):
         return bool(self.walls)
@@ -428,6 +436,8 @@ class FluxSplit:
         each rank owns: valid there, each total summed over the ranks' owned cells)."""
         from .cells import CellShare
         cs = share if share is not None else CellShare.serial(self.n_cells)
+        if share is not None and share.mesh is not self.mesh and share.par is not None:
+            self._on(share.mesh)   # this rank's local mesh was rebuilt (a re-cut of the DEM boxes)
         m = len(self.walls)
         out = np.zeros((self.n_cells, NPATH * m))
         if not m:
@@ -438,7 +448,8 @@ class FluxSplit:
         own = cs.owned
         for k in range(m):
             cells, area, _ = self.faces[k]
-            by_area = np.bincount(cells, weights=area, minlength=self.n_cells) / area.sum()
+            a_wall = area.sum() if cs.par is None else cs.allsum(float(area[cs.owned_mask[cells]].sum()))
+            by_area = np.bincount(cells, weights=area, minlength=self.n_cells) / a_wall
             for p in range(NPATH):
                 e = est[:, NPATH * k + p]
                 owed = rec[k, p] - self.sent[k, p]        # taken beyond what was sent, J

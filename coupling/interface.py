@@ -92,7 +92,7 @@ class PhaseTimer:
 
 @dataclass
 class CouplingInterface:
-    mesh: object                      # coupling.mesh.PolyMesh
+    mesh: object                      # coupling.mesh.PolyMesh: the whole mesh; then this rank's local mesh
     sim: object                       # dem.Simulation
     gas: GasProperties
     drag: str = "di_felice_1994"
@@ -109,13 +109,15 @@ class CouplingInterface:
     lift: str = "none"                # | saffman_mei | magnus
     virtual_mass: bool = False
     timer: PhaseTimer = field(default_factory=PhaseTimer)
+    mesh_source: object = None        # callable giving the whole mesh again (coupling.cells.CellShare)
 
     @classmethod
-    def for_case(cls, case, mesh):
-        """The interface of a coupled case (coupling.case.CoupledCase) on ``mesh``: the
-        settings of its coupling.toml, its gas, its model type and its scene's gravity."""
+    def for_case(cls, case, mesh, source=None):
+        """The interface of a coupled case (coupling.case.CoupledCase) on ``mesh`` (the whole
+        mesh; each DEM rank keeps the cells it sees: coupling.cells): the settings of its
+        coupling.toml, its gas, its model type and its scene's gravity."""
         cfg = case.config
-        return cls(mesh, case.sim, case.gas, drag=cfg.drag, void_fraction=cfg.void_fraction,
+        return cls(mesh, case.sim, case.gas, mesh_source=source, drag=cfg.drag, void_fraction=cfg.void_fraction,
                    interpolation=cfg.interpolation, model_type=case.model_type, eps_min=cfg.eps_min,
                    smoothing_time=cfg.smoothing_time,
                    gravity=np.asarray(case.sim.scene.simulation["gravity"], float),
@@ -135,11 +137,15 @@ class CouplingInterface:
         self.u_prev = None            # gas velocity of the last frame (virtual mass: dU/dt)
         if self.model_type not in ("A", "B"):
             raise ValueError(f"modelType must be A or B, got {self.model_type!r}")
-        self.V = self.mesh.cell_volumes
-        # the gas cells this DEM rank owns and sees (coupling.cells; serial: all of them)
+        # the gas cells this DEM rank owns and sees, and its local mesh of them (coupling.cells;
+        # serial: the whole mesh); every per-cell array here is of the local mesh
         from .cells import CellShare
-        self.cells = CellShare(self.mesh, self.sim.par,
+        self.cells = CellShare(self.mesh, self.sim.par, source=self.mesh_source,
                                halo=self.sim.world.halo() if self.sim.par is not None else 0.0)
+        self.mesh = self.cells.mesh
+        self.V = self.mesh.cell_volumes
+        self._layout = self.cells.layout
+        self._frame = None            # the last frame prepare returned (moved with a new local mesh)
         self.hint = None
         self.eps_sent = None
         self.ksl_sent = None
@@ -164,19 +170,51 @@ class CouplingInterface:
         vol = float(((self.eps_min - e[low]) * self.V[own][low]).sum()) if low.any() else 0.0
         vp = (4.0 / 3.0) * math.pi * float((self.sim.state.radius[:self.sim.state.n_owned] ** 3).sum())
         n_low, vol, vp = cs.allsum(np.array([float(low.sum()), vol, vp]))
-        e_min, c = cs.argmin(float(e[c]) if c >= 0 else 1.0, int(own[c]) if c >= 0 else -1)
+        e_min, c = cs.argmin(float(e[c]) if c >= 0 else 1.0, int(cs.global_ids[own[c]]) if c >= 0 else -1)
         self.clip = dict(cells=int(n_low), volume=float(vol), fraction=float(vol / vp) if vp > 0 else 0.0,
                          eps_raw_min=float(e_min), cell=int(c))
 
     def map_particles(self) -> None:
         """Locate the particles and build the stencil / void fraction now (e.g. right after
         the DEM interval, while the gas solver is still busy); ``prepare`` reuses it if
-        the DEM has not moved since."""
+        the DEM has not moved since. After a re-cut of the DEM boxes ``prepare`` does it (the
+        cells a rank sees change there, with the gas frame it is given)."""
+        if self.cells.needs_refresh(self.sim.world.halo() if self.sim.par is not None else 0.0):
+            return
         pw, eps = self._stencil()
         self._mapped = (self.sim.step_count, pw, eps)
 
+    def _moved(self, fluid):
+        """After a re-plan of the cells (collective): a rebuilt local mesh takes the per-cell
+        state that persists (eps, Ksl, Us as last sent, the last gas velocity, the last frame,
+        the gas frame ``fluid`` in place) to its numbering, the owners' values fill the new
+        halo cells, the stencil is built again."""
+        cs = self.cells
+        self.hint = None
+        self._map_cache = None
+        if cs.layout != self._layout:
+            self.mesh = cs.mesh
+            self.V = self.mesh.cell_volumes
+            self._layout = cs.layout
+        moved = []
+        for k in ("eps_sent", "ksl_sent", "us_sent", "u_prev"):
+            a = getattr(self, k)
+            if a is not None:
+                a = np.ascontiguousarray(cs.carry(a), dtype=np.float64)
+                setattr(self, k, a)
+                moved.append(a)
+        for d in (self._frame, fluid):
+            if not d:
+                continue
+            for k in sorted(d):
+                a = d[k]
+                if isinstance(a, np.ndarray) and a.ndim and a.dtype == np.float64 and k != "scalars":
+                    d[k] = np.ascontiguousarray(cs.carry(a))
+                    moved.append(d[k])
+        cs.update(*moved)
+
     # ------------------------------------------------------------------ particle -> mesh
-    def _stencil(self):
+    def _stencil(self, fluid=None):
         st = self.sim.state
         n = st.n_owned
         par = self.sim.par
@@ -190,7 +228,9 @@ class CouplingInterface:
                 and np.array_equal(prev[1], rad))
         if par is not None:
             same = bool(self.cells.allmin(int(same)))   # the sums below are collective: every rank agrees
-            self.cells.refresh(self.sim.world.halo())   # the DEM boxes were re-cut: who sees what
+            if self.cells.refresh(self.sim.world.halo()):   # the DEM boxes were re-cut: who sees what
+                self._moved(fluid)
+                same, prev = False, None
         if same:
             # particles have not moved (held bed, mechanics = false): same stencil, exactly
             return prev[2], prev[3]
@@ -268,14 +308,16 @@ class CouplingInterface:
         if self._mapped is not None and self._mapped[0] == sim.step_count:
             pw, eps_raw = self._mapped[1], self._mapped[2]
         else:
-            pw, eps_raw = self._stencil()
+            pw, eps_raw = self._stencil(fluid)
         self._mapped = None
+        fluid = {k: self.cells.localize(v) for k, v in fluid.items()}   # (the API may give whole-mesh arrays)
         eps = self._relax(self.eps_sent, eps_raw, dt_cfd)
         if self.eps_sent is not None and eps.size:
             own = self.cells.owned
             de = np.abs(eps[own] - self.eps_sent[own])
             c = int(np.argmax(de)) if de.size else -1
-            self.eps_change = self.cells.argmax(float(de[c]) if c >= 0 else 0.0, int(own[c]) if c >= 0 else -1)
+            self.eps_change = self.cells.argmax(float(de[c]) if c >= 0 else 0.0,
+                                                int(self.cells.global_ids[own[c]]) if c >= 0 else -1)
         self.cells.update(eps)   # the owners' relaxed eps in the halo cells (after a re-cut: new halo cells)
         self.eps_sent = eps
 
@@ -343,7 +385,8 @@ class CouplingInterface:
             self.us_sent = us
         self.last = dict(beta=beta, force=force, hA=hA, eps_p=eps_p, uf=uf, eps_raw=eps_raw,
                          Tg=tg, torque=tframe, ids=st.id[:n].copy())
-        return dict(eps=eps, Ksl=ksl, Us=us, Simp=simp, Sexp=sexp)
+        self._frame = dict(eps=eps, Ksl=ksl, Us=us, Simp=simp, Sexp=sexp)
+        return self._frame
 
     def advance_dem(self, k: int) -> None:
         with self.timer("dem"):

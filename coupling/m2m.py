@@ -30,16 +30,17 @@ HELLO = struct.Struct("<8sqq")
 HELLO_MAGIC = b"TDEMHELO"
 
 
-def gas_pairs(out: Path, n_gas: int, owned_mask: np.ndarray) -> dict:
-    """For each gas processor g holding cells this rank owns: (global cell ids, local ids
-    on g), in the order of g's local cells (set-up: reads each processor's
-    cellProcAddressing when the gas is decomposed)."""
+def gas_pairs(out: Path, n_gas: int, cells) -> dict:
+    """For each gas processor g holding cells this rank owns (``cells``: coupling.cells.
+    CellShare): (global cell ids, local ids on g), in the order of g's local cells (set-up:
+    reads each processor's cellProcAddressing when the gas is decomposed)."""
+    owned = cells.global_ids[cells.owned]
     if n_gas <= 1:
-        ids = np.flatnonzero(owned_mask).astype(np.int64)
+        ids = np.ascontiguousarray(owned, np.int64)
         return {0: (ids, ids.copy())} if ids.size else {}
     pairs = {}
     for g, addr in enumerate(fc.cell_proc_addressing(out)):
-        loc = np.flatnonzero(owned_mask[addr]).astype(np.int64)
+        loc = np.flatnonzero(np.isin(addr, owned, assume_unique=True)).astype(np.int64)
         if loc.size:
             pairs[g] = (addr[loc].astype(np.int64), loc)
     return pairs
@@ -52,6 +53,8 @@ class M2MExchange(_Exchange):
     def __init__(self, rank: int, pairs: dict, folder: Path, *, timeout: float, host: str = "127.0.0.1"):
         super().__init__(timeout=timeout, side="dem", n_cells=None)   # peer_process: rank 0's solver
         self.rank, self.pairs, self.folder = rank, pairs, Path(folder)
+        self.rows = {g: glob for g, (glob, _loc) in pairs.items()}   # each pair's cells in the frames' arrays
+        self._layout = None
         self.host = host
         self.socks: dict[int, socket.socket] = {}
         self.bytes_received = 0
@@ -71,6 +74,15 @@ class M2MExchange(_Exchange):
             tmp = d / f".dem{self.rank}.tmp"
             tmp.write_text(f"{self.host} {self.port} {glob.size}\n")
             os.replace(tmp, d / f"dem{self.rank}")
+
+    def on_cells(self, cells):
+        """The frames' arrays are of ``cells``'s local mesh (coupling.cells.CellShare): each
+        pair's rows there (again after the local mesh was rebuilt)."""
+        if self._layout != cells.layout:
+            self.rows = {g: cells.local(glob) for g, (glob, _loc) in self.pairs.items()}
+            if any(np.any(r < 0) for r in self.rows.values()):
+                raise CouplingError(f"DEM rank {self.rank}: its local mesh lacks cells it owns", peer="CFD solver")
+            self._layout = cells.layout
 
     def _err(self, msg, step, g=None):
         return CouplingError(msg, peer=self.peer + (f" processor {g}" if g is not None else ""), step=step)
@@ -129,11 +141,12 @@ class M2MExchange(_Exchange):
 
     # ------------------------------------------------------------------ per step
     def send(self, step, fields, *, time_value=0.0, final=False):
-        """The frame of every pair: ``fields`` indexed by global cell (this rank's owned
-        entries are sent), wall_columns included."""
+        """The frame of every pair: ``fields`` indexed by cell of the local mesh (on_cells: this
+        rank's owned entries are sent), wall_columns included."""
         out = {}
         for g, (glob, _loc) in self.pairs.items():
-            sub = {k: np.asarray(v)[glob] for k, v in fields.items() if k != "scalars"}
+            rows = self.rows[g]
+            sub = {k: np.asarray(v)[rows] for k, v in fields.items() if k != "scalars"}
             buf = encode_frame(KIND_TO_CFD, step, sub, time_value=time_value,
                                flags=FLAG_FINAL if final else 0, n_cells=glob.size)
             out[g] = memoryview(struct.pack("<Q", len(buf)) + buf)
@@ -158,8 +171,9 @@ class M2MExchange(_Exchange):
                     del out[g]
 
     def receive(self, step, fields_into: dict):
-        """One frame from every pair, scattered into ``fields_into`` (arrays indexed by
-        global cell); returns the frames' scalars (the gas's, the same in every frame)."""
+        """One frame from every pair, scattered into ``fields_into`` (arrays indexed by cell
+        of the local mesh: on_cells); returns the frames' scalars (the gas's, the same in every
+        frame)."""
         pend = {g: [bytearray(8), 0, None] for g in self.pairs}   # buffer, filled, frame length
         done = {}
         t0 = time.monotonic()
@@ -209,7 +223,7 @@ class M2MExchange(_Exchange):
                 dst = fields_into.get(k)
                 if dst is None:
                     dst = fields_into[k] = np.zeros((fields_into["_n"],) + a.shape[1:])
-                dst[glob] = a
+                dst[self.rows[g]] = a
             if scalars is None:
                 scalars = f["scalars"]
             flags.add(int(h["flags"]))

@@ -71,6 +71,142 @@ __all__ = [
 # --------------------------------------------------------------------------
 # Reader (the files: coupling.polymesh_files)
 # --------------------------------------------------------------------------
+class MeshPieces:
+    """The gas mesh of a decomposed case read by pieces: the processor meshes
+    (``processor<g>/constant/polyMesh`` with their cell, face and point addressing, written by
+    decomposePar) whose box overlaps a region. ``grid`` and ``tol``: the whole mesh's uniform
+    lattice (or None) and location tolerance, kept by the caller from set-up so that a local
+    mesh cut from the pieces locates exactly as one cut from the whole mesh."""
+
+    def __init__(self, case_dir, n_cells: int, grid=None, tol: float = 0.0):
+        self.case = str(case_dir)
+        self.n_global = int(n_cells)
+        self.grid, self.tol = grid, float(tol)
+        self._boxes = None
+        self.last_read = []
+
+    @staticmethod
+    def procs(case_dir) -> list:
+        """The processor folders of a decomposed case (sorted by number), or [] when the mesh
+        is not decomposed (no cellProcAddressing)."""
+        ps = sorted((p for p in os.listdir(case_dir) if p.startswith("processor") and p[9:].isdigit()),
+                    key=lambda p: int(p[9:]))
+        ok = all(os.path.exists(os.path.join(case_dir, p, "constant", "polyMesh", "cellProcAddressing"))
+                 for p in ps)
+        return [os.path.join(case_dir, p, "constant", "polyMesh") for p in ps] if ps and ok else []
+
+    def boxes(self):
+        """Each piece's box (its points' bounds), read once (the points files only)."""
+        if self._boxes is None:
+            self._pieces = self.procs(self.case)
+            b = []
+            for d in self._pieces:
+                x = read_foam_list(os.path.join(d, "points"))
+                b.append((x.min(axis=0), x.max(axis=0)) if len(x) else (np.full(3, np.inf), np.full(3, -np.inf)))
+            self._boxes = b
+        return self._boxes
+
+    def read(self, regions) -> "PolyMesh":
+        """The mesh of the pieces whose box overlaps one of ``regions`` [(lo, hi)]: cells and
+        faces in the whole mesh's numbering and orientation, in its order (so every cell's
+        geometry is the whole mesh's, bit for bit), a phantom last cell on the far side of the
+        faces to pieces not read; ``global_ids`` gives each real cell's global id. Meant for
+        :meth:`PolyMesh.subset` (the phantom is never one of the cells kept)."""
+        boxes = self.boxes()
+        which = [k for k, (blo, bhi) in enumerate(boxes)
+                 if any(np.all(blo <= hi) and np.all(bhi >= lo) for lo, hi in regions)]
+        self.last_read = [os.path.basename(os.path.dirname(os.path.dirname(self._pieces[k]))) for k in which]
+        gf, go, gn, gpatch, loops, lens, cells, pts, pids = [], [], [], [], [], [], [], [], []
+        names = None
+        for k in which:
+            d = self._pieces[k]
+            x = read_foam_list(os.path.join(d, "points"))
+            off, fp = read_foam_list(os.path.join(d, "faces"))
+            own = read_foam_list(os.path.join(d, "owner"))
+            nb = read_foam_list(os.path.join(d, "neighbour"))
+            bnd = read_boundary(os.path.join(d, "boundary"))
+            cpa = read_foam_list(os.path.join(d, "cellProcAddressing"))
+            fpa = read_foam_list(os.path.join(d, "faceProcAddressing"))
+            ppa = read_foam_list(os.path.join(d, "pointProcAddressing"))
+            real = [p for p in bnd if p.get("type") != "processor"]
+            if names is None:
+                names = real
+            nf, ni = len(own), len(nb)
+            flip = fpa < 0
+            # each face's point loop in global points and the whole mesh's orientation
+            # (decomposePar turns a face with reverseFace: the first point stays)
+            ln = np.diff(off)
+            first = np.repeat(off[:-1], ln)
+            kk = np.arange(off[-1]) - first
+            fl = np.repeat(flip, ln)
+            lnr = np.repeat(ln, ln)
+            src = first + np.where(fl & (kk > 0), lnr - kk, kk)
+            loops.append(ppa[fp[src]])
+            lens.append(ln)
+            co = cpa[own]
+            cn = np.full(nf, -1, np.int64)
+            cn[:ni] = cpa[nb]
+            o = np.where(flip, cn, co)
+            n_ = np.where(flip, co, cn)
+            pat = np.full(nf, -1, np.int64)
+            for j, p in enumerate(real):
+                f0 = int(p["startFace"])
+                pat[f0:f0 + int(p["nFaces"])] = j
+            # a processor face: the local cell is the global owner (kept turn) or neighbour (turned)
+            gf.append(np.abs(fpa) - 1)
+            go.append(o)
+            gn.append(n_)
+            gpatch.append(pat)
+            cells.append(cpa)
+            pts.append(x)
+            pids.append(ppa)
+        gf = np.concatenate(gf)
+        go, gn, gpatch = np.concatenate(go), np.concatenate(gn), np.concatenate(gpatch)
+        lens = np.concatenate(lens)
+        loops = np.concatenate(loops)
+        rec_off = np.zeros(lens.size + 1, np.int64)
+        np.cumsum(lens, out=rec_off[1:])
+        order = np.argsort(gf, kind="stable")
+        uf, first_rec = np.unique(gf[order], return_index=True)
+        nrec = np.diff(np.r_[first_rec, order.size])
+        rec = order[first_rec]
+        o = np.maximum.reduceat(go[order], first_rec)
+        nb_ = np.maximum.reduceat(gn[order], first_rec)
+        pat = gpatch[rec]
+        del nrec
+        gcell = np.unique(np.concatenate(cells))
+        gpt_all = np.concatenate(pids)
+        xp_all = np.concatenate(pts)
+        gpt, ip = np.unique(gpt_all, return_index=True)
+        xp = xp_all[ip]
+        n = gcell.size
+        internal = pat < 0
+        n_int = int(internal.sum())
+        if not np.all(internal[:n_int]):
+            raise ValueError(f"{self.case}: the pieces' faces are not ordered internal first")
+        lo_ = np.where(o >= 0, np.searchsorted(gcell, np.maximum(o, 0)), n)
+        ln_ = np.where(nb_ >= 0, np.searchsorted(gcell, np.maximum(nb_, 0)), n)
+        rl = lens[rec]
+        foff = np.zeros(rec.size + 1, np.int64)
+        np.cumsum(rl, out=foff[1:])
+        idx = np.repeat(rec_off[rec] - foff[:-1], rl) + np.arange(foff[-1])
+        fpts = np.searchsorted(gpt, loops[idx]).astype(np.int64)
+        boundary, start = [], n_int
+        for j, p in enumerate(names):
+            cnt = int(np.sum(pat == j))
+            boundary.append(dict(p, startFace=start, nFaces=cnt))
+            start += cnt
+        phantom = bool(np.any(lo_[:n_int] == n) or np.any(ln_[:n_int] == n))
+        m = PolyMesh(xp, foff, fpts, lo_, ln_[:n_int], boundary, phantom=phantom)
+        m.global_ids = gcell
+        m.pieces = list(self.last_read)
+        m.n_global = self.n_global
+        m.tol = self.tol
+        m._uniform = None if self.grid is None else UniformGrid(self.grid.origin, self.grid.h, self.grid.dims,
+                                                                np.zeros(0, np.int64))
+        return m
+
+
 def read_polymesh(case_or_dir: str) -> "PolyMesh":
     """Read an ASCII polyMesh from a case directory, its ``constant`` dir or
     the ``polyMesh`` directory itself."""
@@ -330,7 +466,11 @@ def _locate_many(pts, hint, L, tol, max_walk):
 
 
 @njit(cache=True, parallel=True)
-def _locate_uniform(pts, origin, h, dims, lattice, tol):
+def _locate_uniform(pts, origin, h, dims, first, sub, lattice, tol):
+    """Cell of each point on a uniform lattice of ``dims`` cells from ``origin`` (spacing h):
+    the lattice index of the whole mesh, then the entry of ``lattice``, which covers the
+    sub-block of ``sub`` cells from index ``first`` (a local mesh: -1 where the cell is not
+    one of its cells; the whole mesh: first = 0, sub = dims)."""
     n = pts.shape[0]
     out = np.empty(n, np.int64)
     for p in prange(n):
@@ -343,11 +483,12 @@ def _locate_uniform(pts, origin, h, dims, lattice, tol):
                 i = dims[d] - 1
             if i == -1 and pts[p, d] >= origin[d] - tol:
                 i = 0
-            if i < 0 or i >= dims[d]:
+            i -= first[d]
+            if i < 0 or i >= sub[d]:
                 ok = False
             idx[d] = i
         if ok:
-            out[p] = lattice[idx[0] + dims[0] * (idx[1] + dims[1] * idx[2])]
+            out[p] = lattice[idx[0] + sub[0] * (idx[1] + sub[1] * idx[2])]
         else:
             out[p] = -1
     return out
@@ -373,11 +514,22 @@ def _brute_force_locate(pts, cf_off, cf_centre, cf_normal, tol):
 
 @dataclass
 class UniformGrid:
-    """Axis-aligned uniform lattice description of a mesh."""
+    """Axis-aligned uniform lattice description of a mesh. A local mesh (PolyMesh.subset)
+    keeps the lattice of the whole mesh (origin, h, dims) and maps only the block of it that
+    holds its cells: ``first`` (its lowest lattice index), ``sub`` (its extent), ``lattice``
+    the local cell of each lattice entry of that block, -1 for cells it does not hold."""
     origin: np.ndarray   # (3,) lower corner
     h: np.ndarray        # (3,) spacing
     dims: np.ndarray     # (3,) int64 cells per direction
-    lattice: np.ndarray  # (nx*ny*nz,) cell index of lattice (i + nx*(j + ny*k))
+    lattice: np.ndarray  # (prod(sub),) cell index of lattice (i + sx*(j + sy*k)), -1: not a cell here
+    first: np.ndarray = None   # (3,) int64 lattice index of the block's first cell (default 0)
+    sub: np.ndarray = None     # (3,) int64 cells of the block per direction (default dims)
+
+    def __post_init__(self):
+        if self.first is None:
+            self.first = np.zeros(3, np.int64)
+        if self.sub is None:
+            self.sub = np.asarray(self.dims, np.int64).copy()
 
 
 # --------------------------------------------------------------------------
@@ -394,7 +546,7 @@ class PolyMesh:
     ``cf_nbr`` (cell across the face, -1 on the boundary).
     """
 
-    def __init__(self, points, face_offsets, face_points, owner, neighbour, boundary=None):
+    def __init__(self, points, face_offsets, face_points, owner, neighbour, boundary=None, phantom=False):
         self.points = np.ascontiguousarray(points, dtype=np.float64)
         self.face_offsets = np.ascontiguousarray(face_offsets, dtype=np.int64)
         self.face_points = np.ascontiguousarray(face_points, dtype=np.int64)
@@ -412,8 +564,10 @@ class PolyMesh:
         self.face_centres, self.face_areas = fc, fa
         cc, cv = _cell_geometry(fc, fa, self.owner, self.neighbour, self.n_cells)
         self.cell_centres, self.cell_volumes = cc, cv
-        if np.any(cv <= 0):
-            raise ValueError(f"{int(np.sum(cv <= 0))} cells with non-positive volume "
+        # phantom: the last cell stands for the cells beyond a piece (read_pieces), no real cell
+        real = cv[:-1] if phantom else cv
+        if np.any(real <= 0):
+            raise ValueError(f"{int(np.sum(real <= 0))} cells with non-positive volume "
                              "(inverted faces / wrong owner-neighbour orientation?)")
         lo, hi = _cell_bboxes(self.points, self.face_offsets, self.face_points,
                               self.owner, self.neighbour, self.n_cells)
@@ -437,6 +591,120 @@ class PolyMesh:
         self._uniform = "unset"
         self._point_nbrs = None
         self._face_nbrs = None
+        #: a local mesh (:meth:`subset`): the global cell of each cell, the cells of the whole
+        #: mesh and its cut faces (after the patches' faces); the whole mesh: None, n_cells, 0
+        self.global_ids = None
+        self.n_global = self.n_cells
+        self.n_cut_faces = 0
+
+    # ---- a local mesh ----------------------------------------------------------
+    def subset(self, cells) -> "PolyMesh":
+        """The mesh of ``cells`` only (global cell ids; sorted, duplicates dropped), numbered
+        0..n-1 in the order of their global ids; ``global_ids`` maps back.
+
+        Faces between two of its cells stay internal (in their order); the faces of the
+        boundary patches owned by its cells keep their patch (name, type, new start and
+        size; a patch may hold no face here); faces to a cell outside become *cut* faces, last,
+        outside every patch (``n_cut_faces``; the kept cell is their owner: a face whose
+        neighbour was kept is turned round). A cut face is not a boundary of the domain: no
+        patch logic sees it, and a point beyond it is simply not located (-1). The geometry is
+        copied from this mesh, not recomputed, so every cell's centre, volume, box and face
+        table (order included) are those of this mesh, bit for bit, and a point is located in
+        the same cell; a uniform lattice keeps its spacing and maps the block of its cells."""
+        cells = np.unique(np.asarray(cells, np.int64))
+        n = cells.size
+        if n and (cells[0] < 0 or cells[-1] >= self.n_cells):
+            raise ValueError(f"cells outside 0..{self.n_cells - 1}")
+        g2l = np.full(self.n_cells, -1, np.int64)
+        g2l[cells] = np.arange(n)
+        ni = self.n_internal_faces
+        lo, ln = g2l[self.owner], g2l[self.neighbour]
+        lo_i = lo[:ni]
+        internal = np.flatnonzero((lo_i >= 0) & (ln >= 0))
+        cut = np.flatnonzero((lo_i >= 0) ^ (ln >= 0))
+        patches, pf = [], [internal]
+        start = internal.size
+        for p in self.boundary:
+            f0, nf = int(p["startFace"]), int(p["nFaces"])
+            keep = f0 + np.flatnonzero(lo[f0:f0 + nf] >= 0)
+            patches.append(dict(p, startFace=start, nFaces=int(keep.size)))
+            pf.append(keep)
+            start += keep.size
+        pf.append(cut)
+        pf = np.concatenate(pf).astype(np.int64)
+        nf_new = pf.size
+        flip = np.zeros(nf_new, bool)
+        flip[nf_new - cut.size:] = lo_i[cut] < 0
+        own = np.where(flip, ln[np.minimum(pf, max(ni - 1, 0))] if ni else 0, lo[pf])
+        nb = ln[internal]
+        # faces' point loops (turned round where flipped), points renumbered in their order
+        starts = self.face_offsets[pf]
+        lens = self.face_offsets[pf + 1] - starts
+        off = np.zeros(nf_new + 1, np.int64)
+        np.cumsum(lens, out=off[1:])
+        fe = np.repeat(np.arange(nf_new), lens)
+        k = np.arange(off[-1]) - off[fe]
+        src = starts[fe] + np.where(flip[fe], lens[fe] - 1 - k, k)
+        gp = self.face_points[src]
+        used = np.unique(gp)
+        fpts = np.searchsorted(used, gp).astype(np.int64)
+        m = PolyMesh.__new__(PolyMesh)
+        m.points = np.ascontiguousarray(self.points[used])
+        m.face_offsets, m.face_points = off, fpts
+        m.owner, m.neighbour = np.ascontiguousarray(own, np.int64), np.ascontiguousarray(nb, np.int64)
+        m.boundary = patches
+        m.n_faces, m.n_internal_faces, m.n_cells = nf_new, int(internal.size), n
+        sgn = np.where(flip, -1.0, 1.0)[:, None]
+        m.face_centres = np.ascontiguousarray(self.face_centres[pf])
+        m.face_areas = np.ascontiguousarray(self.face_areas[pf] * sgn)
+        m.face_mag = self.face_mag[pf]
+        for a in ("cell_centres", "cell_volumes", "cell_vlo", "cell_vhi", "cell_lo", "cell_hi"):
+            setattr(m, a, np.ascontiguousarray(getattr(self, a)[cells]))
+        # the face table: this mesh's rows of each cell, faces and cells renumbered
+        f2l = np.full(self.n_faces, -1, np.int64)
+        f2l[pf] = np.arange(nf_new)
+        rs, re = self.cf_off[cells], self.cf_off[cells + 1]
+        cnt = re - rs
+        m.cf_off = np.zeros(n + 1, np.int64)
+        np.cumsum(cnt, out=m.cf_off[1:])
+        rows = np.repeat(rs - m.cf_off[:-1], cnt) + np.arange(m.cf_off[-1])
+        m.cf_face = f2l[self.cf_face[rows]]
+        m.cf_centre = np.ascontiguousarray(self.cf_centre[rows])
+        m.cf_normal = np.ascontiguousarray(self.cf_normal[rows])
+        nbr = self.cf_nbr[rows]
+        m.cf_nbr = np.where(nbr >= 0, g2l[np.maximum(nbr, 0)], -1)
+        m.bbox_lo = m.cell_vlo.min(axis=0) if n else self.bbox_lo.copy()
+        m.bbox_hi = m.cell_vhi.max(axis=0) if n else self.bbox_hi.copy()
+        m.tol = self.tol
+        m._buckets = m._locator = m.lsq_inv = m._point_nbrs = m._face_nbrs = None
+        m._uniform = "unset"
+        ug = self.uniform_grid
+        if ug is not None:
+            idx = np.rint((m.cell_vlo - ug.origin) / ug.h).astype(np.int64)
+            first = idx.min(axis=0) if n else np.zeros(3, np.int64)
+            sub = (idx.max(axis=0) + 1 - first) if n else np.zeros(3, np.int64)
+            lat = np.full(int(np.prod(sub)), -1, np.int64)
+            r = idx - first
+            lat[r[:, 0] + sub[0] * (r[:, 1] + sub[1] * r[:, 2])] = np.arange(n)
+            m._uniform = UniformGrid(ug.origin, ug.h, ug.dims, lat, first.astype(np.int64), sub.astype(np.int64))
+        else:
+            m._uniform = None
+        m.global_ids = cells if self.global_ids is None else self.global_ids[cells]
+        m.n_global = self.n_global
+        m.n_cut_faces = int(cut.size)
+        return m
+
+    def nbytes(self) -> int:
+        """Bytes of the arrays this mesh holds (geometry, connectivity, location tables)."""
+        tot = 0
+        for v in self.__dict__.values():
+            if isinstance(v, np.ndarray):
+                tot += v.nbytes
+            elif isinstance(v, tuple):
+                tot += sum(a.nbytes for a in v if isinstance(a, np.ndarray))
+            elif isinstance(v, UniformGrid):
+                tot += v.lattice.nbytes
+        return int(tot)
 
     # ---- connectivity --------------------------------------------------
     def _build_cell_faces(self):
@@ -560,7 +828,7 @@ class PolyMesh:
         if method in ("auto", "uniform"):
             ug = self.uniform_grid
             if ug is not None:
-                return _locate_uniform(pts, ug.origin, ug.h, ug.dims, ug.lattice, self.tol)
+                return _locate_uniform(pts, ug.origin, ug.h, ug.dims, ug.first, ug.sub, ug.lattice, self.tol)
             if method == "uniform":
                 raise ValueError("mesh is not a uniform axis-aligned grid")
         if hint is None:

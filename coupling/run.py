@@ -103,15 +103,18 @@ def run_case(case_dir, out=None, *, transport=None, end_time=None, restart=False
     R.barrier()   # every rank has checked --out before rank 0 claims it
     R.on_root(prepare_output, case, out, restart=restart, overwrite=overwrite)
     R.on_root(remove_stale_temporaries, str(out))  # left by a kill -9 of an earlier run (ours only)
+    # the whole mesh, at set-up only: each DEM rank keeps the cells it sees (its local mesh,
+    # coupling.cells) and reads the whole mesh again only when a re-cut of the DEM boxes moves
+    # its view beyond them
     mesh = read_polymesh(str(out))
     ties = tie_walls(case, mesh)          # tied walls checked on the gas mesh
     ledger = EnergyLedger(mesh, ties)
-    split = FluxSplit(case, mesh, ties)   # tied walls: the particles' paths per cell (fixed flux: the split)
-    iface = CouplingInterface.for_case(case, mesh)
+    iface = CouplingInterface.for_case(case, mesh, source=mesh_source(out, cfg, mesh))
+    split = FluxSplit(case, iface.mesh, ties)   # tied walls: the particles' paths per cell (fixed flux: the split)
     # ---- checks of the case (on the scene's packing: the DEM check evaluates the contact
     # forces, so it must run before a restart loads its checkpoint)
     eps0 = iface.initial_void_fraction()
-    _check(R, case, mesh, iface, eps0, quiet, log)
+    _check(R, case, mesh, iface, iface.cells.spread(eps0, 1.0), quiet, log)
     # ---- restart: the latest restart point (gas time + DEM checkpoint + coupling state)
     i0, t_start, cstate = resume(R, out, iface, ledger, split, case.dt_cfd, log) if restart else (0, 0.0, None)
     end = case.end_time if end_time is None else float(end_time)
@@ -122,6 +125,7 @@ def run_case(case_dir, out=None, *, transport=None, end_time=None, restart=False
     eps_all = iface.cells.gather_owned(eps0)   # rank 0 writes the gas's initial void fraction (set-up)
     ex, exe = R.on_root(prepare_gas, out, cfg, mesh, split, eps_all, end, restart=restart, solver=solver,
                         m2m=m2m, gas_dir=cstate["gas_dir"] if cstate else None, log=log) or (None, None)
+    eps_all = mesh = None   # from here on each rank holds its local mesh only (iface.mesh)
     if m2m:
         ex = open_m2m(R, out, cfg, iface.cells)   # every rank listens and writes its plan lines
     sim.warmup()
@@ -129,12 +133,30 @@ def run_case(case_dir, out=None, *, transport=None, end_time=None, restart=False
     restart_point = RestartPoints(R, sim, iface, out, ledger, split)
     cont = continue_command(case_dir, out, end_time, transport, R.size)
     proc = start_solver(out, cfg, exe, external_solver, log) if R.root else None
-    link = open_link(R, ex, proc, mesh, cfg, out, iface.timer, external=external_solver, cells=iface.cells)
-    loop = CoupledLoop(link, iface, RunWatch(mesh, cfg, R.log(log), cells=iface.cells), output, restart_point, plan,
+    link = open_link(R, ex, proc, iface.mesh, cfg, out, iface.timer, external=external_solver, cells=iface.cells,
+                     restart_pieces=cstate.get("pieces_read") if cstate else None)
+    loop = CoupledLoop(link, iface, RunWatch(iface.mesh, cfg, R.log(log), cells=iface.cells), output, restart_point, plan,
                        log=R.log(log), ledger=ledger, split=split,
                        particle_energy=lambda: Diagnostics.particle_records(sim))
     _drive(loop, link, sim, out, t_wall0)
     return _finish(R, loop, case, out, cont, t_wall0, quiet, log)
+
+
+def mesh_source(out, cfg, mesh):
+    """Where a DEM rank reads gas cells again after a re-cut of the DEM boxes moved its view
+    beyond its local mesh (coupling.cells.CellShare): the pieces of the decomposed gas case
+    that overlap the regions it needs (gas_processes > 1), else the whole mesh. Keeps only
+    the whole mesh's size, lattice spacing and location tolerance."""
+    from .mesh import MeshPieces, UniformGrid, read_polymesh
+    ug = mesh.uniform_grid
+    grid = None if ug is None else UniformGrid(ug.origin, ug.h, ug.dims, np.zeros(0, np.int64))
+    pieces = MeshPieces(out, mesh.n_cells, grid, mesh.tol)
+
+    def read(regions):
+        if cfg.gas_processes > 1 and MeshPieces.procs(str(out)):
+            return pieces.read(regions)
+        return read_polymesh(str(out))
+    return read
 
 
 def _check(R, case, mesh, iface, eps0, quiet, log):
@@ -242,7 +264,7 @@ def _case_on_temporary_mesh(case_dir):
         tie_walls(case, mesh)
         iface = CouplingInterface.for_case(case, mesh)
         eps0 = iface.initial_void_fraction()
-        rep = check_coupled_case(case, mesh, eps0=eps0, clip=dict(iface.clip))
+        rep = check_coupled_case(case, mesh, eps0=iface.cells.spread(eps0, 1.0), clip=dict(iface.clip))
         yield case, mesh, iface, eps0, rep
     finally:
         shutil.rmtree(tmp, ignore_errors=True)

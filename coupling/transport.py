@@ -156,7 +156,7 @@ def open_m2m(R, out: Path, cfg, cells):
     def listen():
         host = cfg.exchange_host
         try:
-            return M2MExchange(rank, gas_pairs(out, cfg.gas_processes, cells.owned_mask), folder,
+            return M2MExchange(rank, gas_pairs(out, cfg.gas_processes, cells), folder,
                                timeout=cfg.timeout, host=exchange_address(host))
         except OSError as e:
             raise CouplingRunError(f"coupling.exchange_host = {host!r}: DEM rank {rank} cannot listen there "
@@ -170,14 +170,14 @@ def open_m2m(R, out: Path, cfg, cells):
     return ex
 
 
-def open_link(R, ex, proc, mesh, cfg, out, timer, *, external=False, cells=None):
+def open_link(R, ex, proc, mesh, cfg, out, timer, *, external=False, cells=None, restart_pieces=None):
     """This rank's link: rank 0 talks to the solver process ``proc`` through ``ex`` (watching
     the process unless the user started it: ``external``); with a many-to-many exchange
     (coupling.m2m.M2MExchange) every rank talks to its gas processors."""
     from .m2m import M2MExchange
     if isinstance(ex, M2MExchange):
         ex.peer_process = proc if (R.root and not external) else None
-        return _M2MLink(R, ex, proc, mesh, cfg, out, timer, cells)
+        return _M2MLink(R, ex, proc, mesh, cfg, out, timer, cells, restart_pieces)
     ex.peer_process = proc if not external else None
     return _SolverLink(R, ex, proc, mesh, cfg, out, timer)
 
@@ -259,9 +259,10 @@ class _M2MLink(_SolverLink):
     message, naming the rank, is raised on every rank), the solver's flags and its energy
     ledger (the same in every frame; a rank owning no cell gets it there)."""
 
-    def __init__(self, R, ex, proc, mesh, cfg, out, timer, cells):
+    def __init__(self, R, ex, proc, mesh, cfg, out, timer, cells, restart_pieces=None):
         super().__init__(R, ex, proc, mesh, cfg, out, timer)
         self.cells = cells
+        self.restart_pieces = restart_pieces   # the coupling-state pieces this rank read at a restart
         self.pending = None     # a failure of this rank in a send, raised with the next agreement
         self.flags = 0
         self.stop = 0           # a stop request of any rank, agreed with each gas frame
@@ -323,6 +324,7 @@ class _M2MLink(_SolverLink):
         try:
             if self.pending is not None:
                 raise self.pending
+            self.ex.on_cells(cs)
             scalars = self.ex.receive(step, fluid)
             fluid.pop("_n")
             for k, comp in FLUID_FIELDS.items():
@@ -331,8 +333,8 @@ class _M2MLink(_SolverLink):
             h = self.ex.last_header
             self.flags = int(h["flags"]) if h is not None else 0
             own = cs.owned
-            check_gas_fields({k: fluid[k][own] for k in FLUID_FIELDS}, step, time_value=t, mesh=self.mesh,
-                             cfg=self.cfg, eps_change=eps_change, cells=own)
+            check_gas_fields({k: fluid[k][own] for k in FLUID_FIELDS}, step, time_value=t, mesh=cs.mesh,
+                             cfg=self.cfg, eps_change=eps_change, cells=own, global_ids=cs.global_ids)
         except CouplingError as e:
             err = e
         except Exception as e:  # noqa: BLE001 - any failure on one rank must reach every rank
@@ -352,6 +354,7 @@ class _M2MLink(_SolverLink):
     def send(self, step, frame, time_value, final):
         with self.timer("exchange"):
             try:
+                self.ex.on_cells(self.cells)
                 self.ex.send(step, frame, time_value=time_value, final=final)
             except CouplingError as e:   # told to every rank at the next receive
                 self.pending = e
@@ -384,6 +387,10 @@ class _M2MLink(_SolverLink):
         """This rank's message and memory figures (bytes per run; peak RSS in MiB)."""
         cs, ex = self.cells, self.ex
         return dict(owned_cells=int(cs.owned.size), halo_cells=cs.halo_cells, gas_partners=len(ex.pairs),
+                    local_cells=int(cs.n_cells), mesh_bytes=int(cs.mesh.nbytes()), mesh_rebuilds=cs.rebuilds,
+                    mesh_pieces_read=cs.pieces_read, dem_recuts=0 if cs.par is None else int(cs.par.rebalances),
+                    restart_pieces=self.restart_pieces, view_reach=cs.view_reach,
+                    view_box=None if cs.view_box is None else [b.tolist() for b in cs.view_box],
                     gas_bytes_sent=ex.bytes_sent, gas_bytes_received=ex.bytes_received,
                     dem_bytes_sent=cs.bytes_sent, dem_messages=cs.messages, peak_rss_mib=_peak_rss_mib())
 

@@ -448,3 +448,83 @@ def test_exchange_host(reference, tmp_path):
     p = coupled(2, case, tmp_path / "far", check=False)
     assert p.returncode == 2, p.stderr[-2000:]
     assert "coupling.exchange_host = '192.0.2.1': DEM rank" in p.stderr and "cannot listen there" in p.stderr
+
+
+def _view_count(centres, lo, hi, reach):
+    """Cells whose centre lies within ``reach`` of the box [lo, hi] (computed here, not by
+    coupling.cells)."""
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    d = np.maximum(np.maximum(lo - centres, centres - hi), 0.0)
+    return np.flatnonzero(np.sqrt((d * d).sum(axis=1)) <= reach)
+
+
+def test_local_meshes_and_restart_pieces_on_three_by_two(solver, tmp_path):
+    """(3, 2): each DEM rank holds only the gas cells it sees, a local mesh well below the
+    mesh: its cells are exactly those within the particle halo plus two cell diagonals of its
+    box (counted here from the box in timings.json), its bytes a fraction of the whole mesh's.
+    The restart point's coupling state is a manifest and one piece per rank (the owned cells of
+    each: together every cell once). Continued from the restart point of step 4, each rank reads
+    exactly the pieces holding cells it sees (the bottom rank not the top one's), and the run
+    ends where the uninterrupted run ends (the continuation on another layout:
+    test_sigterm_on_two_by_two_continues_on_three_by_one). With the DEM boxes re-cut at every
+    neighbour rebuild, the ranks rebuild their local meshes from the gas pieces and the run
+    ends where the one without re-cuts ends, to round-off."""
+    from coupling.mesh import read_polymesh
+    from coupling import foam_case as fc
+    case = case_with(tmp_path, "fluidized_bed_heating", 2, tag="_local")
+    fc.set_entries(case / "system" / "controlDict", {"writeControl": "timeStep", "writeInterval": 4})
+    out = tmp_path / "out"
+    coupled(3, case, out, "--end-time", "0.003")   # 6 coupling steps: restart points at 4 and 6
+    whole = read_polymesh(str(out))
+    n = whole.n_cells
+    ranks = json.loads((out / "timings.json").read_text())["ranks"]
+    assert len(ranks) == 3 and sum(r["owned_cells"] for r in ranks) == n
+    for r in ranks:
+        assert r["mesh_rebuilds"] == 0, r
+        view = _view_count(whole.cell_centres, *r["view_box"], r["view_reach"])
+        assert r["local_cells"] == view.size < n, (r["local_cells"], view.size, n)
+        assert r["local_cells"] == r["owned_cells"] + r["halo_cells"]
+        assert r["mesh_bytes"] < whole.nbytes(), (r["mesh_bytes"], whole.nbytes())
+    # the coupling state of step 4: a manifest naming 3 pieces, the owned cells of each rank
+    man = np.load(out / "checkpoints" / "coupling_00000004.npz")
+    assert list(man["pieces"]) == [f"rank{k:05d}.npz" for k in range(3)] and int(man["n_cells"]) == n
+    folder = out / "checkpoints" / "coupling_00000004.pieces"
+    held = [np.load(folder / f"rank{k:05d}.npz")["cells"] for k in range(3)]
+    assert np.array_equal(np.sort(np.concatenate(held)), np.arange(n))
+    assert [h.size for h in held] == [r["owned_cells"] for r in ranks]
+    # continue from step 4: the user removes the later gas times (docs: restart points)
+    a = dict(final(out))
+    for p in [out, *out.glob("processor*")]:
+        for t in p.iterdir():
+            if t.is_dir() and _is_time(t.name) and float(t.name) > 0.0021:
+                shutil.rmtree(t)
+    coupled(3, case, out, "--restart", "--end-time", "0.003")
+    ranks2 = json.loads((out / "timings.json").read_text())["ranks"]
+    assert len(ranks2) == 3
+    for r in ranks2:
+        view = _view_count(whole.cell_centres, *r["view_box"], r["view_reach"])
+        need = [f"rank{k:05d}.npz" for k in range(3) if np.intersect1d(held[k], view).size]
+        assert sorted(r["restart_pieces"]) == need, (r["restart_pieces"], need)
+    assert any(len(r["restart_pieces"]) < 3 for r in ranks2), ranks2
+    assert_close(a, final(out), 1e-13, 1e-10, 1e-10)
+    balance_closed(out)
+    # the DEM boxes re-cut at every neighbour rebuild ([parallel] balance_threshold = 1): a rank
+    # whose box moved beyond its local mesh rebuilds it from the gas pieces overlapping its
+    # new view and its owned cells (not the whole mesh), the state moves through the owners,
+    # and the run ends where the one without re-cuts ends, to round-off
+    recut = case_with(tmp_path, "fluidized_bed_heating", 2, tag="_recut")
+    d = recut / "dem.toml"
+    # (a skin of 2 um: the neighbour lists, and with them the boxes, are rebuilt every few steps)
+    d.write_text(d.read_text().replace("[simulation]\n", "[simulation]\nneighbor_skin = 2e-6\n", 1)
+                 + "\n[parallel]\nbalance_threshold = 1.0\n")
+    out3 = tmp_path / "out_recut"
+    coupled(3, recut, out3, "--end-time", "0.003")
+    ranks3 = json.loads((out3 / "timings.json").read_text())["ranks"]
+    assert all(r["dem_recuts"] > 0 for r in ranks3) and sum(r["mesh_rebuilds"] for r in ranks3) > 0, ranks3
+    for r in ranks3:
+        if r["mesh_rebuilds"]:
+            assert 0 < len(r["mesh_pieces_read"]) <= 2, r["mesh_pieces_read"]
+        view = _view_count(whole.cell_centres, *r["view_box"], r["view_reach"])
+        assert r["local_cells"] >= view.size and r["local_cells"] < n
+    assert_close(a, final(out3), 1e-13, 1e-10, 1e-10)
+    balance_closed(out3)

@@ -467,3 +467,76 @@ def test_interpolation_linear_exact_and_bounded():
     assert interpolate(m, f, m.cell_centres[c0:c0 + 1], [c0], "idw")[0] == pytest.approx(f[c0], rel=1e-12)
     with pytest.raises(ValueError, match="cell, idw, linear"):
         interpolate(m, f, pts, cells, "cubic")
+
+
+@pytest.mark.parametrize("distorted", [False, True])
+def test_local_mesh_locates_like_the_whole_mesh(distorted):
+    """PolyMesh.subset (a DEM rank's local mesh): the cells of one half, numbered locally, keep
+    the whole mesh's volumes and centres bit for bit, each cell stays closed (its outward face
+    areas sum to zero, the cut faces turned to point out of it), a point in one of its cells is
+    located in that cell (the lattice fast path and the general walk alike) and a point in a
+    cell it does not hold in none; the real patches keep their names, the cut faces none."""
+    m = mesh_from_X(distorted_X(perturb=0.2) if distorted else uniform_X())
+    keep = np.flatnonzero(m.cell_centres[:, 0] < np.median(m.cell_centres[:, 0]))
+    s = m.subset(keep)
+    assert s.n_cells == keep.size < m.n_cells and np.array_equal(s.global_ids, keep) and s.n_global == m.n_cells
+    assert np.array_equal(s.cell_volumes, m.cell_volumes[keep]) and np.array_equal(s.cell_centres, m.cell_centres[keep])
+    assert (s.uniform_grid is not None) == (not distorted)
+    S = np.zeros((s.n_cells, 3))
+    np.add.at(S, s.owner, s.face_areas)
+    np.add.at(S, s.neighbour, -s.face_areas[:s.n_internal_faces])
+    assert np.abs(S).max() <= 1e-12 * np.abs(s.face_areas).max()
+    assert [p["name"] for p in s.boundary] == [p["name"] for p in m.boundary]
+    assert sum(p["nFaces"] for p in s.boundary) + s.n_cut_faces + s.n_internal_faces == s.n_faces
+    assert s.n_cut_faces > 0
+    pts = random_points_in_hull(m, 3000, seed=3)
+    g = m.locate(pts)
+    inside = np.isin(g, keep)
+    assert inside.any() and (~inside).any()
+    for method in ("auto", "general"):
+        c = s.locate(pts, method=method)
+        assert np.array_equal(s.global_ids[c[inside]], g[inside]), method
+        assert np.all(c[~inside] == -1), method
+    assert s.nbytes() < m.nbytes()
+
+
+def test_local_mesh_from_gas_pieces_equals_the_one_from_the_whole_mesh(tmp_path, solver):
+    """MeshPieces (a DEM rank rebuilding its local mesh after a re-cut): the fluidized bed's mesh
+    decomposed by decomposePar into 3 pieces across x (hierarchical: processor faces turned
+    round in one of the two pieces). Read from all pieces, the cells are the whole mesh's, bit
+    for bit (centres, volumes, face tables); read for the region of the bottom 30 % of the bed,
+    only the pieces overlapping it are read and the local mesh cut from them equals the one cut
+    from the whole mesh in every array, and locates every point alike."""
+    import shutil
+    from coupling import foam_case as fc
+    from coupling.mesh import MeshPieces
+    case = tmp_path / "fb"
+    shutil.copytree(os.path.join(os.path.dirname(__file__), "..", "openfoam_cases", "fluidized_bed_heating"), case)
+    d = case / "system" / "decomposeParDict"
+    d.write_text(d.read_text().replace("method          simple;", "method          hierarchical;"))
+    fc.block_mesh(case)
+    fc.decompose(case, 3, split=(3, 1, 1))
+    w = read_polymesh(str(case))
+    flipped = sum(int(np.sum(read_foam_list(str(case / f"processor{k}/constant/polyMesh/faceProcAddressing")) < 0))
+                  for k in range(3))
+    assert flipped > 0
+    P = MeshPieces(case, w.n_cells, w.uniform_grid, w.tol)
+    full = P.read([(w.bbox_lo, w.bbox_hi)])
+    assert sorted(full.pieces) == ["processor0", "processor1", "processor2"]
+    s = full.subset(np.arange(w.n_cells))
+    assert np.array_equal(s.global_ids, np.arange(w.n_cells))
+    for a in ("cell_centres", "cell_volumes", "cell_vlo", "cell_vhi", "cf_off", "cf_centre", "cf_normal", "cf_nbr"):
+        assert np.array_equal(getattr(s, a), getattr(w, a)), a
+    # a region touching one piece only (x below the first cut)
+    hi = w.bbox_hi.copy()
+    hi[0] = w.bbox_lo[0] + 0.2 * (w.bbox_hi[0] - w.bbox_lo[0])
+    part = P.read([(w.bbox_lo, hi)])
+    assert part.pieces == ["processor0"]
+    ids = np.flatnonzero(np.all(w.cell_centres <= hi, axis=1))
+    a, b = w.subset(ids), part.subset(np.searchsorted(part.global_ids, ids))
+    for k in ("global_ids", "cell_centres", "cell_volumes", "cf_off", "cf_centre", "cf_normal", "cf_nbr",
+              "face_areas", "owner", "neighbour"):
+        assert np.array_equal(getattr(a, k), getattr(b, k)), k
+    pts = random_points_in_hull(w, 4000, seed=5)
+    assert np.array_equal(a.locate(pts), b.locate(pts))
+    assert (a.locate(pts) >= 0).any()
