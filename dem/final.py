@@ -68,7 +68,8 @@ def write_piece(path, arrays):
     """One rank's rows (ordered here by id) as a piece; returns (digest, rows, id min, id max)."""
     from .pieces import write_piece as write
     order = np.argsort(arrays["id"], kind="stable")
-    rows = {k: np.ascontiguousarray(v[order]) for k, v in arrays.items()}
+    rows = {k: np.ascontiguousarray(v[order] if v.ndim and v.shape[0] == order.size else v)
+            for k, v in arrays.items()}
     n = rows["id"].size
     digest = write(path, rows, n, PIECE_FORMAT)
     ids = rows["id"]

@@ -2,7 +2,7 @@
 
 A piece is an uncompressed ``.npz`` (``np.savez``) holding one rank's rows ordered by particle id
 (every array whose first dimension is the row count) and, for a checkpoint, the contact records
-of those rows (``rec_*`` arrays) ordered by the row of the particle they are anchored to, with
+of those rows (``rec_*`` arrays) listed under the row of each of their particles in the piece, with
 ``rec_start`` (rows + 1 offsets: the records of rows [a, b) are ``rec_start[a]:rec_start[b]``).
 Beside them:
 
@@ -39,20 +39,22 @@ def block_rows(rows):
 
 
 def anchor_records(ids, rec):
-    """The records ``rec`` (dict of rec_* arrays, key pairs rec_a / rec_b) ordered by the row
-    (in ``ids``, ascending) of the particle each belongs to (rec_a when it is in ``ids``, else
-    rec_b; a record of neither is dropped) and ``rec_start``."""
+    """The records ``rec`` (dict of rec_* arrays, key pairs rec_a / rec_b) listed under the row (in
+    ``ids``, ascending) of each of their particles that ``ids`` holds (a record of two particles
+    of the piece is listed twice, so that the reader of either row has it; a record of neither
+    is dropped), ordered by row, and ``rec_start``."""
     n = ids.size
     a, b = rec["rec_a"], rec["rec_b"]
     ia = np.minimum(np.searchsorted(ids, a), max(n - 1, 0))
     ib = np.minimum(np.searchsorted(ids, b), max(n - 1, 0))
     has_a = (ids[ia] == a) if n else np.zeros(a.size, bool)
     has_b = (ids[ib] == b) if n else np.zeros(b.size, bool)
-    row = np.where(has_a, ia, ib)
-    keep = np.nonzero(has_a | has_b)[0]
-    order = keep[np.argsort(row[keep], kind="stable")]
-    out = {k: np.ascontiguousarray(v[order]) for k, v in rec.items()}
-    out["rec_start"] = np.searchsorted(row[order], np.arange(n + 1)).astype(np.int64)
+    which = np.concatenate([np.nonzero(has_a)[0], np.nonzero(has_b)[0]])
+    row = np.concatenate([ia[has_a], ib[has_b]])
+    order = np.argsort(row, kind="stable")
+    which, row = which[order], row[order]
+    out = {k: np.ascontiguousarray(v[which]) for k, v in rec.items()}
+    out["rec_start"] = np.searchsorted(row, np.arange(n + 1)).astype(np.int64)
     return out
 
 
