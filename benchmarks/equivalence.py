@@ -48,7 +48,7 @@ def _history(path):
 
 def _fingerprint(out):
     cols, rows = _history(os.path.join(out, "history.csv"))
-    from dem.output import read_final   # an MPI run's final.npz: a manifest and its pieces
+    from dem.final import read as read_final   # an MPI run's final.npz: a manifest and its pieces
     z = read_final(os.path.join(out, "final.npz"))
     arrays = {k: np.asarray(z[k]) for k in sorted(z.files)}
     return dict(columns=cols, history=rows,

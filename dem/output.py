@@ -127,14 +127,6 @@ def prepare_output_folder(folder):
     return remove_stale_temporaries(folder)
 
 
-def read_final(path):
-    """The arrays of a run's final.npz ordered by id (``.files`` and ``[name]`` as np.load's):
-    a serial run's file, or an MPI run's manifest with its pieces, each verified
-    (dem.final.read; a missing or damaged piece is refused naming it)."""
-    from .final import read
-    return read(path)
-
-
 def save_npz(path, durable=False, **arrays):
     """``np.savez`` of ``arrays`` to ``path`` atomically (durable: fsync'ed, for checkpoints)."""
     def w(tmp):

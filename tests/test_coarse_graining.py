@@ -26,7 +26,7 @@ import numpy as np
 import pytest
 
 from dem import Simulation
-from dem.output import read_final
+from dem.final import read as read_final
 
 ROOT = Path(__file__).resolve().parents[1]
 R = 0.5e-3

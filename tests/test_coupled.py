@@ -25,7 +25,7 @@ if str(ROOT) not in sys.path:
 from coupling import foam_case as fc  # noqa: E402
 from coupling.case import CaseConfigError, load_case  # noqa: E402
 from coupling.run import main as coupling_main, run_case  # noqa: E402
-from dem.output import read_final
+from dem.final import read as read_final
 
 CASES = ROOT / "openfoam_cases"
 RHO, NU, CP, K = 1.2, 1.5e-5, 1005.0, 0.0262

@@ -24,7 +24,7 @@ for p in (ROOT, ROOT / "benchmarks"):
         sys.path.insert(0, str(p))
 
 import coupled_drag as CD  # noqa: E402
-from dem.output import read_final
+from dem.final import read as read_final
 
 
 @pytest.fixture(scope="module")

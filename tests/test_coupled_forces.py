@@ -27,7 +27,7 @@ for p in (ROOT, ROOT / "benchmarks"):
         sys.path.insert(0, str(p))
 
 from coupling.forces import (C_VM, magnus_oesterle_bui_dinh_1998, mei_1992_factor,  # noqa: E402
-from dem.output import read_final
+from dem.final import read as read_final
                              rotational_drag_dennis_1980, saffman_mei_1992)
 
 RHO, MU = 1.2, 1.8e-5

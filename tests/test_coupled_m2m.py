@@ -32,7 +32,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from coupling.run import run_case  # noqa: E402
-from dem.output import read_final
+from dem.final import read as read_final
 
 CASES = ROOT / "openfoam_cases"
 END = "0.002"   # 4 coupling steps of 50 DEM steps

@@ -12,7 +12,7 @@ import sys
 
 import numpy as np
 import pytest
-from dem.output import read_final
+from dem.final import read as read_final
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 

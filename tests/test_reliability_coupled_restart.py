@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from dem.output import read_final
+from dem.final import read as read_final
 
 ROOT = Path(__file__).resolve().parents[1]
 CASE = ROOT / "openfoam_cases" / "fluidized_bed_heating"

@@ -27,7 +27,7 @@ from dem import Simulation  # noqa: E402
 from dem import neighbors as NB  # noqa: E402
 from dem import step as K  # noqa: E402
 from dem.energy_guard import GAIN_TOLERANCE  # noqa: E402
-from dem.output import read_final
+from dem.final import read as read_final
 
 ENV = dict(os.environ, PYTHONPATH=str(ROOT))
 GLASS = """

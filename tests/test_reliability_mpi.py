@@ -23,7 +23,7 @@ import sys
 
 import numpy as np
 import pytest
-from dem.output import read_final
+from dem.final import read as read_final
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 SCENES = os.path.join(HERE, "scenes")

@@ -2,7 +2,7 @@
 import numpy as np
 
 from dem import Simulation
-from dem.output import read_final
+from dem.final import read as read_final
 
 
 def scene():

@@ -15,7 +15,7 @@ import pytest
 
 from dem import Simulation
 from test_thermal_runs import base, R, AIR
-from dem.output import read_final
+from dem.final import read as read_final
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 MATP = dict(name="p", density=2500.0, youngs_modulus=1e7, poisson_ratio=0.3, restitution=0.5,

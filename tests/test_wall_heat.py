@@ -25,7 +25,7 @@ import pytest
 
 from dem import Simulation
 from dem.thermal.wall_heat import line_length_in_box, plane_section_area, wall_area
-from dem.output import read_final
+from dem.final import read as read_final
 
 ROOT = Path(__file__).resolve().parents[1]
 R = 1e-3
