@@ -200,7 +200,8 @@ class Writers:
         comm = par.comm
         if self.is_root:
             self.root_write(lambda: make_folder(folder))
-        # a fresh token per final output: a piece never replaces one that a manifest names
+        # a fresh token per final output (a piece never replaces one that a manifest names), sent
+        # by the root once the folder exists: no rank writes in it before
         token = np.array([int.from_bytes(os.urandom(4), "little") if self.is_root else 0], np.int64)
         comm.Bcast(token, root=0)
         name = F.piece_name(self.world.step_count, int(token[0]), par.rank)
