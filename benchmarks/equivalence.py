@@ -48,7 +48,8 @@ def _history(path):
 
 def _fingerprint(out):
     cols, rows = _history(os.path.join(out, "history.csv"))
-    z = np.load(os.path.join(out, "final.npz"))
+    from dem.final import read as read_final   # an MPI run's final.npz: a manifest and its pieces
+    z = read_final(os.path.join(out, "final.npz"))
     arrays = {k: np.asarray(z[k]) for k in sorted(z.files)}
     return dict(columns=cols, history=rows,
                 sha={k: hashlib.sha256(np.ascontiguousarray(a).tobytes()).hexdigest() for k, a in arrays.items()},

@@ -68,7 +68,8 @@ def load(out: Path):
     order = np.argsort(C[:, 2])
     z = C[order, 2]
     bed = z < BED_HEIGHT
-    dem = np.load(out / "final.npz")
+    from dem.final import read as read_final   # an MPI run's final.npz: a manifest and its pieces
+    dem = read_final(out / "final.npz")
     eps = float(fc.read_internal_field(out / "0" / "eps", n)[order][bed].mean())
     times, tg, ts, ha = [], [], [], []
     for d in out.iterdir():

@@ -223,11 +223,8 @@ def _drive(loop, link, sim, out, t_wall0):
 def _finish(R, loop, case, out, cont, t_wall0, quiet, log):
     """The final output (final.npz, checkpoint.npz, coupling.png), RunInterrupted after a
     signal, the summary (rank 0; {} elsewhere)."""
-    from dem.output import save_npz
     sim = loop.iface.sim
-    fa = sim.final_arrays()
-    if fa is not None:
-        save_npz(str(out / "final.npz"), **fa)
+    sim.write_final(str(out / "final.npz"))   # under MPI a piece per rank and a manifest (dem.final)
     sim.write_checkpoint(str(out / "checkpoint.npz"))
     step, t = loop.step, loop.t
     png = plot(out, f"{case.dir.name}: {case.config.transport} transport") if R.root else None

@@ -33,7 +33,8 @@ from .errors import SceneError
 from .parcels import parcel_factors
 
 FORMAT = "thermodem-checkpoint"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 1       # a serial checkpoint (one file), and the manifests of version-1 pieces
+MANIFEST_VERSION = 2     # a manifest of pieces read by row range (dem.pieces)
 META = ("format", "format_version", "record", "checksum")
 
 
@@ -65,20 +66,22 @@ def content_digest(arrays):
     return h.hexdigest()
 
 
-def with_meta(arrays, record):
+def with_meta(arrays, record, version=FORMAT_VERSION):
     """``arrays`` plus format, version, record and checksum (what :func:`write` saves)."""
     out = dict(arrays)
     out["format"] = np.str_(FORMAT)
-    out["format_version"] = np.int64(FORMAT_VERSION)
+    out["format_version"] = np.int64(version)
     out["record"] = np.str_(json.dumps(record, sort_keys=True))
     out["checksum"] = np.str_(content_digest(out))
     return out
 
 
 def write(path, arrays, record):
-    """Write a checkpoint atomically (dem.output.save_npz)."""
+    """Write a checkpoint atomically (dem.output.save_npz): a serial checkpoint in format
+    FORMAT_VERSION, a manifest of pieces in MANIFEST_VERSION."""
     from .output import save_npz
-    save_npz(path, durable=True, **with_meta(arrays, record))
+    version = MANIFEST_VERSION if is_manifest(arrays) else FORMAT_VERSION
+    save_npz(path, durable=True, **with_meta(arrays, record, version))
 
 
 # ---------------------------------------------------------------------------- pieces (MPI)
@@ -88,8 +91,13 @@ def write(path, arrays, record):
 # step are written first (each atomically and durably), the manifest last, and the pieces no
 # manifest names any more are removed after it: a kill -9 at any instant leaves the previous
 # manifest with every piece it names.
+#
+# Pieces of version 2 (manifest format_version 2, entry piece_version) hold their rows ordered by id
+# and their contact records listed under each of those rows they involve, verified by block (dem.pieces): a restart on M
+# ranks reads rows [r N / M, (r + 1) N / M) of the pieces' concatenation on rank r, whatever the
+# pieces, loading no piece whole. Version-1 pieces (whole-piece sha256) are still read, every M-th.
 PIECE_FORMAT = "thermodem-checkpoint-piece"
-PIECE_KEYS = ("pieces", "piece_sha256", "piece_rows")
+PIECE_KEYS = ("pieces", "piece_sha256", "piece_rows", "piece_version")
 _PIECE_NAME = re.compile(r"step\d{10}_rank\d{5}\.npz")
 
 
@@ -104,23 +112,28 @@ def piece_name(step, rank):
 
 
 def write_piece(path, arrays):
-    """One rank's piece, atomically and durably; returns its sha256 (named in the manifest)."""
-    from .output import save_npz
-    out = dict(arrays)
-    out["format"] = np.str_(PIECE_FORMAT)
-    out["format_version"] = np.int64(FORMAT_VERSION)
-    digest = content_digest(out)
-    out["checksum"] = np.str_(digest)
-    save_npz(path, durable=True, **out)
-    return digest
+    """One rank's piece (version 2), atomically and durably: ``arrays`` are the particle arrays and
+    the contact records (rec_*); rows are ordered by id and each record listed under the rows it involves. Returns its
+    digest (named in the manifest)."""
+    from .pieces import anchor_records, write_piece as write
+    order = np.argsort(arrays["state_id"], kind="stable")
+    n = order.size
+    rows = {k: np.ascontiguousarray(v[order] if v.ndim and v.shape[0] == n else v)   # a disabled array: empty
+            for k, v in arrays.items() if not k.startswith("rec_")}
+    rec = {k: v for k, v in arrays.items() if k.startswith("rec_")}
+    if rec:
+        rows.update(anchor_records(rows["state_id"], rec))
+    return write(path, rows, rows["state_id"].size, PIECE_FORMAT)
 
 
 def manifest(arrays, pieces):
     """The manifest's arrays: ``arrays`` (scalars and totals) and the pieces [(name, sha256, rows)]."""
+    from .pieces import PIECE_VERSION
     out = dict(arrays)
     out["pieces"] = np.array([p[0] for p in pieces], dtype=np.str_)
     out["piece_sha256"] = np.array([p[1] for p in pieces], dtype=np.str_)
     out["piece_rows"] = np.array([p[2] for p in pieces], dtype=np.int64)
+    out["piece_version"] = np.int64(PIECE_VERSION)
     return out
 
 
@@ -161,14 +174,54 @@ def _read_piece(path, name, digest):
 
 
 def load_pieces(path, arrays, which):
-    """The manifest ``arrays`` with the particles and contact records of its pieces ``which``
-    (indices), every piece verified against its sha256: particle rows ordered by id, each contact
-    record once. With no piece to read (more ranks than pieces) the arrays have no row."""
+    """The manifest ``arrays`` of version-1 pieces with the particles and contact records of its
+    pieces ``which`` (indices), every piece verified against its sha256: particle rows ordered by
+    id, each contact record once. With no piece to read (more ranks than pieces) the arrays have
+    no row."""
     names, sums = arrays["pieces"], arrays["piece_sha256"]
     read = list(which) or [0]
     parts = [_read_piece(path, str(names[k]), str(sums[k])) for k in read]
     if not list(which):
         parts = [{k: v[:0] for k, v in parts[0].items()}]
+    return _combine(arrays, parts)
+
+
+def load_slices(path, arrays, slices):
+    """(the manifest ``arrays`` of version-2 pieces with rows [lo, hi) of its pieces, for each
+    (piece, lo, hi) of ``slices``, and their contact records; rows read from the files): rows
+    ordered by id, each record once, only the blocks of the slices read, each verified."""
+    from .pieces import PieceError, read_rows
+    names, sums = arrays["pieces"], arrays["piece_sha256"]
+    parts, read = [], 0
+    for k, lo, hi in (slices or [(0, 0, 0)]):
+        piece = os.path.join(pieces_folder(path), str(names[k]))
+        if not os.path.exists(piece):
+            raise CheckpointError(path, f"piece {piece} is missing (a checkpoint written on several ranks is "
+                                        f"the manifest and the folder of its pieces: copy both)")
+        try:
+            got, n = read_rows(piece, PIECE_FORMAT, str(sums[k]), lo, hi)
+        except PieceError as exc:
+            raise CheckpointError(path, str(exc)) from None
+        if got["state_id"].size != hi - lo:
+            raise CheckpointError(path, f"piece {piece} holds fewer rows than the manifest names")
+        got.pop("rec_start", None)
+        parts.append(got)
+        read += n
+    return _combine(arrays, parts), read
+
+
+def shares(arrays, rank, size):
+    """The slices (piece, lo, hi) of a version-2 manifest that rank ``rank`` of ``size`` reads."""
+    from .pieces import shares as cut
+    return cut(arrays["piece_rows"], rank, size)
+
+
+def sliced(arrays):
+    """A manifest of version-2 pieces (read by row range)."""
+    return "piece_version" in arrays
+
+
+def _combine(arrays, parts):
     out = {k: v for k, v in arrays.items() if k not in PIECE_KEYS}
     keys = sorted(set().union(*parts))
     rows = {k: np.concatenate([p[k] for p in parts if k in p]) for k in keys}
@@ -187,7 +240,9 @@ def load_pieces(path, arrays, which):
 def load(path):
     """(arrays, record) of a whole checkpoint, one file or a manifest with its pieces (verified)."""
     arrays, record = read(path)
-    if is_manifest(arrays):
+    if is_manifest(arrays) and sliced(arrays):
+        arrays, _ = load_slices(path, arrays, [(k, 0, int(n)) for k, n in enumerate(arrays["piece_rows"])])
+    elif is_manifest(arrays):
         arrays = load_pieces(path, arrays, range(len(arrays["pieces"])))
     return arrays, record
 
@@ -220,12 +275,16 @@ def read(path):
                                     f"({type(exc).__name__}: {_short(exc)})") from None
     if "format" not in arrays:
         raise CheckpointError(path, _foreign_message(path, arrays))
+    if str(arrays["format"]) == "thermodem-final":
+        raise CheckpointError(path, "is a results file (an MPI run's final.npz), not a checkpoint: continue "
+                                    "from checkpoint.npz in the same output folder")
     if str(arrays["format"]) != FORMAT:
         raise CheckpointError(path, f"not a thermodem checkpoint (format {str(arrays['format'])[:40]!r})")
     version = _scalar(path, arrays, "format_version", int)
-    if version != FORMAT_VERSION:
+    if version != FORMAT_VERSION and not (version == MANIFEST_VERSION and is_manifest(arrays)):
         raise CheckpointError(path, f"checkpoint format version {version}; this thermodem reads version "
-                                    f"{FORMAT_VERSION}: continue it with the thermodem that wrote it")
+                                    f"{FORMAT_VERSION} (and {MANIFEST_VERSION} for a manifest of pieces): continue "
+                                    f"it with the thermodem that wrote it")
     for k in ("record", "checksum"):
         if k not in arrays or arrays[k].dtype.kind != "U" or arrays[k].ndim != 0:
             raise CheckpointError(path, f"checkpoint is damaged: entry {k!r} missing or malformed")

@@ -29,6 +29,7 @@ class Checkpointer:
         self._ready = None               # (path, arrays, record, plan) of prepare()
         self._recompute = False          # an older checkpoint lacked a conductance
         self.applied = []                # the scene edits the last restart applied
+        self.rows_read = None            # (rows taken, rows read) of the pieces at the last prepare
 
     def _checkpointed(self, owner):
         """The enabled arrays of ``owner`` with a checkpoint key (dem.schema)."""
@@ -96,9 +97,14 @@ class Checkpointer:
         name = ckpt.piece_name(self.world.step_count, par.rank)
         digest = []
         self.writers.each_rank_write(lambda: digest.append(ckpt.write_piece(os.path.join(folder, name), piece)))
-        pieces = par.comm.gather((name, digest[0], n), root=0)
+        sums = np.empty((par.size, 64), np.uint8) if self.writers.is_root else None
+        rows = np.empty(par.size, np.int64) if self.writers.is_root else None
+        par.comm.Gather(np.frombuffer(digest[0].encode(), np.uint8).copy(), sums, root=0)   # typed: no pickle
+        par.comm.Gather(np.array([n], np.int64), rows, root=0)
         manifest = dict(**self._common(), **self._totals())   # collective sums, on every rank
         if self.writers.is_root:
+            pieces = [(ckpt.piece_name(self.world.step_count, r), bytes(sums[r]).decode(), int(rows[r]))
+                      for r in range(par.size)]
             arr = ckpt.manifest(manifest, pieces)
             record = ckpt.scene_record(self.sim)
             written = []
@@ -111,9 +117,10 @@ class Checkpointer:
         """Read and verify a checkpoint and plan the restart with this scene: raises
         dem.errors.SceneError (bad file, or a refused scene edit) before any output is written
         or any kernel compiled. :meth:`load` uses the result. An MPI checkpoint (a manifest and
-        its pieces) is read piece by piece: one process reads every piece, each of N ranks every
-        N-th (the particles then travel to their owners); collective under MPI (a refusal on one
-        rank is raised on every rank)."""
+        its pieces) is read by slices: rank r of M reads rows [r N / M, (r + 1) N / M) of the
+        pieces, whatever their number (the particles then travel to their owners); the pieces of
+        an older checkpoint, every M-th whole. Collective under MPI (a refusal on one rank is
+        raised on every rank)."""
         from . import checkpoint as ckpt
         if self.par is None:
             return self._prepare(path)
@@ -125,13 +132,31 @@ class Checkpointer:
         errs = [e for e in self.par.comm.allgather(err) if e is not None]
         if errs:
             raise ckpt.CheckpointError(errs[0][0], errs[0][2], key=errs[0][1] or "")
+        self._report_rows()
         return plan
+
+    def _report_rows(self):
+        """The rows each rank took and read from the pieces (collective; one line on the root)."""
+        got = np.array(self.rows_read if self.rows_read is not None else (-1, -1), np.int64)
+        every = np.empty((self.par.size, 2), np.int64)
+        self.par.comm.Allgather(got, every)
+        if self.writers.is_root and every[0, 0] >= 0:
+            n = int(every[:, 0].sum())
+            print(f"restart: {n} particles read by slices on {self.par.size} ranks (at most "
+                  f"{-(-n // self.par.size)} each): rows taken per rank {every[:, 0].tolist()}, rows read "
+                  f"per rank {every[:, 1].tolist()}", flush=True)
 
     def _prepare(self, path):
         from . import checkpoint as ckpt
         arrays, record = ckpt.read(path)
         subset = False
-        if ckpt.is_manifest(arrays):
+        self.rows_read = None
+        if ckpt.is_manifest(arrays) and ckpt.sliced(arrays):   # each rank an even share of the rows
+            rank, size = (0, 1) if self.par is None else (self.par.rank, self.par.size)
+            arrays, read = ckpt.load_slices(path, arrays, ckpt.shares(arrays, rank, size))
+            self.rows_read = (arrays["state_id"].size, read)
+            subset = self.par is not None
+        elif ckpt.is_manifest(arrays):   # version-1 pieces: every size-th piece, whole
             n = len(arrays["pieces"])
             which = range(n) if self.par is None else range(self.par.rank, n, self.par.size)
             arrays = ckpt.load_pieces(path, arrays, which)
@@ -227,6 +252,8 @@ class Checkpointer:
             rec = None
         self._load_clock(z)
         self._load_totals(z, root=self.writers.is_root)
+        if subset:   # the boxes are cut for the checkpoint's particles, then each goes to its owner
+            self.par.recut_pending = True
         self.stepper.restore_neighbors(rec)
         th = w.thermal
         if th is not None:

@@ -189,6 +189,13 @@ def _compile_parallel_entry_points(sim):
     cross_rates(st.n_owned, st.inv_heat_capacity, st.nb, st.nnb, st.Hd, st.Hi, st.work)
 
 
+def cmd_gather(args):
+    from .final import gather
+    path = gather(args.out_dir)
+    print(f"wrote {path}")
+    return 0
+
+
 def cmd_render(args):
     from .render import render
     path = render(args.out_dir, args.png, color=args.color)
@@ -225,6 +232,9 @@ def _main(argv=None):
     d.add_argument("--png", default=None, help="PNG to write (default OUT_DIR/render.png); never replaces a "
                                                "file the tool did not write")
     d.add_argument("--color", default=None, help="field to colour by (default temperature or velocity)")
+    g = sub.add_parser("gather", help="write OUT_DIR/final_gathered.npz: an MPI run's final pieces as one file "
+                                      "ordered by id (what a serial run's final.npz holds)")
+    g.add_argument("out_dir")
     args = ap.parse_args(argv)
     from .errors import SceneError
     from .simulation import SimulationError
@@ -232,7 +242,8 @@ def _main(argv=None):
     from .parallel import launched_rank
     root = launched_rank() == 0
     try:
-        return {"run": cmd_run, "check": cmd_check, "render": cmd_render, "compile": cmd_compile}[args.cmd](args)
+        return {"run": cmd_run, "check": cmd_check, "render": cmd_render, "compile": cmd_compile,
+                "gather": cmd_gather}[args.cmd](args)
     except (SceneError, ParallelError) as exc:
         if root:  # every rank found the same problem: say it once
             print(f"error: {exc}", file=sys.stderr)

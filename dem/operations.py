@@ -283,7 +283,8 @@ class VTKWriter(Operation):
 
 
 class FinalState(Operation):
-    """final.npz (per-particle results by id) at the end of the run."""
+    """final.npz (per-particle results by id; under MPI a piece per rank and a manifest) at the end
+    of the run."""
 
     trigger = AtEnd()
 
@@ -291,10 +292,7 @@ class FinalState(Operation):
         self.path = os.path.join(out_dir, "final.npz")
 
     def act(self, run, event):
-        from .output import save_npz
-        fa = run.sim.final_arrays()
-        if fa is not None:
-            run.sim.root_write(lambda: save_npz(self.path, **fa))
+        run.sim.write_final(self.path)   # under MPI a piece per rank and a manifest (dem.final)
 
 
 class FailedState(Operation):

@@ -158,6 +158,11 @@ class Simulation:
         """Per-particle results ordered by id (collective; None on ranks other than the root)."""
         return self.writers.final_arrays()
 
+    def write_final(self, path):
+        """final.npz (collective): one file in a serial run, a piece per rank and a manifest under
+        MPI (dem.final)."""
+        self.writers.write_final(path)
+
     def vtk_series(self, out_dir):
         """This rank's VTK series of ``out_dir`` (pieces per rank under MPI)."""
         return self.writers.vtk_series(out_dir)

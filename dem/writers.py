@@ -4,13 +4,15 @@
     out.history_row(); out.write_vtk(vtk); out.final_arrays(); out.wall_heat_totals()
 
 Owns the rows of history.csv (sums, minima and maxima over the ranks), the wall heat totals,
-the per-particle output fields (every array declared with an ``output`` name), gathering the
-owned rows of every rank ordered by id (final.npz), the VTK frames (under MPI each rank writes
+the per-particle output fields (every array declared with an ``output`` name), final.npz (one
+file ordered by id in a serial run; under MPI one piece per rank and a manifest, dem.final), the
+VTK frames (under MPI each rank writes
 its own piece: no rank gathers the particles of the others), and the writes of one rank: under
 MPI a write that fails on any rank is held (the other ranks are on their way to the next
 collective call) until :meth:`settle_writes` raises it on every rank, naming that rank.
 """
 import math
+import os
 
 import numpy as np
 
@@ -176,6 +178,48 @@ class Writers:
         if out is not None:
             out["time"] = np.float64(self.world.time)
         return out
+
+    def write_final(self, path):
+        """final.npz (collective): a serial run writes the arrays ordered by id in one file; under
+        MPI each rank writes its own rows as a piece and the root the manifest after every piece is
+        on disk (dem.final: nothing is gathered but a digest and three numbers per rank), then
+        removes the pieces of earlier final outputs. A rank that cannot write its piece stops every
+        rank at once (naming it); the previous final output stays as it was."""
+        from . import final as F
+        from .output import save_npz
+        folder = F.pieces_folder(path)
+        if self.par is None:
+            fa = self.final_arrays()
+            written = []
+            self.root_write(lambda: written.append(save_npz(path, **fa)))
+            if written and os.path.isdir(folder):   # an earlier MPI run's final output in this folder
+                F.remove_stale_pieces(folder, ())
+            return
+        from .output import make_folder
+        par = self.par
+        comm = par.comm
+        if self.is_root:
+            self.root_write(lambda: make_folder(folder))
+        # a fresh token per final output (a piece never replaces one that a manifest names), sent
+        # by the root once the folder exists: no rank writes in it before
+        token = np.array([int.from_bytes(os.urandom(4), "little") if self.is_root else 0], np.int64)
+        comm.Bcast(token, root=0)
+        name = F.piece_name(self.world.step_count, int(token[0]), par.rank)
+        got = []
+        self.each_rank_write(lambda: got.append(F.write_piece(os.path.join(folder, name), self.output_arrays())))
+        digest, rows, idmin, idmax = got[0]
+        sums = np.empty((par.size, 64), np.uint8) if self.is_root else None
+        info = np.empty((par.size, 3), np.int64) if self.is_root else None
+        comm.Gather(np.frombuffer(digest.encode(), np.uint8).copy(), sums, root=0)
+        comm.Gather(np.array([rows, idmin, idmax], np.int64), info, root=0)
+        if self.is_root:
+            names = [F.piece_name(self.world.step_count, int(token[0]), r) for r in range(par.size)]
+            digests = [bytes(d).decode() for d in sums]
+            man = F.manifest(self.world.time, self.world.step_count, names, digests, info)
+            written = []
+            self.root_write(lambda: written.append(save_npz(path, durable=True, **man)))
+            if written:
+                F.remove_stale_pieces(folder, set(names))
 
     def vtk_series(self, out_dir):
         """The VTK series of this rank (dem.output.VTKSeries: every rank writes its own piece

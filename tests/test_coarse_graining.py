@@ -26,6 +26,7 @@ import numpy as np
 import pytest
 
 from dem import Simulation
+from dem.final import read as read_final
 
 ROOT = Path(__file__).resolve().parents[1]
 R = 0.5e-3
@@ -70,7 +71,7 @@ def test_cg_one_is_the_run_without(tmp_path):
         out = tmp_path / f"o{k}"
         sim.run(out_dir=str(out), progress=False)
         outs.append(out)
-    a, b = np.load(outs[0] / "final.npz"), np.load(outs[1] / "final.npz")
+    a, b = read_final(outs[0] / "final.npz"), read_final(outs[1] / "final.npz")
     assert sorted(a.files) == sorted(b.files) and "coarse_graining" not in a.files
     for f in a.files:
         assert np.array_equal(a[f], b[f]), f
@@ -86,7 +87,7 @@ def test_parcel_size_mass_and_output(tmp_path):
     assert st.mass[0] == pytest.approx(27 * real_mass, rel=1e-14)
     assert 1 / st.inv_heat_capacity[0] == pytest.approx(27 * real_mass * 840.0, rel=1e-14)
     sim.run(out_dir=str(tmp_path / "o"), progress=False)
-    f = np.load(tmp_path / "o" / "final.npz")
+    f = read_final(tmp_path / "o" / "final.npz")
     assert f["coarse_graining"].tolist() == [3.0]
 
 
@@ -283,7 +284,7 @@ def test_coarse_grained_coupled_run(tmp_path, solver):
     case = _coupled_case(tmp_path / "case")
     r = _cli("coupling.run", "run", str(case), "--out", str(tmp_path / "out"), cwd=ROOT)
     assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-2000:]
-    f = np.load(tmp_path / "out" / "final.npz")
+    f = read_final(tmp_path / "out" / "final.npz")
     assert f["coarse_graining"].tolist() == [2.0] * 4
     assert np.all(f["temperature"] > 300.0)
     c = np.atleast_1d(np.genfromtxt(tmp_path / "out" / "coupling.csv", delimiter=",", names=True))
@@ -338,7 +339,7 @@ def test_parcels_on_two_ranks_equal_serial(tmp_path):
     scene = str(ROOT / "tests" / "scenes" / "cg_heat_bed.toml")
     mpirun(1, "run", scene, "--out", str(tmp_path / "s"), "--quiet")
     mpirun(2, "run", scene, "--out", str(tmp_path / "p"), "--quiet")
-    a, b = np.load(tmp_path / "s" / "final.npz"), np.load(tmp_path / "p" / "final.npz")
+    a, b = read_final(tmp_path / "s" / "final.npz"), read_final(tmp_path / "p" / "final.npz")
     ia, ib = np.argsort(a["id"]), np.argsort(b["id"])
     assert np.all(a["coarse_graining"] == 2.0) and a["temperature"].max() > 300.0
     for k in ("temperature", "position", "velocity", "coarse_graining"):
@@ -456,7 +457,7 @@ def test_parcels_stopped_and_continued_equal_one_run(tmp_path):
     assert dem("--out", "one").returncode == 0
     assert dem("--out", "two", "--end-time", "0.01").returncode == 0
     assert dem("--out", "two", "--restart", "two/checkpoint.npz").returncode == 0
-    a, b = np.load(tmp_path / "one" / "final.npz"), np.load(tmp_path / "two" / "final.npz")
+    a, b = read_final(tmp_path / "one" / "final.npz"), read_final(tmp_path / "two" / "final.npz")
     for k in a.files:
         assert np.array_equal(a[k], b[k]), k
     assert (tmp_path / "one" / "wall_heat.csv").read_text() == (tmp_path / "two" / "wall_heat.csv").read_text()

@@ -25,6 +25,7 @@ if str(ROOT) not in sys.path:
 from coupling import foam_case as fc  # noqa: E402
 from coupling.case import CaseConfigError, load_case  # noqa: E402
 from coupling.run import main as coupling_main, run_case  # noqa: E402
+from dem.final import read as read_final
 
 CASES = ROOT / "openfoam_cases"
 RHO, NU, CP, K = 1.2, 1.5e-5, 1005.0, 0.0262
@@ -121,7 +122,7 @@ def test_file_and_socket_bit_identical(tmp_path, solver):
     for tr in ("file", "socket"):
         s = run_case(CASES / "fluidized_bed_heating", tmp_path / tr, transport=tr, end_time=0.002,
                      solver=solver, quiet=True)
-        res[tr] = np.load(Path(s["out"]) / "final.npz")
+        res[tr] = read_final(Path(s["out"]) / "final.npz")
     a, b = res["file"], res["socket"]
     assert np.array_equal(a["id"], b["id"])
     assert np.array_equal(a["temperature"].view(np.uint64), b["temperature"].view(np.uint64))
@@ -186,7 +187,7 @@ def test_a_transport_plugs_in(tmp_path, solver, monkeypatch):
     plain = run_case(CASES / "fluidized_bed_heating", tmp_path / "plain", end_time=0.002, solver=solver, quiet=True)
     monkeypatch.setattr(crun, "open_link", open_measured)
     s = run_case(CASES / "fluidized_bed_heating", tmp_path / "measured", end_time=0.002, solver=solver, quiet=True)
-    a, b = np.load(Path(plain["out"]) / "final.npz"), np.load(Path(s["out"]) / "final.npz")
+    a, b = read_final(Path(plain["out"]) / "final.npz"), read_final(Path(s["out"]) / "final.npz")
     for k in ("position", "velocity", "temperature"):
         assert np.array_equal(a[k].view(np.uint64), b[k].view(np.uint64)), k
     (link,) = links
@@ -282,7 +283,7 @@ def test_closed_box_energy_balance(tmp_path, solver):
     T0 = fc.read_internal_field(out / "0" / "T", n)
     T1 = fc.read_internal_field(out / "0.05" / "T", n)
     dEg = float((RHO * CP * eps * mesh_V * (T1 - T0)).sum())
-    sim_final = np.load(out / "final.npz")
+    sim_final = read_final(out / "final.npz")
     d = 2e-3
     C = 2500.0 * math.pi / 6 * d ** 3 * 840.0
     dEp = float(C * (sim_final["temperature"] - 400.0).sum())
@@ -394,7 +395,7 @@ def test_packed_bed_heating_schumann(tmp_path, solver):
         assert worst[key][0] < 0.006, (key, worst)
         assert worst[key][1] < 0.015, (key, worst)
     # the front has really moved through the bed: the last layer's solid is > 30 % heated
-    fin = np.load(out / "final.npz")
+    fin = read_final(out / "final.npz")
     top = fin["position"][:, 2] > 0.056
     assert ((fin["temperature"][top] - T0) / (Tin - T0)).mean() > 0.3
 
@@ -509,7 +510,7 @@ def test_two_dem_ranks_match_serial(tmp_path, solver):
     if shutil.which("mpirun") is None:
         pytest.skip("needs Open MPI")
     s = run_case(CASES / "fluidized_bed_heating", tmp_path / "one", end_time=0.002, solver=solver, quiet=True)
-    a = np.load(Path(s["out"]) / "final.npz")
+    a = read_final(Path(s["out"]) / "final.npz")
     env = dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1",
                OMPI_MCA_rmaps_base_oversubscribe="1")
     p = subprocess.run(["mpirun", "-np", "2", sys.executable, "-m", "coupling.run", "run",
@@ -517,7 +518,7 @@ def test_two_dem_ranks_match_serial(tmp_path, solver):
                         "--end-time", "0.002"], capture_output=True, text=True, env=env, timeout=900)
     assert p.returncode == 0, p.stdout + p.stderr
     assert "2 MPI ranks" in p.stdout
-    b = np.load(tmp_path / "two" / "final.npz")
+    b = read_final(tmp_path / "two" / "final.npz")
     assert np.array_equal(a["id"], b["id"])
     assert np.abs(a["position"] - b["position"]).max() < 1e-13
     assert np.abs(a["velocity"] - b["velocity"]).max() < 1e-10

@@ -24,6 +24,7 @@ for p in (ROOT, ROOT / "benchmarks"):
         sys.path.insert(0, str(p))
 
 import coupled_drag as CD  # noqa: E402
+from dem.final import read as read_final
 
 
 @pytest.fixture(scope="module")
@@ -69,7 +70,7 @@ def test_single_particle_terminal_velocity_at_ten_relaxation_times(tmp_path, sol
     code, text, data = CD.run(case, tmp_path / "out")
     assert code == 0, text[-3000:]
     vt = CD.terminal_velocity(d, CD.RHO_P)
-    f = np.load(tmp_path / "out" / "final.npz")
+    f = read_final(tmp_path / "out" / "final.npz")
     v = f["velocity"][0]
     # falls at the terminal velocity of the drag law (the gas of the one-cell layer cannot move:
     # continuity with the closed inlet), sideways not at all

@@ -27,6 +27,7 @@ for p in (ROOT, ROOT / "benchmarks"):
         sys.path.insert(0, str(p))
 
 from coupling.forces import (C_VM, magnus_oesterle_bui_dinh_1998, mei_1992_factor,  # noqa: E402
+from dem.final import read as read_final
                              rotational_drag_dennis_1980, saffman_mei_1992)
 
 RHO, MU = 1.2, 1.8e-5
@@ -254,7 +255,7 @@ def test_spinning_sphere_decays_as_stokes_torque(tmp_path, solver):
     case, d, t_end = _spinning_case(tmp_path / "case", omega0, "rotational_drag")
     code, text, _ = CD.run(case, tmp_path / "out")
     assert code == 0, text[-3000:]
-    f = np.load(tmp_path / "out" / "final.npz")
+    f = read_final(tmp_path / "out" / "final.npz")
     w = f["angular_velocity"][0]
     mu = CD.RHO_G * CD.NU_G
     m = CD.RHO_P * math.pi / 6 * d ** 3
@@ -270,7 +271,7 @@ def test_spinning_sphere_decays_as_stokes_torque(tmp_path, solver):
     case2, _, _ = _spinning_case(tmp_path / "case2", omega0, "none")
     code, text, _ = CD.run(case2, tmp_path / "out2")
     assert code == 0, text[-3000:]
-    w2 = np.load(tmp_path / "out2" / "final.npz")["angular_velocity"][0]
+    w2 = read_final(tmp_path / "out2" / "final.npz")["angular_velocity"][0]
     assert np.array_equal(w2, omega0), w2
 
 
@@ -310,7 +311,7 @@ def test_virtual_mass_slows_the_first_interval_through_coupling_run(tmp_path, so
                 f.write("virtual_mass = true\n")
         code, text, _ = CD.run(case, tmp_path / f"out{vm}")
         assert code == 0, text[-3000:]
-        v[vm] = np.load(tmp_path / f"out{vm}" / "final.npz")["velocity"][0]
+        v[vm] = read_final(tmp_path / f"out{vm}" / "final.npz")["velocity"][0]
     dt_dem = 5e-7
     k = int(round(dt_cfd / dt_dem))
     vp = math.pi / 6 * d ** 3

@@ -32,6 +32,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from coupling.run import run_case  # noqa: E402
+from dem.final import read as read_final
 
 CASES = ROOT / "openfoam_cases"
 END = "0.002"   # 4 coupling steps of 50 DEM steps
@@ -66,7 +67,7 @@ def coupled(m: int, case: Path, out: Path, *extra, check=True):
 
 
 def final(out: Path):
-    return np.load(out / "final.npz")
+    return read_final(out / "final.npz")
 
 
 def gas_last(out: Path, field: str):

@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 
 from dem import checkpoint
+from dem.final import read as read_final
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 SCENES = os.path.join(HERE, "scenes")
@@ -48,7 +49,7 @@ def mpi_python(n, code, *args):
 
 def run(n, scene, out, *extra):
     mpirun(n, "run", os.path.join(SCENES, scene), "--out", str(out), "--quiet", *extra)
-    return np.load(os.path.join(out, "final.npz"))
+    return read_final(os.path.join(out, "final.npz"))
 
 
 def history(out):
@@ -109,7 +110,7 @@ def test_exponential_update_conservative_on_3_ranks(tmp_path):
     outs = {}
     for n in (1, 3):
         mpirun(n, "run", str(scene), "--out", str(tmp_path / f"np{n}"), "--quiet")
-        outs[n] = np.load(tmp_path / f"np{n}" / "final.npz")
+        outs[n] = read_final(tmp_path / f"np{n}" / "final.npz")
     rise = outs[1]["temperature"].max() - 300.0
     assert np.abs(outs[1]["temperature"] - outs[3]["temperature"]).max() < 1e-3 * rise
     h = history(tmp_path / "np3")
@@ -166,7 +167,7 @@ def test_slabs_thinner_than_the_halo_run(tmp_path):
     a = run(1, "par_periodic.toml", tmp_path / "one")
     p = mpirun(3, "run", str(scene), "--out", str(tmp_path / "thin"), "--quiet")
     assert "error" not in p.stderr
-    b = np.load(tmp_path / "thin" / "final.npz")
+    b = read_final(tmp_path / "thin" / "final.npz")
     assert_same(a, b, pos=1e-14, vel=1e-12, spin=1e-9, temp=1e-11)
 
 
@@ -183,7 +184,7 @@ def test_each_rank_writes_its_own_checkpoint_piece(settle, tmp_path):
     step = int(man["step_count"])
     assert sorted(os.listdir(folder)) == [checkpoint.piece_name(step, 0), checkpoint.piece_name(step, 1)]
     whole, _ = checkpoint.load(out / "checkpoint.npz")
-    final = np.load(out / "final.npz")
+    final = read_final(out / "final.npz")
     assert int(man["piece_rows"].sum()) == final["id"].size and np.array_equal(whole["state_id"], final["id"])
     assert np.array_equal(whole["state_position"], final["position"])
     rows = [np.load(folder / str(n))["state_id"].size for n in man["pieces"]]

@@ -12,6 +12,7 @@ import sys
 
 import numpy as np
 import pytest
+from dem.final import read as read_final
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
@@ -211,13 +212,13 @@ def hertz_rest_overlap(density):
 
 def test_doubled_density_is_applied_to_the_mass(base):
     d, sc, ck = base
-    before = np.load(d / "out" / "final.npz")["position"][:, 2]
+    before = read_final(d / "out" / "final.npz")["position"][:, 2]
     # before the edit the beads rest at the Hertz overlap of their own mass (to 1 %)
     assert np.allclose(R - before, hertz_rest_overlap(RHO), rtol=0.01)
     edited = write(d / "dense.toml", scene_text(materials=GLASS.replace(f"density = {RHO}", "density = 5000.0")))
     r = ok(dem(edited, "--out", str(d / "o_dense"), "--restart", str(ck)))
     assert "restart: applied materials[glass].density 2500 -> 5000 (mass and inertia of 3 particles)" in r.stdout
-    z = np.load(d / "o_dense" / "final.npz")["position"][:, 2]
+    z = read_final(d / "o_dense" / "final.npz")["position"][:, 2]
     # they settle deeper, at the overlap of the doubled mass: 2^(2/3) = 1.59 times the former one
     assert np.allclose(R - z, hertz_rest_overlap(2 * RHO), rtol=0.01)
 
@@ -233,8 +234,8 @@ def test_material_inserted_before_keeps_each_particles_properties(tmp_path):
     r = ok(dem(edited, "--out", str(tmp_path / "second"), "--restart", str(tmp_path / "first" / "checkpoint.npz")))
     assert "restart: applied materials[steel] added" in r.stdout
     assert "glass 0 -> 1" in r.stdout
-    a = np.load(tmp_path / "one" / "final.npz")
-    b = np.load(tmp_path / "second" / "final.npz")
+    a = read_final(tmp_path / "one" / "final.npz")
+    b = read_final(tmp_path / "second" / "final.npz")
     assert np.array_equal(a["id"], b["id"])
     assert np.abs(a["position"] - b["position"]).max() <= 1e-12 * np.abs(a["position"]).max()
     vs = max(np.abs(a["velocity"]).max(), 1e-9)
@@ -260,7 +261,7 @@ material = "glass"
     edited = write(tmp_path / "fall2.toml", scene_text(positions=high, end_time=0.07, walls=shelf + FLOOR))
     r = ok(dem(edited, "--out", str(tmp_path / "second"), "--restart", str(tmp_path / "first" / "checkpoint.npz")))
     assert "restart: applied walls[shelf] added" in r.stdout
-    z = np.load(tmp_path / "second" / "final.npz")["position"][:, 2]
+    z = read_final(tmp_path / "second" / "final.npz")["position"][:, 2]
     # they fell onto the shelf and rest there (without it they would lie on the floor at z = R)
     assert np.all(np.abs(z - (shelf_z + R)) < 0.01 * R), z
 
@@ -288,12 +289,12 @@ def test_wall_temperature_edit_is_applied_and_model_change_refused(tmp_path):
     sc = write(tmp_path / "hot.toml", thermal_scene(400.0))
     ok(dem(sc, "--out", str(tmp_path / "out"), "--end-time", "0.02"))
     ck = tmp_path / "out" / "checkpoint.npz"
-    assert np.load(tmp_path / "out" / "final.npz")["temperature"][0] == pytest.approx(400.0, abs=0.5)
+    assert read_final(tmp_path / "out" / "final.npz")["temperature"][0] == pytest.approx(400.0, abs=0.5)
     hotter = write(tmp_path / "hotter.toml", thermal_scene(500.0))
     r = ok(dem(hotter, "--out", str(tmp_path / "out"), "--restart", str(ck)))
     assert "restart: applied walls[floor].thermal.temperature 400 -> 500" in r.stdout
     # the bead follows the new wall temperature (it could not pass 400 K otherwise)
-    assert np.load(tmp_path / "out" / "final.npz")["temperature"][0] == pytest.approx(500.0, abs=0.5)
+    assert read_final(tmp_path / "out" / "final.npz")["temperature"][0] == pytest.approx(500.0, abs=0.5)
     h = np.genfromtxt(tmp_path / "out" / "history.csv", delimiter=",", names=True)
     assert np.all(np.diff(h["time"]) > 0) and h["time"][0] == 0.0 and h["time"][-1] == pytest.approx(0.04)
     expo = write(tmp_path / "expo.toml", thermal_scene(400.0, integrator="exponential"))

@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from dem.final import read as read_final
 
 ROOT = Path(__file__).resolve().parents[1]
 CASE = ROOT / "openfoam_cases" / "fluidized_bed_heating"
@@ -86,7 +87,7 @@ def _gas(out: Path, field: str) -> np.ndarray:
 
 def _assert_same_run(ref: Path, other: Path):
     """Final particle and gas states of two outputs agree to TOL (relative to the field's scale)."""
-    a, b = np.load(ref / "final.npz"), np.load(other / "final.npz")
+    a, b = read_final(ref / "final.npz"), read_final(other / "final.npz")
     assert float(a["time"]) == pytest.approx(END) and float(b["time"]) == pytest.approx(END)
     assert np.array_equal(a["id"], b["id"])
     for k in ("position", "velocity", "temperature"):

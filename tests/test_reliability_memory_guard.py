@@ -27,6 +27,7 @@ from dem import Simulation  # noqa: E402
 from dem import neighbors as NB  # noqa: E402
 from dem import step as K  # noqa: E402
 from dem.energy_guard import GAIN_TOLERANCE  # noqa: E402
+from dem.final import read as read_final
 
 ENV = dict(os.environ, PYTHONPATH=str(ROOT))
 GLASS = """
@@ -95,7 +96,7 @@ def test_three_beads_in_a_huge_domain_check_and_run(tmp_path, L):
     run = dem("run", scene, "--out", tmp_path / "out", "--quiet")
     assert run.returncode == 0, run.stderr
     assert "Traceback" not in run.stderr
-    z = np.load(tmp_path / "out" / "final.npz")
+    z = read_final(tmp_path / "out" / "final.npz")
     assert np.all(np.isfinite(z["position"])) and z["position"][:, 2].max() < 0.003
 
 

@@ -2,6 +2,7 @@
 import numpy as np
 
 from dem import Simulation
+from dem.final import read as read_final
 
 
 def scene():
@@ -25,14 +26,14 @@ def scene():
 def test_restart_matches_single_run(tmp_path):
     one = Simulation.from_dict(scene())
     one.run(out_dir=str(tmp_path / "one"), progress=False)
-    a = np.load(tmp_path / "one" / "final.npz")
+    a = read_final(tmp_path / "one" / "final.npz")
 
     first = Simulation.from_dict(scene())
     first.run(end_time=0.02, out_dir=str(tmp_path / "two"), progress=False)
     ck = tmp_path / "two" / "checkpoint.npz"
     second = Simulation.from_dict(scene())
     second.run(out_dir=str(tmp_path / "two"), restart=str(ck), progress=False)
-    b = np.load(tmp_path / "two" / "final.npz")
+    b = read_final(tmp_path / "two" / "final.npz")
 
     assert np.array_equal(a["id"], b["id"])
     scale = np.abs(a["position"]).max()

@@ -15,6 +15,7 @@ import pytest
 
 from dem import Simulation
 from test_thermal_runs import base, R, AIR
+from dem.final import read as read_final
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 MATP = dict(name="p", density=2500.0, youngs_modulus=1e7, poisson_ratio=0.3, restitution=0.5,
@@ -223,7 +224,7 @@ def test_cli_run_implicit_reaches_linear_profile(tmp_path):
     _write_scene(scene, "implicit")
     p = _dem("run", str(scene), "--out", str(tmp_path / "out"), "--quiet", cwd=tmp_path)
     assert p.returncode == 0, p.stderr
-    f = np.load(tmp_path / "out" / "final.npz")
+    f = read_final(tmp_path / "out" / "final.npz")
     T = f["temperature"][np.argsort(f["position"][:, 0])]
     steps = np.diff(T)
     assert np.abs(steps - steps.mean()).max() < 1e-9
@@ -271,4 +272,4 @@ def test_mpi_refuses_implicit_and_auto_falls_back(tmp_path):
     p = subprocess.run(cmd[:-4] + [str(scene), "--out", str(tmp_path / "auto"), "--quiet"], capture_output=True,
                        text=True, env=env, cwd=tmp_path, timeout=600)
     assert p.returncode == 0, p.stderr
-    assert np.load(tmp_path / "auto" / "final.npz")["temperature"].max() < 400.0
+    assert read_final(tmp_path / "auto" / "final.npz")["temperature"].max() < 400.0

@@ -25,6 +25,7 @@ import pytest
 
 from dem import Simulation
 from dem.thermal.wall_heat import line_length_in_box, plane_section_area, wall_area
+from dem.final import read as read_final
 
 ROOT = Path(__file__).resolve().parents[1]
 R = 1e-3
@@ -256,7 +257,7 @@ porosity = 0.4
     old = {k: z[k] for k in z.files if k not in meta}
     ckpt.write(str(tmp_path / "old.npz"), old, json.loads(str(z["record"])))
     dem("--out", str(tmp_path / "three"), "--restart", str(tmp_path / "old.npz"))
-    f1, f3 = np.load(tmp_path / "one" / "final.npz"), np.load(tmp_path / "three" / "final.npz")
+    f1, f3 = read_final(tmp_path / "one" / "final.npz"), read_final(tmp_path / "three" / "final.npz")
     assert np.array_equal(f1["temperature"].view(np.uint64), f3["temperature"].view(np.uint64))
     w1, w3 = read(tmp_path / "one" / "wall_heat.csv"), read(tmp_path / "three" / "wall_heat.csv")
     assert w3[("floor", "total")][:, 1] == pytest.approx(w1[("floor", "total")][:, 1], rel=1e-14)

@@ -247,7 +247,8 @@ def output_finite(out: Path, n_cells: int):
     bad = []
     f = out / "final.npz" if (out / "final.npz").exists() else out / "checkpoint.npz"
     if f.exists():
-        z = np.load(f)
+        from dem.final import read as read_final   # an MPI run's final.npz: a manifest and its pieces
+        z = read_final(f) if f.name == "final.npz" else np.load(f)
         for k in z.files:
             a = z[k]
             if a.dtype.kind == "f" and not np.all(np.isfinite(a)):
@@ -326,7 +327,8 @@ def _temperature_span(out: Path, n_cells: int | None):
     lo, hi = math.inf, -math.inf
     f = out / "final.npz" if (out / "final.npz").exists() else out / "checkpoint.npz"
     if f.exists():
-        z = np.load(f)
+        from dem.final import read as read_final   # an MPI run's final.npz: a manifest and its pieces
+        z = read_final(f) if f.name == "final.npz" else np.load(f)
         T = z["temperature"] if "temperature" in z.files else z.get("state_temperature")
         if T is not None and T.size:
             lo, hi = min(lo, float(np.min(T))), max(hi, float(np.max(T)))

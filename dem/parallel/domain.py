@@ -130,6 +130,7 @@ class ParallelDomain:
         self.bytes_migrated = 0  # typed payload this rank sent in migrations (particles + records)
         self.bytes_ghosts = 0  # typed payload this rank sent as ghosts at the exchanges
         self.sort_pending = False
+        self.recut_pending = False   # cut the boxes at the next exchange whatever the load (a restart)
         self.imbalance = 1.0
         self._bufs = {}
 
@@ -213,12 +214,14 @@ class ParallelDomain:
 
     def _rebalance(self, world, costs, weights, halo):
         """Re-cut the boxes (collective) when the largest rank cost exceeds the mean by more
-        than [parallel] balance_threshold. Every cut is legal (decomposition.py), so the new
+        than [parallel] balance_threshold, or when asked (``recut_pending``: a restart read its
+        particles by slices, evenly spread but not in the scene's boxes). Every cut is legal (decomposition.py), so the new
         cuts are always taken."""
         cmean = float(costs.sum()) / self.size
         self.imbalance = float(costs.max()) / max(cmean, 1e-300)
-        if self.imbalance <= self.cfg["balance_threshold"]:
+        if self.imbalance <= self.cfg["balance_threshold"] and not self.recut_pending:
             return
+        self.recut_pending = False
         before = [list(n) for n in self.dec.nodes]
         self.dec.build(self.comm, world.state.position, weights, halo)
         if self.dec.nodes != before:
