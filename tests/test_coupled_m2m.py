@@ -322,7 +322,7 @@ def test_sigusr1_to_mpirun_stops_at_once_and_continues(tmp_path, solver):
     argv[argv.index("--end-time") + 1] = end
     q = subprocess.run(argv[:3] + [sys.executable, "-m", "coupling.run"] + argv[4:], capture_output=True, text=True, env=_env(), timeout=900, cwd=str(ROOT))
     assert q.returncode == 0, q.stdout[-2000:] + q.stderr[-3000:]
-    assert float(np.load(out / "final.npz")["time"]) == pytest.approx(float(end), rel=1e-9)
+    assert float(final(out)["time"]) == pytest.approx(float(end), rel=1e-9)
     balance_closed(out)
 
 
