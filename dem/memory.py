@@ -86,8 +86,10 @@ def scene_bytes(scene):
     """Estimated peak bytes of a serial run of ``scene``: {'total', 'particles', 'grid',
     'cells'}. Per particle: the state, two copies of the neighbour list with its history
     (old and new during a rebuild), the wall lists, the thermal arrays."""
-    n = int(scene.radius.size)
-    rmax = float(scene.radius.max(initial=0.0))
+    if getattr(scene, "distributed", False):   # set up per rank (MPI): one rank's even share
+        n, rmax = int(scene.n_rank), float(scene.rmax)
+    else:
+        n, rmax = int(scene.radius.size), float(scene.radius.max(initial=0.0))
     nw = max(len(scene.walls), 1)
     rolling = scene.contact["rolling"] != "none"
     thermal = scene.thermal is not None
@@ -149,7 +151,9 @@ def check_scene(scene):
                 f"largest particle size; particles {fmt(est['particles'])}")
         key, advice = "domain", "shrink [domain] to where the particles go"
     else:
-        what = (f"{scene.radius.size} particles at {est['per_particle']} B each {fmt(est['particles'])}; "
+        share = (f"{scene.n_rank} particles per rank of {scene.n_total}" if getattr(scene, "distributed", False)
+                 else f"{scene.radius.size} particles")
+        what = (f"{share} at {est['per_particle']} B each {fmt(est['particles'])}; "
                 f"neighbour grid {fmt(est['grid'])}")
         key, advice = "particles", "use fewer particles, or run with mpirun on several machines"
     why = _refuse("the scene", est["total"], what, scene.simulation["force"])
