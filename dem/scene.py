@@ -140,7 +140,7 @@ WALL_KEYS = {"type", "material", "point", "normal", "extent", "u_axis", "axis", 
 CONTACT_KEYS = {"model", "rolling", "damping", "normal_stiffness", "tangential_stiffness_ratio",
                 "characteristic_velocity", "rolling_damping"}
 OUTPUT_KEYS = {"vtk"}
-PARALLEL_KEYS = {"decomposition", "slab_axis", "balance_threshold", "pair_weight"}
+PARALLEL_KEYS = {"decomposition", "slab_axis", "balance_threshold", "pair_weight", "insertion_block"}
 TOP_KEYS = {"simulation", "domain", "materials", "particles", "walls", "contact", "output",
             "thermal", "gas", "parallel"}
 
@@ -232,7 +232,7 @@ def _check_region_in_domain(v, p, reg, spec, lo, hi, periodic):
                                  "the region inside [domain]")
 
 
-def _check_count(v, p, reg, spec, n, force):
+def _check_count(v, p, reg, spec, n, force, mem_count=None):
     """An insertion ``count`` that cannot fit: more sphere volume (at the smallest radius of
     the distribution) than the densest packing of the region, or more memory than the
     machine has for the candidate arrays (dem.memory)."""
@@ -249,7 +249,7 @@ def _check_count(v, p, reg, spec, n, force):
                             f"densest packing ({DENSEST_PACKING:.3f}) of the region's {vol:.3g} m3 can hold "
                             f"(at most {int(DENSEST_PACKING * vol / (4.0 / 3.0 * math.pi * rmin ** 3))}); "
                             "enlarge the region or lower the count")
-    check_insertion(v, p + ".count", reg, n, rmax, force)
+    check_insertion(v, p + ".count", reg, n if mem_count is None else min(n, mem_count), rmax, force)
 
 
 def _finite_rows(v, arr, key):
@@ -366,8 +366,12 @@ def parse(data, file="<dict>", base_dir=".", end_time=None, comm="auto"):
     if not isinstance(parts, list) or not parts:
         v.err("particles", "must be a non-empty array of tables [[particles]]")
     rng = np.random.default_rng(sim["seed"])
-    P = dict(x=[], r=[], v=[], w=[], mat=[], id=[], T=[], group=[], mode=[], where=[], cg=[], cgv=[])
+    P = dict(x=[], r=[], v=[], w=[], mat=[], id=[], T=[], group=[], mode=[], where=[], cg=[], cgv=[], gidx=[])
     n_count_groups = 0
+    pa0 = data.get("parallel", {})
+    block = INSERTION_BLOCK
+    if isinstance(pa0, dict) and "insertion_block" in pa0:
+        block = v.integer(pa0, "insertion_block", "parallel", lo=100)
     from .insertion import insert, sample_radii
     for k, g in enumerate(parts):
         p = f"particles[{k}]"
@@ -480,13 +484,22 @@ def parse(data, file="<dict>", base_dir=".", end_time=None, comm="auto"):
             spec_p = {key: (val * cg if key in ("value", "min", "max", "mean", "std") else val)
                       for key, val in spec.items()}
             _check_region_in_domain(v, p, reg, spec_p, lo, hi, periodic)
-            _check_count(v, p, reg, spec_p, n, sim["force"])
-            rad = sample_radii(spec, n, rng) * cg
-            if part is None:
+            gidx = None
+            if n > block:   # by blocks: the same particles on any number of ranks, serial included
+                if rt != "box":
+                    v.err(p + ".count", f"{n} particles, more than parallel.insertion_block = {block}, in a "
+                                        f"{rt} region: insertion by blocks takes a box region; use a box, split "
+                                        "the group, or give a packing file")
+                _check_count(v, p, reg, spec_p, n, sim["force"], mem_count=block)
+                pos, rad, gidx, placed = _insert_blocks(part, reg, spec, cg, n, block, sim["seed"], k, P)
+            else:
+                _check_count(v, p, reg, spec_p, n, sim["force"])
+                rad = sample_radii(spec, n, rng) * cg
+            if gidx is None and part is None:
                 ex_x = np.concatenate(P["x"]) if P["x"] else np.zeros((0, 3))
                 ex_r = np.concatenate(P["r"]) if P["r"] else np.zeros(0)
                 pos, keep, placed = insert(reg, rad, rng, ex_x, ex_r)
-            else:
+            elif gidx is None:
                 pos, rad, placed = _insert_part(v, p, part, reg, rad, rng, P, n_count_groups)
             n_count_groups += 1
             if placed < n:
@@ -517,6 +530,7 @@ def parse(data, file="<dict>", base_dir=".", end_time=None, comm="auto"):
         P["cgv"].append(cg)
         P["mode"].append(mode)
         P["where"].append(where)
+        P["gidx"].append(gidx if mode == "count" else None)
     x = np.ascontiguousarray(np.concatenate(P["x"]))
     r = np.ascontiguousarray(np.concatenate(P["r"]))
     n = r.size
@@ -746,8 +760,9 @@ def _thermal_hook(v, sc, data):
 
 
 # ---------------------------------------------------------------------------- set-up per rank (MPI)
-# groups of at most this many inserted particles keep the serial insertion and its random stream
-# exactly (inserted on one rank each); docs/models.md, "Insertion"
+# [parallel] insertion_block's default: groups of at most this many inserted particles keep the
+# serial insertion and its random stream exactly (under MPI inserted on one rank each); larger
+# ones are inserted by blocks (_insert_blocks), on any number of ranks the same particles
 INSERTION_BLOCK = 131072
 
 
@@ -768,11 +783,6 @@ def _insert_part(v, p, part, reg, rad, rng, P, k_ins):
     it (typed Gatherv). Returns (positions, radii, placed) of this rank's rows."""
     from .insertion import ATTEMPTS, insert
     n = rad.size
-    if n > INSERTION_BLOCK:
-        v.err(p + ".count", f"{n} particles inserted in one group under MPI, more than the {INSERTION_BLOCK} "
-                            "one rank inserts (insertion by blocks over the ranks is not available yet); split "
-                            f"the group into groups of at most {INSERTION_BLOCK}, give a packing file "
-                            "(read by slices), or insert in a serial run and continue from its final.npz")
     root = k_ins % part.size
     ex_x = np.concatenate(P["x"]) if P["x"] else np.zeros((0, 3))
     ex_r = np.concatenate(P["r"]) if P["r"] else np.zeros(0)
@@ -797,7 +807,10 @@ def _ids_and_domain_part(v, part, P, x, lo, hi, periodic):
     goff = part.exscan(nloc)                  # rows of each group on the lower ranks
     gtot = part.sum(nloc)
     gstart = np.concatenate([[0], np.cumsum(gtot)[:-1]]).astype(np.int64)
-    grow = np.concatenate([gstart[g] + goff[g] + np.arange(nloc[g], dtype=np.int64) for g in range(G)])
+    # each row's index within its group: rank slices in rank order, or the blocks' own numbering
+    gi = [P["gidx"][g] if P["gidx"][g] is not None else goff[g] + np.arange(nloc[g], dtype=np.int64)
+          for g in range(G)]
+    grow = np.concatenate([gstart[g] + gi[g] for g in range(G)])
     if any(i is not None for i in P["id"]):
         ids, nxt = [], 1
         for g in range(G):
@@ -805,7 +818,7 @@ def _ids_and_domain_part(v, part, P, x, lo, hi, periodic):
                 ids.append(P["id"][g].astype(np.int64))
                 nxt = max(nxt, int(part.max(ids[-1].max(initial=-1), np.int64)) + 1)
             else:
-                ids.append(nxt + goff[g] + np.arange(nloc[g], dtype=np.int64))
+                ids.append(nxt + gi[g])
                 nxt = nxt + int(gtot[g])
         ids = np.concatenate(ids)
         if part.duplicates(ids, grow) is not None:
@@ -823,7 +836,7 @@ def _ids_and_domain_part(v, part, P, x, lo, hi, periodic):
             q = int(out[0])
             g = int(group[q])
             il = q - int(local_start[g])
-            i = int(goff[g]) + il   # index within its [[particles]] group
+            i = int(gi[g][il])   # index within its [[particles]] group
             key = {"positions": f"particles[{g}].positions[{i}]", "file": f"particles[{g}].file",
                    "count": f"particles[{g}].region"}[P["mode"][g]]
             in_file = f" ({P['where'][g](il)})" if P["mode"][g] == "file" else ""
@@ -912,3 +925,69 @@ def _scene_part(sc, part, totals, P):
     gmax = np.array([float(a.max(initial=0.0)) for a in P["r"]] + [-float(sc.radius.min(initial=np.inf))])
     gmax = part.max(gmax) if G else gmax
     sc.group_rmax, sc.rmin = gmax[:G].tolist(), -float(gmax[G])
+
+
+def _block_boxes(lo, hi, nb):
+    """At least ``nb`` equal blocks of the box [lo, hi]: the longest block edge halved until
+    there are enough (ties: the lower axis); fixed by the region and the count alone."""
+    g = np.ones(3, np.int64)
+    while int(g.prod()) < nb:
+        g[int(np.argmax((hi - lo) / g))] *= 2
+    edges = []
+    for a in range(3):
+        e = lo[a] + (hi[a] - lo[a]) * np.arange(g[a] + 1) / g[a]
+        e[-1] = hi[a]
+        edges.append(e)
+    idx = np.stack(np.meshgrid(*[np.arange(m) for m in g], indexing="ij"), -1).reshape(-1, 3)
+    blo = np.stack([edges[a][idx[:, a]] for a in range(3)], 1)
+    bhi = np.stack([edges[a][idx[:, a] + 1] for a in range(3)], 1)
+    return blo, bhi
+
+
+def _insert_blocks(part, reg, spec, cg, n, block, seed, k, P):
+    """A ``count`` group larger than ``block`` (parallel.insertion_block): the region box cut
+    into fixed blocks of at most about ``block`` particles (:func:`_block_boxes`), the count
+    shared by volume (largest remainder), each block filled by the serial algorithm with its
+    own random stream default_rng([seed, group, block]) and every sphere kept inside its block
+    (thin empty seams between blocks: no two blocks' spheres can touch), the earlier groups'
+    particles near the block avoided. Block b is filled on rank b mod N (serial: all), so the
+    particles (ids, positions, radii) are the same on any number of ranks.
+    Returns (positions, radii, index within the group, placed over all ranks)."""
+    from .insertion import insert, sample_radii
+    lo, hi = np.asarray(reg["min"], float), np.asarray(reg["max"], float)
+    blo, bhi = _block_boxes(lo, hi, -(-n // block))
+    vol = np.prod(bhi - blo, axis=1)
+    q = n * vol / vol.sum()
+    cnt = np.floor(q).astype(np.int64)
+    cnt[np.argsort(-(q - cnt), kind="stable")[:n - int(cnt.sum())]] += 1
+    start = np.concatenate([[0], np.cumsum(cnt)[:-1]])
+    ex_x = np.concatenate(P["x"]) if P["x"] else np.zeros((0, 3))
+    ex_r = np.concatenate(P["r"]) if P["r"] else np.zeros(0)
+    rex = float(ex_r.max(initial=0.0))
+    if part is not None:
+        rex = float(part.max(rex))
+    rmax = float(spec["value"] if spec["distribution"] == "constant" else spec["max"]) * cg
+    size, rank = (1, 0) if part is None else (part.size, part.rank)
+    pos, rad, idx, placed = [np.zeros((0, 3))], [np.zeros(0)], [np.zeros(0, np.int64)], 0
+    for b in range(blo.shape[0]):
+        owner = b % size
+        a, z = blo[b] - (rmax + rex), bhi[b] + (rmax + rex)
+        if part is None:
+            inside = np.all((ex_x >= a) & (ex_x <= z), axis=1)
+            near = (ex_x[inside], ex_r[inside])
+        else:
+            near = part.gather_near(ex_x, ex_r, a, z, owner)
+        if rank != owner or cnt[b] == 0:
+            continue
+        rng = np.random.default_rng([seed, k, b])
+        rb = sample_radii(spec, int(cnt[b]), rng) * cg
+        xb, _, pl = insert(dict(type="box", min=blo[b], max=bhi[b]), rb, rng, near[0], near[1])
+        if part is not None:
+            part.largest_read = max(part.largest_read, near[1].size + int(cnt[b]))
+        placed += pl
+        pos.append(xb[:pl] if pl < cnt[b] else xb)
+        rad.append(rb[:pl] if pl < cnt[b] else rb)
+        idx.append(start[b] + np.arange(min(pl, cnt[b]), dtype=np.int64))
+    if part is not None:
+        placed = int(part.sum(placed))
+    return np.concatenate(pos), np.concatenate(rad), np.concatenate(idx), placed

@@ -192,16 +192,65 @@ def test_overlap_across_the_slice_boundary_is_named_like_serial(tmp_path):
     assert not (tmp_path / "o2").exists()
 
 
-def test_insertion_above_one_rank_block_is_refused_under_mpi(tmp_path):
-    """A count group larger than the block one rank inserts (131072) is refused under MPI with
-    the key and the ways out, before any candidate is drawn; the serial run does not refuse it."""
-    src = SCENE.replace('file = "{file}"', 'count = 131073\nradius = 0.0001\n'
-                        'region = { type = "box", min = [0.0, 0.0, 0.0], max = [0.024, 0.024, 0.03] }')
-    src = src.replace("[thermal]", "[thermal]\ninitial_temperature = 300.0")
-    p = tmp_path / "big.toml"
-    p.write_text(src)
-    two = mpirun(2, "run", str(p), "--out", str(tmp_path / "o2"), check=False)
-    assert two.returncode == 2
-    lines = errors(two)
-    assert len(lines) == 1 and "particles[0].count: 131073 particles inserted in one group under MPI" in lines[0]
-    assert not (tmp_path / "o2").exists()
+INSERT = """
+[simulation]
+time_step = 1e-5
+end_time = 0.001
+seed = 11
+
+[domain]
+min = [0.0, 0.0, 0.0]
+max = [0.03, 0.03, 0.05]
+
+[[materials]]
+name = "glass"
+density = 2500.0
+youngs_modulus = 1e7
+poisson_ratio = 0.25
+restitution = 0.5
+
+[parallel]
+insertion_block = 400
+
+[[particles]]
+material = "glass"
+count = 300
+radius = 0.001
+region = { type = "box", min = [0.0, 0.0, 0.0], max = [0.03, 0.03, 0.02] }
+
+[[particles]]
+material = "glass"
+count = 1500
+radius = { distribution = "uniform", min = 0.0006, max = 0.0009 }
+region = { type = "box", min = [0.0, 0.0, 0.01], max = [0.03, 0.03, 0.04] }
+"""
+
+
+def test_insertion_by_blocks_same_particles_on_1_2_3_ranks(tmp_path):
+    """A count group above parallel.insertion_block (1500 > 400: four blocks, dealt to the
+    ranks) after a group of 300 inserted on one rank in an overlapping region: the initial
+    particles (final.npz of a run to t = 0) are bitwise the same on 1, 2 and 3 ranks, none
+    overlaps another, and every block's spheres stay inside their block (seams)."""
+    p = tmp_path / "ins.toml"
+    p.write_text(INSERT)
+    got = {}
+    for n in (1, 2, 3):
+        out = tmp_path / f"np{n}"
+        mpirun(n, "run", str(p), "--out", str(out), "--quiet", "--end-time", "0")
+        z = np.load(out / "final.npz")
+        got[n] = {k: z[k] for k in ("id", "position", "radius")}
+    for n in (2, 3):
+        for k in ("id", "position", "radius"):
+            assert np.array_equal(got[1][k], got[n][k]), (n, k)
+    x, r = got[1]["position"], got[1]["radius"]
+    assert len(r) == 1800 and np.array_equal(got[1]["id"], np.arange(1, 1801))
+    d = np.linalg.norm(x[:, None] - x[None], axis=2) - (r[:, None] + r[None])
+    np.fill_diagonal(d, 1.0)
+    assert d.min() >= 0.0
+    # the big group: 4 blocks of 0.015 x 0.015 x 0.03 m (x and y halved); every sphere inside its block
+    big = got[1]["id"] > 300
+    edge = np.array([0.015, 0.015])
+    xy = x[big, :2]
+    cell = np.floor(xy / edge)
+    inner = xy - cell * edge
+    assert np.all(inner >= r[big, None] * (1 - 1e-12)) and np.all(edge - inner >= r[big, None] * (1 - 1e-12))
