@@ -156,6 +156,49 @@ def test_bad_cell_in_the_second_slice_is_named_like_serial(tmp_path, file):
     assert not (tmp_path / "o1").exists() and not (tmp_path / "o2").exists()
 
 
+@pytest.mark.parametrize("kind", ["outside", "behind"])
+def test_particle_outside_or_behind_a_wall_in_the_last_slice_is_named_like_serial(tmp_path, kind):
+    """A particle of the third rank's slice outside the domain, or behind the unbounded floor:
+    the serial message (id, line, position) on 3 ranks; exit 2; nothing written."""
+    cols = packing()
+    row = N - 10
+    cols["z"][row] = 0.04 if kind == "outside" else -0.0005
+    if kind == "behind":   # the floor at z = 0 with the domain starting below it
+        src = SCENE.replace("min = [0.0, 0.0, 0.0]", "min = [0.0, 0.0, -0.002]")
+    else:
+        src = SCENE
+    write_csv(tmp_path / "b.csv", cols)
+    s = tmp_path / "s.toml"
+    s.write_text(src.replace("{file}", "b.csv"))
+    one = mpirun(1, "run", str(s), "--out", str(tmp_path / "o1"), check=False)
+    three = mpirun(3, "run", str(s), "--out", str(tmp_path / "o3"), check=False)
+    assert one.returncode == three.returncode == 2
+    lines = errors(three)
+    assert len(lines) == 1 and lines == errors(one)
+    assert f"particle id {int(cols['id'][row])}" in lines[0]
+    assert (f"(line {row + 4})" in lines[0]) if kind == "outside" else ("walls[0].normal" in lines[0])
+    assert not (tmp_path / "o3").exists()
+
+
+def test_mpi_restart_refuses_changed_particle_definitions(bed, tmp_path):
+    """A checkpoint of a 2-rank run continues on 3 ranks with the same packing file, and is
+    refused (exit 2, one line) when a radius of the file changed: the per-rank set-up's
+    digests (sums of per-particle hashes) are the same on any rank count and see the change."""
+    s = scene(tmp_path, os.path.join(str(bed), "bed.npz"))
+    mpirun(2, "run", str(s), "--out", str(tmp_path / "a"), "--quiet", "--end-time", "0.001")
+    mpirun(3, "run", str(s), "--out", str(tmp_path / "b"), "--quiet", "--restart", str(tmp_path / "a" / "checkpoint.npz"))
+    cols = dict(np.load(bed / "bed.npz"))
+    cols["radius"] = cols["radius"].copy()
+    cols["radius"][N - 3] *= 1.01
+    np.savez(tmp_path / "edited.npz", **cols)
+    s2 = scene(tmp_path, str(tmp_path / "edited.npz"), "s2.toml")
+    p = mpirun(3, "run", str(s2), "--out", str(tmp_path / "c"), "--quiet", "--restart",
+               str(tmp_path / "a" / "checkpoint.npz"), check=False)
+    assert p.returncode == 2
+    lines = errors(p)
+    assert len(lines) == 1 and "the radii differ from the scene that wrote the checkpoint" in lines[0], lines
+
+
 def test_repeated_id_across_slices_is_named_like_serial(tmp_path):
     """An id of the first rank's slice repeated in the third rank's: both lines named as the
     serial read names them."""
