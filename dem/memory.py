@@ -141,6 +141,20 @@ def check_insertion(v, key, region, count, rmax, force):
         v.err(key, why + "; lower the count (or set simulation.force = true to try anyway)")
 
 
+def check_block_insertion(v, key, count, block_region, block, rmax, ranks, force):
+    """SceneError at ``key`` when an insertion by blocks (dem.scene._insert_blocks) cannot fit:
+    one block's candidates and grid, and the particles' state (about STATE_BYTES + two neighbour
+    lists of SLOTS slots each) of one rank's share of the ``count``, checked before any is drawn."""
+    share = -(-int(count) // max(int(ranks), 1))
+    per = STATE_BYTES + 2 * SLOTS * 28
+    need = insertion_bytes(block_region, block, rmax) + per * share
+    why = _refuse(f"inserting {count} particles", need,
+                  f"{share} per rank at {per} B each, and one block of {block} with {INSERTION_ATTEMPTS} random "
+                  f"candidates per particle", force)
+    if why:
+        v.err(key, why + "; lower the count, run on more ranks (or set simulation.force = true to try anyway)")
+
+
 def check_scene(scene):
     """Raise SceneError when the estimated memory of ``scene`` exceeds the available memory
     (unless simulation.force = true). Returns the estimate (scene_bytes)."""

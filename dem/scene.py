@@ -232,7 +232,7 @@ def _check_region_in_domain(v, p, reg, spec, lo, hi, periodic):
                                  "the region inside [domain]")
 
 
-def _check_count(v, p, reg, spec, n, force, mem_count=None):
+def _check_count(v, p, reg, spec, n, force, block=None, ranks=1):
     """An insertion ``count`` that cannot fit: more sphere volume (at the smallest radius of
     the distribution) than the densest packing of the region, or more memory than the
     machine has for the candidate arrays (dem.memory)."""
@@ -249,7 +249,13 @@ def _check_count(v, p, reg, spec, n, force, mem_count=None):
                             f"densest packing ({DENSEST_PACKING:.3f}) of the region's {vol:.3g} m3 can hold "
                             f"(at most {int(DENSEST_PACKING * vol / (4.0 / 3.0 * math.pi * rmin ** 3))}); "
                             "enlarge the region or lower the count")
-    check_insertion(v, p + ".count", reg, n if mem_count is None else min(n, mem_count), rmax, force)
+    if block is None:
+        check_insertion(v, p + ".count", reg, n, rmax, force)
+    else:   # by blocks: one block at a time, and one rank's share of the particles
+        from .memory import check_block_insertion
+        blo, bhi = _block_boxes(np.asarray(reg["min"], float), np.asarray(reg["max"], float), -(-n // block))
+        check_block_insertion(v, p + ".count", n, dict(type="box", min=blo[0], max=bhi[0]), block, rmax,
+                              ranks, force)
 
 
 def _finite_rows(v, arr, key):
@@ -490,7 +496,8 @@ def parse(data, file="<dict>", base_dir=".", end_time=None, comm="auto"):
                     v.err(p + ".count", f"{n} particles, more than parallel.insertion_block = {block}, in a "
                                         f"{rt} region: insertion by blocks takes a box region; use a box, split "
                                         "the group, or give a packing file")
-                _check_count(v, p, reg, spec_p, n, sim["force"], mem_count=block)
+                _check_count(v, p, reg, spec_p, n, sim["force"], block=block,
+                             ranks=1 if part is None else part.size)
                 pos, rad, gidx, placed = _insert_blocks(part, reg, spec, cg, n, block, sim["seed"], k, P)
             else:
                 _check_count(v, p, reg, spec_p, n, sim["force"])
