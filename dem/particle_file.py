@@ -374,7 +374,8 @@ def _read_csv_part(full, name, sc):
 
 def _member_reader(z, k):
     """(shape, fortran order, dtype, a function reading rows [a, b) of member ``k``)."""
-    info = z.zip.getinfo(k + ".npy")
+    names = z.zip.namelist()
+    info = z.zip.getinfo(k + ".npy" if k + ".npy" in names else k)
     with z.zip.open(info) as fh:
         version = np.lib.format.read_magic(fh)
         if version == (1, 0):

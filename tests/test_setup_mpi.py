@@ -235,6 +235,25 @@ def test_overlap_across_the_slice_boundary_is_named_like_serial(tmp_path):
     assert not (tmp_path / "o2").exists()
 
 
+def test_overlap_across_a_periodic_boundary_inside_one_box(tmp_path):
+    """Two beads overlapping through the periodic x boundary, in a column cut along z (each
+    rank's box spans x, so no ghost image carries the pair): named like the serial check."""
+    pos = [[0.0005 + 0.0024 * (k % 4), 0.002, 0.0015 + 0.0025 * (k // 4)] for k in range(40)]
+    pos[0][0] = 0.0002
+    pos[3][0] = 0.0082   # 1.8 mm from pos[0] through the boundary: 20 % of the radius
+    src = SCENE.replace('file = "{file}"', f"positions = {pos}\nradius = 0.001")
+    src = src.replace("max = [0.024, 0.024, 0.03]", "max = [0.0098, 0.004, 0.03]\nperiodic = [true, false, false]")
+    src = src.replace("[thermal]", "[thermal]\ninitial_temperature = 300.0")
+    p = tmp_path / "per.toml"
+    p.write_text(src)
+    one = mpirun(1, "run", str(p), "--out", str(tmp_path / "o1"), check=False)
+    two = mpirun(2, "run", str(p), "--out", str(tmp_path / "o2"), check=False)
+    assert one.returncode == two.returncode == 2
+    lines = errors(two)
+    assert len(lines) == 1 and lines == errors(one)
+    assert "particles id 1 and id 4 overlap by 0.2 of the smaller radius" in lines[0]
+
+
 INSERT = """
 [simulation]
 time_step = 1e-5

@@ -150,11 +150,24 @@ def check_overlaps(world, par):
     x, r = st.position[:n], st.radius[:n]
     ov_max, pair = -np.inf, None
     if n >= 2 and nown:
-        pairs = cKDTree(x).query_pairs(2 * world.rmax, output_type="ndarray")
+        # a periodic axis this rank's box spans has no ghost images: the tree wraps it
+        wrap = par.dec.spans(par.rank) & np.asarray(st.periodic, bool)
+        box, xx = None, x
+        if wrap.any():
+            L = st.hi - st.lo
+            xx = x - st.lo
+            xx = np.where(wrap, np.mod(xx, np.where(wrap, L, 1.0)), xx)
+            span = xx.max(0) - xx.min(0) + 10 * r.max()
+            box = np.where(wrap, L, span + 1.0)
+            xx = xx - np.where(wrap, 0.0, xx.min(0) - 1e-9)
+        pairs = cKDTree(xx, boxsize=box).query_pairs(2 * world.rmax, output_type="ndarray")
         if pairs.size:
             pairs = pairs[np.minimum(pairs[:, 0], pairs[:, 1]) < nown]
         if pairs.size:
-            d = np.linalg.norm(x[pairs[:, 0]] - x[pairs[:, 1]], axis=1)
+            dv = xx[pairs[:, 0]] - xx[pairs[:, 1]]
+            if box is not None:
+                dv -= box * np.round(dv / box)
+            d = np.linalg.norm(dv, axis=1)
             ov = (r[pairs[:, 0]] + r[pairs[:, 1]] - d) / np.minimum(r[pairs[:, 0]], r[pairs[:, 1]])
             ov_max = float(ov.max())
             cand = pairs[ov == ov_max]
