@@ -306,7 +306,7 @@ def load_case(case_dir, *, build_sim: bool = True) -> CoupledCase:
             for key, val in (("torque", cfg.torque), ("lift", cfg.lift)):
                 if val != "none":
                     raise CaseConfigError(cfg_file, f"{key} = \"{val}\" with coarse-grained particles "
-                                                    f"(dem.toml coarse_graining = {float(cgs.max()):g}): the fluid "
+                                                    f"(dem.toml coarse_graining = {max(scene.group_cg):g}): the fluid "
                                                     f"{key} of a parcel is not derived (its rotation is not its "
                                                     f"real particles'); use {key} = \"none\"", key)
         if scene.end_time_in_file and not _same_time(scene.simulation["end_time"], end):

@@ -209,7 +209,7 @@ def tie_walls(case, mesh) -> dict[int, int]:
         return {}
     sc = case.sim.scene
     names = [w["name"] for w in sc.walls]
-    dmin = 2.0 * float(np.min(sc.radius))
+    dmin = 2.0 * float(sc.rmin if getattr(sc, "distributed", False) else np.min(sc.radius))
     out = {}
     for k, t in enumerate(ties):
         key = f"walls[{k}]"

@@ -625,8 +625,8 @@ def _plan_particles(sim, ck_path, record, now):
                   temperature="initial temperatures (thermal.initial_temperature, initial_regions or "
                               "particles[].temperature)")
     old, new = record["particles"]["digests"], now["particles"]["digests"]
-    for k in labels:
-        if k in old and k in new and old[k] != new[k]:
+    for k in labels:   # the serial digests, or the sums of a scene set up per rank (dem.parallel.setup)
+        if any(d in old and d in new and old[d] != new[d] for d in (k, k + "_sum")):
             raise SceneError(sim.scene.file, "particles",
                              f"the {labels[k]} differ from the scene that wrote the checkpoint {ck_path}; "
                              f"particle definitions are initial conditions and cannot change on restart "

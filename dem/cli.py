@@ -27,10 +27,11 @@ def cmd_check(args):
     cgs = parcel_factors(sim.scene)
     if cgs is not None:
         import numpy as np
-        for g in np.unique(sim.scene.group):
-            c = float(cgs[sim.scene.group == g][0])
+        sc = sim.scene
+        counts = (sc.group_totals if getattr(sc, "distributed", False)
+                  else np.bincount(sc.group, minlength=len(sc.group_cg)).tolist())
+        for g, (c, k) in enumerate(zip(sc.group_cg, counts)):
             if c != 1.0:
-                k = int((sim.scene.group == g).sum())
                 p(f"coarse graining, group {int(g)}: cg = {c:g}, parcels of {c:g} x the real radius, each "
                   f"{c ** 3:.4g} real particles: {k} parcels = {k * c ** 3:.4g} real particles")
     p(f"time step: {rep['dt']:.4g} s   steps: {rep['steps']}")
@@ -106,6 +107,10 @@ def cmd_run(args):
     steps = sim.step_count
     n = sim.n_particles
     stats = sim.par.stats(sim.world) if sim.par is not None else None
+    setup = None
+    if sim.par is not None and getattr(sim.scene, "distributed", False):
+        rows = sim.scene.setup_rows   # the largest over the ranks
+        setup = [int(v) for v in sim.par.flags(rows["read"], rows["held"])]
     if sim.is_root:
         ranks = f" on {sim.par.size} ranks ({sim.par.describe()})" if sim.par is not None else ""
         if stats:
@@ -114,7 +119,9 @@ def cmd_run(args):
                   f"{stats['exchanges']} exchanges, {stats['migrated']} migrations, {stats['rebalances']} "
                   f"re-balancings, load imbalance {stats['imbalance']:.3f}; exchanges sent "
                   f"{stats['bytes_migrated'] / 1024:.1f} KiB of migrating particles ({stats['records_migrated']} "
-                  f"contact records) and {stats['bytes_ghosts'] / 1024:.1f} KiB of ghosts")
+                  f"contact records) and {stats['bytes_ghosts'] / 1024:.1f} KiB of ghosts"
+                  + (f"; set-up per rank: at most {setup[0]} packing-file rows read and {setup[1]} particle "
+                     f"rows held before the distribution" if setup else ""))
         print(f"done: t = {sim.time:.6g} s, {steps} steps, {n} particles{ranks}, wall {wall:.2f} s "
               f"(kernels compile/load {c:.2f} s), {n * max(steps, 1) / max(sim.wall_seconds, 1e-9):.3g} "
               f"particle-steps/s; output in {out}")

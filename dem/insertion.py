@@ -104,7 +104,10 @@ def _place(cand, radii, existing_x, existing_r, lo, hi, cell):
     return placed, count
 
 
-def insert(region, radii, rng, existing_x, existing_r, attempts=200):
+ATTEMPTS = 200   # random candidates per sphere (dem.memory.INSERTION_ATTEMPTS)
+
+
+def insert(region, radii, rng, existing_x, existing_r, attempts=ATTEMPTS):
     """Place spheres of the given radii inside ``region`` without overlaps.
 
     Returns (positions, number placed). Spheres are placed largest first.

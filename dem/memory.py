@@ -86,8 +86,10 @@ def scene_bytes(scene):
     """Estimated peak bytes of a serial run of ``scene``: {'total', 'particles', 'grid',
     'cells'}. Per particle: the state, two copies of the neighbour list with its history
     (old and new during a rebuild), the wall lists, the thermal arrays."""
-    n = int(scene.radius.size)
-    rmax = float(scene.radius.max(initial=0.0))
+    if getattr(scene, "distributed", False):   # set up per rank (MPI): one rank's even share
+        n, rmax = int(scene.n_rank), float(scene.rmax)
+    else:
+        n, rmax = int(scene.radius.size), float(scene.radius.max(initial=0.0))
     nw = max(len(scene.walls), 1)
     rolling = scene.contact["rolling"] != "none"
     thermal = scene.thermal is not None
@@ -139,6 +141,20 @@ def check_insertion(v, key, region, count, rmax, force):
         v.err(key, why + "; lower the count (or set simulation.force = true to try anyway)")
 
 
+def check_block_insertion(v, key, count, block_region, block, rmax, ranks, force):
+    """SceneError at ``key`` when an insertion by blocks (dem.scene._insert_blocks) cannot fit:
+    one block's candidates and grid, and the particles' state (about STATE_BYTES + two neighbour
+    lists of SLOTS slots each) of one rank's share of the ``count``, checked before any is drawn."""
+    share = -(-int(count) // max(int(ranks), 1))
+    per = STATE_BYTES + 2 * SLOTS * 28
+    need = insertion_bytes(block_region, block, rmax) + per * share
+    why = _refuse(f"inserting {count} particles", need,
+                  f"{share} per rank at {per} B each, and one block of {block} with {INSERTION_ATTEMPTS} random "
+                  f"candidates per particle", force)
+    if why:
+        v.err(key, why + "; lower the count, run on more ranks (or set simulation.force = true to try anyway)")
+
+
 def check_scene(scene):
     """Raise SceneError when the estimated memory of ``scene`` exceeds the available memory
     (unless simulation.force = true). Returns the estimate (scene_bytes)."""
@@ -149,7 +165,9 @@ def check_scene(scene):
                 f"largest particle size; particles {fmt(est['particles'])}")
         key, advice = "domain", "shrink [domain] to where the particles go"
     else:
-        what = (f"{scene.radius.size} particles at {est['per_particle']} B each {fmt(est['particles'])}; "
+        share = (f"{scene.n_rank} particles per rank of {scene.n_total}" if getattr(scene, "distributed", False)
+                 else f"{scene.radius.size} particles")
+        what = (f"{share} at {est['per_particle']} B each {fmt(est['particles'])}; "
                 f"neighbour grid {fmt(est['grid'])}")
         key, advice = "particles", "use fewer particles, or run with mpirun on several machines"
     why = _refuse("the scene", est["total"], what, scene.simulation["force"])

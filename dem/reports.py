@@ -167,7 +167,10 @@ def parcel_period_warnings(sc):
     cg = parcel_factors(sc)
     if cg is None:
         return []
-    d = 2.0 * float(sc.radius[cg != 1.0].max())
+    if getattr(sc, "distributed", False):   # set up per rank (MPI): the groups' largest radii
+        d = 2.0 * max(r for r, c in zip(sc.group_rmax, sc.group_cg) if c != 1.0)
+    else:
+        d = 2.0 * float(sc.radius[cg != 1.0].max())
     lo, hi, per = sc.domain["min"], sc.domain["max"], sc.domain["periodic"]
     out = []
     for ax in range(3):

@@ -140,7 +140,7 @@ WALL_KEYS = {"type", "material", "point", "normal", "extent", "u_axis", "axis", 
 CONTACT_KEYS = {"model", "rolling", "damping", "normal_stiffness", "tangential_stiffness_ratio",
                 "characteristic_velocity", "rolling_damping"}
 OUTPUT_KEYS = {"vtk"}
-PARALLEL_KEYS = {"decomposition", "slab_axis", "balance_threshold", "pair_weight"}
+PARALLEL_KEYS = {"decomposition", "slab_axis", "balance_threshold", "pair_weight", "insertion_block"}
 TOP_KEYS = {"simulation", "domain", "materials", "particles", "walls", "contact", "output",
             "thermal", "gas", "parallel"}
 
@@ -150,7 +150,7 @@ RAYLEIGH_FRACTION = 0.3
 HERTZ_FRACTION = 0.1
 
 
-def load(path, end_time=None):
+def load(path, end_time=None, comm="auto"):
     """Read and validate a scene file; returns a :class:`Scene`. ``end_time``: the end time
     a caller supplies when the file has no ``simulation.end_time`` (a coupled case takes
     its end time from system/controlDict); without it the key is required. The scene
@@ -175,7 +175,7 @@ def load(path, end_time=None):
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise SceneError(path, "", f"not valid TOML: {exc}") from None
-    return parse(data, path, base_dir=os.path.dirname(os.path.abspath(path)), end_time=end_time)
+    return parse(data, path, base_dir=os.path.dirname(os.path.abspath(path)), end_time=end_time, comm=comm)
 
 
 class Scene:
@@ -185,13 +185,19 @@ class Scene:
         self.__dict__.update(kw)
 
 
-def _read_particle_file(v, fname, path, base_dir):
+def _read_particle_file(v, fname, path, base_dir, part=None):
     """A packing file (dem.particle_file): every cell checked, problems named by line/row
-    and column under the key ``particles[k].file``."""
-    from .particle_file import ParticleFileError, read
+    and column under the key ``particles[k].file``. ``part`` (MPI): only this rank's slice
+    of the rows (dem.particle_file.read_part), the problems agreed over the ranks."""
+    from .particle_file import ParticleFileError, read, read_part
     full = fname if os.path.isabs(fname) else os.path.join(base_dir, fname)
     try:
-        cols, where = read(full)
+        if part is None:
+            cols, where = read(full)
+        else:
+            got = read_part(full, part)
+            cols, where = got.cols, got.where
+            part.rows_read += got.rows_read
     except ParticleFileError as exc:
         v.err(path + ".file", str(exc))
     n = cols["x"].size
@@ -226,7 +232,7 @@ def _check_region_in_domain(v, p, reg, spec, lo, hi, periodic):
                                  "the region inside [domain]")
 
 
-def _check_count(v, p, reg, spec, n, force):
+def _check_count(v, p, reg, spec, n, force, block=None, ranks=1):
     """An insertion ``count`` that cannot fit: more sphere volume (at the smallest radius of
     the distribution) than the densest packing of the region, or more memory than the
     machine has for the candidate arrays (dem.memory)."""
@@ -243,7 +249,13 @@ def _check_count(v, p, reg, spec, n, force):
                             f"densest packing ({DENSEST_PACKING:.3f}) of the region's {vol:.3g} m3 can hold "
                             f"(at most {int(DENSEST_PACKING * vol / (4.0 / 3.0 * math.pi * rmin ** 3))}); "
                             "enlarge the region or lower the count")
-    check_insertion(v, p + ".count", reg, n, rmax, force)
+    if block is None:
+        check_insertion(v, p + ".count", reg, n, rmax, force)
+    else:   # by blocks: one block at a time, and one rank's share of the particles
+        from .memory import check_block_insertion
+        blo, bhi = _block_boxes(np.asarray(reg["min"], float), np.asarray(reg["max"], float), -(-n // block))
+        check_block_insertion(v, p + ".count", n, dict(type="box", min=blo[0], max=bhi[0]), block, rmax,
+                              ranks, force)
 
 
 def _finite_rows(v, arr, key):
@@ -259,8 +271,21 @@ def _finite_rows(v, arr, key):
                              "check the units")
 
 
-def parse(data, file="<dict>", base_dir=".", end_time=None):
-    """Validate a scene given as a dict (see :func:`load` for ``end_time``)."""
+def parse(data, file="<dict>", base_dir=".", end_time=None, comm="auto"):
+    """Validate a scene given as a dict (see :func:`load` for ``end_time``).
+
+    ``comm``: under ``mpirun -np N`` (N > 1; "auto": dem.parallel.world()) the scene is set up
+    per rank (docs/architecture.md, "Set-up under MPI"): this rank's slice of every packing
+    file and explicit list, the ``count`` groups inserted on one rank each; the scene's
+    arrays are then this rank's rows (in group order) and ``n_total``, ``rmax`` are the
+    run's. None: the whole scene on this process (the serial set-up)."""
+    if comm == "auto":
+        from .parallel import world
+        comm = world()
+    part = None
+    if comm is not None:
+        from .parallel.setup import SetupComm
+        part = SetupComm(comm)
     v = _V(file)
     v.table(data, "", TOP_KEYS, required=("simulation", "domain", "materials", "particles"))
     # --- simulation
@@ -347,7 +372,12 @@ def parse(data, file="<dict>", base_dir=".", end_time=None):
     if not isinstance(parts, list) or not parts:
         v.err("particles", "must be a non-empty array of tables [[particles]]")
     rng = np.random.default_rng(sim["seed"])
-    P = dict(x=[], r=[], v=[], w=[], mat=[], id=[], T=[], group=[], mode=[], where=[], cg=[])
+    P = dict(x=[], r=[], v=[], w=[], mat=[], id=[], T=[], group=[], mode=[], where=[], cg=[], cgv=[], gidx=[])
+    n_count_groups = 0
+    pa0 = data.get("parallel", {})
+    block = INSERTION_BLOCK
+    if isinstance(pa0, dict) and "insertion_block" in pa0:
+        block = v.integer(pa0, "insertion_block", "parallel", lo=100)
     from .insertion import insert, sample_radii
     for k, g in enumerate(parts):
         p = f"particles[{k}]"
@@ -406,9 +436,14 @@ def parse(data, file="<dict>", base_dir=".", end_time=None):
                     v.err(p + ".angular_velocities", f"must be a list of {n} [wx, wy, wz] triples")
                 om = np.array(vv, float)
                 _finite_rows(v, om, p + ".angular_velocities")
+            if part is not None:   # the TOML list is parsed whole by every rank; each keeps its slice
+                a, b = n * part.rank // part.size, n * (part.rank + 1) // part.size
+                pos, rad, vel = pos[a:b], rad[a:b], vel[a:b]
+                om = om[a:b] if om is not None else None
+                n = b - a
         elif mode == "file":
             fname = v.string(g, "file", p, required=True)
-            pos, rad, vel, om, ids, temp_col, where = _read_particle_file(v, fname, p, base_dir)
+            pos, rad, vel, om, ids, temp_col, where = _read_particle_file(v, fname, p, base_dir, part)
             n = len(pos)
         else:
             n = v.integer(g, "count", p, lo=1, required=True)
@@ -455,14 +490,29 @@ def parse(data, file="<dict>", base_dir=".", end_time=None):
             spec_p = {key: (val * cg if key in ("value", "min", "max", "mean", "std") else val)
                       for key, val in spec.items()}
             _check_region_in_domain(v, p, reg, spec_p, lo, hi, periodic)
-            _check_count(v, p, reg, spec_p, n, sim["force"])
-            rad = sample_radii(spec, n, rng) * cg
-            ex_x = np.concatenate(P["x"]) if P["x"] else np.zeros((0, 3))
-            ex_r = np.concatenate(P["r"]) if P["r"] else np.zeros(0)
-            pos, keep, placed = insert(reg, rad, rng, ex_x, ex_r)
+            gidx = None
+            if n > block:   # by blocks: the same particles on any number of ranks, serial included
+                if rt != "box":
+                    v.err(p + ".count", f"{n} particles, more than parallel.insertion_block = {block}, in a "
+                                        f"{rt} region: insertion by blocks takes a box region; use a box, split "
+                                        "the group, or give a packing file")
+                _check_count(v, p, reg, spec_p, n, sim["force"], block=block,
+                             ranks=1 if part is None else part.size)
+                pos, rad, gidx, placed = _insert_blocks(part, reg, spec, cg, n, block, sim["seed"], k, P)
+            else:
+                _check_count(v, p, reg, spec_p, n, sim["force"])
+                rad = sample_radii(spec, n, rng) * cg
+            if gidx is None and part is None:
+                ex_x = np.concatenate(P["x"]) if P["x"] else np.zeros((0, 3))
+                ex_r = np.concatenate(P["r"]) if P["r"] else np.zeros(0)
+                pos, keep, placed = insert(reg, rad, rng, ex_x, ex_r)
+            elif gidx is None:
+                pos, rad, placed = _insert_part(v, p, part, reg, rad, rng, P, n_count_groups)
+            n_count_groups += 1
             if placed < n:
                 v.err(p + ".count", f"could place only {placed} of {n} particles without overlap in the region; "
                                     "enlarge the region or lower the count")
+            n = len(pos)
             vel = np.zeros((n, 3))
         if mode != "count":
             rad = rad * cg   # the parcels' radii (count: before the insertion)
@@ -484,12 +534,16 @@ def parse(data, file="<dict>", base_dir=".", end_time=None):
         P["T"].append(T)
         P["group"].append(np.full(n, k, np.int32))
         P["cg"].append(np.full(n, cg))
+        P["cgv"].append(cg)
         P["mode"].append(mode)
         P["where"].append(where)
+        P["gidx"].append(gidx if mode == "count" else None)
     x = np.ascontiguousarray(np.concatenate(P["x"]))
     r = np.ascontiguousarray(np.concatenate(P["r"]))
     n = r.size
-    if any(i is not None for i in P["id"]):
+    if part is not None:
+        ids, group, totals = _ids_and_domain_part(v, part, P, x, lo, hi, periodic)
+    elif any(i is not None for i in P["id"]):
         ids, nxt = [], 1
         for i, xx in zip(P["id"], P["x"]):
             ids.append(i.astype(np.int64) if i is not None else np.arange(nxt, nxt + len(xx)))
@@ -499,22 +553,23 @@ def parse(data, file="<dict>", base_dir=".", end_time=None):
             v.err("particles", "particle ids are not unique across groups")
     else:
         ids = np.arange(1, n + 1, dtype=np.int64)
-    group = np.concatenate(P["group"])
-    # inside the domain (non-periodic axes: the centre inside; periodic: wrapped later)
-    for ax in range(3):
-        if periodic[ax]:
-            continue
-        out = np.nonzero((x[:, ax] < lo[ax]) | (x[:, ax] > hi[ax]))[0]
-        if out.size:
-            q = out[0]
-            g = int(group[q])
-            i = q - int(np.argmax(group == g))   # index within its [[particles]] group
-            key = {"positions": f"particles[{g}].positions[{i}]", "file": f"particles[{g}].file",
-                   "count": f"particles[{g}].region"}[P["mode"][g]]
-            in_file = f" ({P['where'][g](i)})" if P["mode"][g] == "file" else ""
-            v.err(key, f"particle id {ids[q]}{in_file} at "
-                         f"{x[q].tolist()} lies outside the domain [{lo.tolist()}, {hi.tolist()}] on axis "
-                         f"{'xyz'[ax]}; particle centres must lie within domain.min .. domain.max")
+    if part is None:
+        group = np.concatenate(P["group"])
+        # inside the domain (non-periodic axes: the centre inside; periodic: wrapped later)
+        for ax in range(3):
+            if periodic[ax]:
+                continue
+            out = np.nonzero((x[:, ax] < lo[ax]) | (x[:, ax] > hi[ax]))[0]
+            if out.size:
+                q = out[0]
+                g = int(group[q])
+                i = q - int(np.argmax(group == g))   # index within its [[particles]] group
+                key = {"positions": f"particles[{g}].positions[{i}]", "file": f"particles[{g}].file",
+                       "count": f"particles[{g}].region"}[P["mode"][g]]
+                in_file = f" ({P['where'][g](i)})" if P["mode"][g] == "file" else ""
+                v.err(key, f"particle id {ids[q]}{in_file} at "
+                             f"{x[q].tolist()} lies outside the domain [{lo.tolist()}, {hi.tolist()}] on axis "
+                             f"{'xyz'[ax]}; particle centres must lie within domain.min .. domain.max")
     # --- walls
     walls = []
     if not isinstance(data.get("walls", []), list):
@@ -561,8 +616,14 @@ def parse(data, file="<dict>", base_dir=".", end_time=None):
             if np.linalg.norm(np.cross(W["rotation_center"] - W["point"], W["axis"])) > 1e-12:
                 v.err(p + ".rotation_center", "must lie on the cylinder axis")
         walls.append(W)
-    _check_periodic_length(v, lo, hi, periodic, r)
-    _check_walls(v, walls, x, ids, periodic)
+    if part is None:
+        _check_periodic_length(v, lo, hi, periodic, r)
+        _check_walls(v, walls, x, ids, periodic)
+        rmax = float(r.max())
+    else:
+        rmax = float(part.max(r.max(initial=0.0)))
+        _check_periodic_length(v, lo, hi, periodic, np.array([rmax]))
+        _check_walls_part(v, part, walls, x, ids, totals, periodic)
     o = v.table(data.get("output", {}), "output", OUTPUT_KEYS)
     output = dict(vtk=v.boolean(o, "vtk", "output", default=True))
     pa = v.table(data.get("parallel", {}), "parallel", PARALLEL_KEYS)
@@ -572,15 +633,23 @@ def parse(data, file="<dict>", base_dir=".", end_time=None):
         balance_threshold=v.num(pa, "balance_threshold", "parallel", default=1.1, lo=1.0),
         pair_weight=v.num(pa, "pair_weight", "parallel", default=1.0, lo=0.0))
     if sim["neighbor_skin"] is None:
-        sim["neighbor_skin"] = 0.2 * float(r.max())
+        sim["neighbor_skin"] = 0.2 * rmax
     sc = Scene(file=file, base_dir=base_dir, simulation=sim, domain=dict(min=lo, max=hi, periodic=periodic),
                materials=materials, material_index=names, contact=contact, walls=walls, output=output,
                parallel=parallel, id=ids, position=x, radius=r, velocity=np.ascontiguousarray(np.concatenate(P["v"])),
                angular_velocity=np.ascontiguousarray(np.concatenate(P["w"])),
                material=np.concatenate(P["mat"]), group=group, coarse_graining=np.concatenate(P["cg"]),
-               temperature=P["T"], raw=data, thermal=None, end_time_in_file="end_time" in s)
-    _check_overlaps(v, sc)
+               temperature=P["T"], raw=data, thermal=None, end_time_in_file="end_time" in s,
+               n_total=n, rmax=rmax, group_cg=list(P["cgv"]),
+               materials_used=sorted(set(np.unique(np.concatenate(P["mat"])).tolist())), distributed=False)
+    if part is None:
+        _check_overlaps(v, sc)
+    else:   # the overlaps are checked once the particles sit on their owners (dem.parallel.setup)
+        _scene_part(sc, part, totals, P)
     _thermal_hook(v, sc, data)
+    if part is not None:
+        from .parallel.setup import particle_digests
+        particle_digests(sc, part)
     return sc
 
 
@@ -695,3 +764,237 @@ def _thermal_hook(v, sc, data):
         return
     from .thermal.scene import parse_thermal
     sc.thermal = parse_thermal(v, sc, data)
+
+
+# ---------------------------------------------------------------------------- set-up per rank (MPI)
+# [parallel] insertion_block's default: groups of at most this many inserted particles keep the
+# serial insertion and its random stream exactly (under MPI inserted on one rank each); larger
+# ones are inserted by blocks (_insert_blocks), on any number of ranks the same particles
+INSERTION_BLOCK = 131072
+
+
+def _region_box(reg):
+    """The box around an insertion region."""
+    if reg["type"] == "box":
+        return np.asarray(reg["min"], float), np.asarray(reg["max"], float)
+    ax = np.asarray(reg["axis"], float) / np.linalg.norm(reg["axis"])
+    ext = np.abs(ax) * float(reg["length"]) / 2 + np.sqrt(np.maximum(0.0, 1 - ax ** 2)) * float(reg["radius"])
+    c = np.asarray(reg["center"], float)
+    return c - ext, c + ext
+
+
+def _insert_part(v, p, part, reg, rad, rng, P, k_ins):
+    """A ``count`` group under MPI: inserted on one rank (the k-th count group on rank k % N)
+    with the serial algorithm and random stream (every rank advances the stream by the same
+    draws), avoiding the earlier groups' particles near the region, which the other ranks send
+    it (typed Gatherv). Returns (positions, radii, placed) of this rank's rows."""
+    from .insertion import ATTEMPTS, insert
+    n = rad.size
+    root = k_ins % part.size
+    ex_x = np.concatenate(P["x"]) if P["x"] else np.zeros((0, 3))
+    ex_r = np.concatenate(P["r"]) if P["r"] else np.zeros(0)
+    reach = float(rad.max()) + float(part.max(ex_r.max(initial=0.0)))
+    blo, bhi = _region_box(reg)
+    near = part.gather_near(ex_x, ex_r, blo - reach, bhi + reach, root)
+    if part.rank == root:
+        part.largest_read = max(part.largest_read, near[1].size + n)
+        pos, _, placed = insert(reg, rad, rng, near[0], near[1])
+    else:   # the draws the inserting rank takes: one 64-bit output per uniform double
+        rng.bit_generator.advance(n * ATTEMPTS * 3)
+        pos, rad, placed = np.zeros((0, 3)), rad[:0], n
+    placed = int(part.min(placed, np.int64))
+    return pos, rad, placed
+
+
+def _ids_and_domain_part(v, part, P, x, lo, hi, periodic):
+    """Ids (as the serial set-up numbers them: per-group totals and offsets from typed
+    reductions) and the inside-the-domain check (the first particle in scene order, agreed)."""
+    G = len(P["x"])
+    nloc = np.array([len(a) for a in P["x"]], np.int64)
+    goff = part.exscan(nloc)                  # rows of each group on the lower ranks
+    gtot = part.sum(nloc)
+    gstart = np.concatenate([[0], np.cumsum(gtot)[:-1]]).astype(np.int64)
+    # each row's index within its group: rank slices in rank order, or the blocks' own numbering
+    gi = [P["gidx"][g] if P["gidx"][g] is not None else goff[g] + np.arange(nloc[g], dtype=np.int64)
+          for g in range(G)]
+    grow = np.concatenate([gstart[g] + gi[g] for g in range(G)])
+    if any(i is not None for i in P["id"]):
+        ids, nxt = [], 1
+        for g in range(G):
+            if P["id"][g] is not None:
+                ids.append(P["id"][g].astype(np.int64))
+                nxt = max(nxt, int(part.max(ids[-1].max(initial=-1), np.int64)) + 1)
+            else:
+                ids.append(nxt + gi[g])
+                nxt = nxt + int(gtot[g])
+        ids = np.concatenate(ids)
+        if part.duplicates(ids, grow) is not None:
+            v.err("particles", "particle ids are not unique across groups")
+    else:
+        ids = grow + 1
+    group = np.concatenate(P["group"])
+    local_start = np.concatenate([[0], np.cumsum(nloc)[:-1]])
+    best, text = None, None
+    for ax in range(3):
+        if periodic[ax]:
+            continue
+        out = np.nonzero((x[:, ax] < lo[ax]) | (x[:, ax] > hi[ax]))[0]
+        if out.size:
+            q = int(out[0])
+            g = int(group[q])
+            il = q - int(local_start[g])
+            i = int(gi[g][il])   # index within its [[particles]] group
+            key = {"positions": f"particles[{g}].positions[{i}]", "file": f"particles[{g}].file",
+                   "count": f"particles[{g}].region"}[P["mode"][g]]
+            in_file = f" ({P['where'][g](il)})" if P["mode"][g] == "file" else ""
+            best = ax * (1 << 40) + int(grow[q])
+            text = key + "\n" + (f"particle id {ids[q]}{in_file} at "
+                                 f"{x[q].tolist()} lies outside the domain [{lo.tolist()}, {hi.tolist()}] on axis "
+                                 f"{'xyz'[ax]}; particle centres must lie within domain.min .. domain.max")
+            break
+    msg = part.agree(best, text)
+    if msg is not None:
+        v.err(*msg.split("\n", 1))
+    return ids, group, dict(nloc=nloc, goff=goff, gtot=gtot, grow=grow, n=int(gtot.sum()))
+
+
+def _check_walls_part(v, part, walls, x, ids, totals, periodic):
+    """:func:`_check_walls` on this rank's rows: counts reduced, the first particle agreed."""
+    grow = totals["grow"]
+    for k, w in enumerate(walls):
+        p = f"walls[{k}]"
+        if w["type"] == "plane":
+            n = w["normal"]
+            if w["extent"] is not None:
+                continue
+            cross = [a for a in range(3) if periodic[a] and abs(n[a]) > 1e-12]
+            if cross:
+                v.err(p + ".normal", f"an unbounded plane across the periodic axis {'xyz'[cross[0]]} "
+                                     f"(normal {n.tolist()}): particles leaving through the periodic "
+                                     f"boundary would meet the wall from behind; remove the wall, give it an "
+                                     f"extent, or make axis {'xyz'[cross[0]]} non-periodic")
+            s = (x - w["point"]) @ n
+            front = int(part.sum(int(np.count_nonzero(s >= 0))))
+            if front == 0:
+                v.err(p + ".normal", f"points away from every particle (normal {n.tolist()}, all {totals['n']} "
+                                     f"particle centres lie behind the plane through {w['point'].tolist()}); "
+                                     f"the normal of a plane points into the region of the particles: use "
+                                     f"{(0.0 - n).tolist()}")
+            behind = np.nonzero(s < 0)[0]
+            q = int(behind[0]) if behind.size else None
+            msg = part.agree(None if q is None else int(grow[q]), lambda: (
+                f"particle id {ids[q]} at {x[q].tolist()} lies behind the plane "
+                f"(through {w['point'].tolist()}, normal {n.tolist()}); an unbounded "
+                f"plane is one-sided: every particle centre must lie on the side its "
+                f"normal points to"))
+            if msg is not None:
+                v.err(p + ".normal", msg)
+        else:
+            a = w["axis"]
+            if math.isinf(w["length"]):
+                cross = [b for b in range(3) if periodic[b] and np.linalg.norm(np.cross(a, np.eye(3)[b])) > 1e-9]
+                if cross:
+                    v.err(p + ".axis", f"an unbounded cylinder across the periodic axis {'xyz'[cross[0]]} "
+                                       f"(axis {a.tolist()}); a cylinder may only run along periodic axes: "
+                                       f"turn it, give it a length, or make axis {'xyz'[cross[0]]} non-periodic")
+            rel = x - w["point"]
+            s = rel @ a
+            along = np.abs(s) <= w["length"] / 2
+            rho = np.linalg.norm(rel[along] - s[along, None] * a, axis=1)
+            c = part.sum(np.array([along.sum(), np.count_nonzero(rho <= w["radius"]),
+                                   np.count_nonzero(rho >= w["radius"])], np.int64))
+            if c[0] == 0:
+                continue
+            if w["inside"] and c[1] == 0:
+                v.err(p + ".inside", f"every particle lies outside the cylinder (radius {w['radius']:g} m "
+                                     f"about {w['point'].tolist()}, axis {a.tolist()}) but inside = true "
+                                     "keeps particles inside it; set inside = false or check radius and point")
+            if not w["inside"] and c[2] == 0:
+                v.err(p + ".inside", f"every particle lies inside the cylinder (radius {w['radius']:g} m "
+                                     f"about {w['point'].tolist()}, axis {a.tolist()}) but inside = false "
+                                     "keeps particles outside it; set inside = true or check radius and point")
+
+
+def _scene_part(sc, part, totals, P):
+    """The run's totals of a scene set up per rank: particles, the materials used (a typed
+    reduction), the largest speed (the characteristic velocity), what this rank read and held."""
+    sc.distributed = True
+    sc.n_total = totals["n"]
+    used = np.zeros(len(sc.materials), np.int64)
+    used[np.unique(sc.material)] = 1
+    sc.materials_used = np.nonzero(part.sum(used))[0].tolist()
+    sc.max_speed = float(part.max(float(np.max(np.linalg.norm(sc.velocity, axis=1), initial=0.0))))
+    sc.n_rank = -(-sc.n_total // part.size)
+    sc.setup_rows = dict(read=int(part.rows_read),
+                         held=max(int(sc.radius.size), int(part.largest_read)))
+    sc.group_totals = totals["gtot"].tolist()
+    G = len(P["r"])
+    gmax = np.array([float(a.max(initial=0.0)) for a in P["r"]] + [-float(sc.radius.min(initial=np.inf))])
+    gmax = part.max(gmax) if G else gmax
+    sc.group_rmax, sc.rmin = gmax[:G].tolist(), -float(gmax[G])
+
+
+def _block_boxes(lo, hi, nb):
+    """At least ``nb`` equal blocks of the box [lo, hi]: the longest block edge halved until
+    there are enough (ties: the lower axis); fixed by the region and the count alone."""
+    g = np.ones(3, np.int64)
+    while int(g.prod()) < nb:
+        g[int(np.argmax((hi - lo) / g))] *= 2
+    edges = []
+    for a in range(3):
+        e = lo[a] + (hi[a] - lo[a]) * np.arange(g[a] + 1) / g[a]
+        e[-1] = hi[a]
+        edges.append(e)
+    idx = np.stack(np.meshgrid(*[np.arange(m) for m in g], indexing="ij"), -1).reshape(-1, 3)
+    blo = np.stack([edges[a][idx[:, a]] for a in range(3)], 1)
+    bhi = np.stack([edges[a][idx[:, a] + 1] for a in range(3)], 1)
+    return blo, bhi
+
+
+def _insert_blocks(part, reg, spec, cg, n, block, seed, k, P):
+    """A ``count`` group larger than ``block`` (parallel.insertion_block): the region box cut
+    into fixed blocks of at most about ``block`` particles (:func:`_block_boxes`), the count
+    shared by volume (largest remainder), each block filled by the serial algorithm with its
+    own random stream default_rng([seed, group, block]) and every sphere kept inside its block
+    (thin empty seams between blocks: no two blocks' spheres can touch), the earlier groups'
+    particles near the block avoided. Block b is filled on rank b mod N (serial: all), so the
+    particles (ids, positions, radii) are the same on any number of ranks.
+    Returns (positions, radii, index within the group, placed over all ranks)."""
+    from .insertion import insert, sample_radii
+    lo, hi = np.asarray(reg["min"], float), np.asarray(reg["max"], float)
+    blo, bhi = _block_boxes(lo, hi, -(-n // block))
+    vol = np.prod(bhi - blo, axis=1)
+    q = n * vol / vol.sum()
+    cnt = np.floor(q).astype(np.int64)
+    cnt[np.argsort(-(q - cnt), kind="stable")[:n - int(cnt.sum())]] += 1
+    start = np.concatenate([[0], np.cumsum(cnt)[:-1]])
+    ex_x = np.concatenate(P["x"]) if P["x"] else np.zeros((0, 3))
+    ex_r = np.concatenate(P["r"]) if P["r"] else np.zeros(0)
+    rex = float(ex_r.max(initial=0.0))
+    if part is not None:
+        rex = float(part.max(rex))
+    rmax = float(spec["value"] if spec["distribution"] == "constant" else spec["max"]) * cg
+    size, rank = (1, 0) if part is None else (part.size, part.rank)
+    pos, rad, idx, placed = [np.zeros((0, 3))], [np.zeros(0)], [np.zeros(0, np.int64)], 0
+    for b in range(blo.shape[0]):
+        owner = b % size
+        a, z = blo[b] - (rmax + rex), bhi[b] + (rmax + rex)
+        if part is None:
+            inside = np.all((ex_x >= a) & (ex_x <= z), axis=1)
+            near = (ex_x[inside], ex_r[inside])
+        else:
+            near = part.gather_near(ex_x, ex_r, a, z, owner)
+        if rank != owner or cnt[b] == 0:
+            continue
+        rng = np.random.default_rng([seed, k, b])
+        rb = sample_radii(spec, int(cnt[b]), rng) * cg
+        xb, _, pl = insert(dict(type="box", min=blo[b], max=bhi[b]), rb, rng, near[0], near[1])
+        if part is not None:
+            part.largest_read = max(part.largest_read, near[1].size + int(cnt[b]))
+        placed += pl
+        pos.append(xb[:pl] if pl < cnt[b] else xb)
+        rad.append(rb[:pl] if pl < cnt[b] else rb)
+        idx.append(start[b] + np.arange(min(pl, cnt[b]), dtype=np.int64))
+    if part is not None:
+        placed = int(part.sum(placed))
+    return np.concatenate(pos), np.concatenate(rad), np.concatenate(idx), placed

@@ -54,6 +54,9 @@ class Simulation:
         self.compile_seconds = None
         self.wall_seconds = None
         self.stepper.init_neighbors()
+        if self.par is not None and getattr(scene, "distributed", False):
+            from .parallel.setup import check_overlaps
+            check_overlaps(world, self.par)   # needs the neighbours' particles: after the first exchange
         if self.thermal is not None:
             self.thermal.update_porosity(world.time)
             self.stepper.forward_porosity()

@@ -61,8 +61,12 @@ class World:
             no_heat_tables(st)
         self.reach = self.thermal.reach if self.thermal is not None else 0.0
         st.fp[K.FP.reach] = self.reach
-        self.rmax = float(st.radius.max(initial=0.0))
-        self.n_total = st.n_owned  # every rank holds the whole scene at this point
+        if getattr(scene, "distributed", False):   # set up per rank (MPI): the run's totals
+            self.rmax = float(scene.rmax)
+            self.n_total = int(scene.n_total)
+        else:
+            self.rmax = float(st.radius.max(initial=0.0))
+            self.n_total = st.n_owned  # every rank holds the whole scene at this point
 
     def _params(self):
         sc = self.scene
@@ -94,7 +98,8 @@ class World:
         st = self.state
         g = np.linalg.norm(self.scene.simulation["gravity"])
         h = float(np.max(st.hi - st.lo))
-        v0 = float(np.max(np.linalg.norm(st.velocity, axis=1), initial=0.0))
+        v0 = (float(self.scene.max_speed) if getattr(self.scene, "distributed", False)
+              else float(np.max(np.linalg.norm(st.velocity, axis=1), initial=0.0)))
         vw = 0.0
         for w in self.scene.walls:
             vw = max(vw, float(np.linalg.norm(w["velocity"])))

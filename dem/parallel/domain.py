@@ -126,6 +126,7 @@ class ParallelDomain:
         self.exchanges = 0
         self.rebalances = 0
         self.migrated = 0
+        self.setup_migrated = 0  # rows sent to their owners when a scene set up per rank was distributed
         self.records_migrated = 0  # contact records sent with the migrating particles
         self.bytes_migrated = 0  # typed payload this rank sent in migrations (particles + records)
         self.bytes_ghosts = 0  # typed payload this rank sent as ghosts at the exchanges
@@ -169,9 +170,20 @@ class ParallelDomain:
             setattr(st, name, np.ascontiguousarray(a[rows]))
 
     def select_initial(self, world):
-        """Every rank holds every particle of the scene at start-up: cut the boxes on a
-        disjoint split (row % size) and keep the owned rows (possibly none)."""
+        """The first boxes. A scene set up per rank (dem.scene, ``distributed``): cut them on
+        the rows each rank holds, send every row to its owner through the migration of
+        :meth:`exchange` and order the owned rows by id. A scene held whole by every rank:
+        cut them on a disjoint split (row % size) and keep the owned rows (possibly none)."""
         st = world.state
+        if getattr(world.scene, "distributed", False):
+            halo = world.halo()
+            self.dec.build(self.comm, st.position, np.ones(st.n_owned), halo)
+            self.neigh = self.dec.neighbours(self.rank, halo)
+            st.n_ghost = 0
+            self._migrate(world, None)
+            self._take(st, np.argsort(st.id, kind="stable"))
+            self.setup_migrated, self.migrated, self.bytes_migrated = self.migrated, 0, 0
+            return
         x = st.position
         part = np.arange(self.rank, st.n, self.size)
         halo = world.halo()

@@ -99,7 +99,7 @@ class ThermalModel:
         # reach of the neighbour list: the largest of the selected models' records (indirect
         # cut-off, radiation range, in radii), and one radius for the local porosity
         selected = {m: th[m] for m in ("direct", "indirect", "convection", "radiation")}
-        rmax = float(st.radius.max())
+        rmax = float(sc.rmax) if getattr(sc, "distributed", False) else float(st.radius.max())
         reach = R.neighbour_reach(selected, self.gas, rmax)
         if self.local_porosity:
             reach = max(reach, rmax)

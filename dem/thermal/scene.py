@@ -54,6 +54,12 @@ def _model(v, t, key, mech, default):
     return rec.name, rec.id
 
 
+def _materials_used(sc):
+    """Indices of the materials the particles use (over every rank of a scene set up per rank)."""
+    used = getattr(sc, "materials_used", None)
+    return used if used is not None else np.unique(sc.material).tolist()
+
+
 def parse_thermal(v, sc, data):
     t = data.get("thermal")
     if t is None:
@@ -68,7 +74,7 @@ def parse_thermal(v, sc, data):
         # default chosen from the softening sweep (docs/benchmarks.md, "Young's-modulus softening"):
         # with a softened modulus (real_youngs_modulus given and larger), lu_2017 keeps the static
         # contact conductance exact; without correction it is over-predicted (+115 % at E/10)
-        used_m = set(np.unique(sc.material).tolist())
+        used_m = set(_materials_used(sc))
         soft = any(float(sc.materials[k].get("real_youngs_modulus", sc.materials[k]["youngs_modulus"]))
                    != float(sc.materials[k]["youngs_modulus"]) for k in used_m)
         tt = dict(t, correction="lu_2017" if (soft and t.get("direct", "batchelor_obrien") != "none") else "none")
@@ -156,7 +162,7 @@ def parse_thermal(v, sc, data):
                       lo_open=key in ("thermal_conductivity", "heat_capacity"))
         if "heat_capacity" not in m:
             v.err(p + ".heat_capacity", "missing required key for heat transfer (J/(kg K), > 0)")
-    used = set(np.unique(sc.material).tolist()) | {w["material"] for w in sc.walls}
+    used = set(_materials_used(sc)) | {w["material"] for w in sc.walls}
     for mech_, (key_, _label) in R.MECHANISMS.items():
         name = th[key_]
         if name == "none" or (mech_ == "partition" and th["friction_id"] < 0):
@@ -279,15 +285,20 @@ def _check_coarse_graining(v, sc, th):
     cg = parcel_factors(sc)
     if cg is None:
         return
-    k = int(np.flatnonzero(cg != 1.0)[0])
-    where = f"particles[{int(sc.group[k])}].coarse_graining"
+    gcg = getattr(sc, "group_cg", None)
+    if gcg is not None:   # per group (every group holds particles): the same on every rank
+        g = next(g for g, c in enumerate(gcg) if c != 1.0)
+        cg_first, vals = gcg[g], np.unique(np.asarray(gcg, float))
+    else:
+        k = int(np.flatnonzero(cg != 1.0)[0])
+        g, cg_first, vals = int(sc.group[k]), cg[k], np.unique(cg)
+    where = f"particles[{g}].coarse_graining"
     for mech in ("direct", "indirect", "convection", "radiation", "friction_heat"):
         why = CG_REFUSED.get(th[mech])
         if why:
-            v.err(where, f"{cg[k]:g} with thermal.{mech} = \"{th[mech]}\": no coarse-grained form of this model "
+            v.err(where, f"{cg_first:g} with thermal.{mech} = \"{th[mech]}\": no coarse-grained form of this model "
                          f"({why}); use coarse_graining = 1 or another {mech} model")
     conducts = th["direct_id"] >= 0 or th["indirect_id"] >= 0
-    vals = np.unique(cg)
     if conducts and vals.size > 1:
         v.err(where, f"groups with different coarse-graining factors ({', '.join(f'{x:g}' for x in vals)}) "
                      f"in one scene with conduction: the scaling of a contact between parcels of different "
