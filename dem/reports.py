@@ -4,7 +4,6 @@ estimate. Functions of the world and the stepper; nothing here changes the run.
 """
 import math
 
-import numpy as np
 
 from . import scene as scene_mod
 from . import schema as S

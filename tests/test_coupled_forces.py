@@ -27,8 +27,8 @@ for p in (ROOT, ROOT / "benchmarks"):
         sys.path.insert(0, str(p))
 
 from coupling.forces import (C_VM, magnus_oesterle_bui_dinh_1998, mei_1992_factor,  # noqa: E402
-from dem.final import read as read_final
                              rotational_drag_dennis_1980, saffman_mei_1992)
+from dem.final import read as read_final  # noqa: E402
 
 RHO, MU = 1.2, 1.8e-5
 
