@@ -90,12 +90,8 @@ def manifest(time, step, names, digests, info):
 
 def remove_stale_pieces(folder, keep):
     """Remove the pieces in ``folder`` (our names only) that the manifest does not name."""
-    for name in os.listdir(folder):
-        if _PIECE_NAME.fullmatch(name) and name not in keep:
-            try:
-                os.unlink(os.path.join(folder, name))
-            except OSError:
-                pass
+    from .pieces import remove_stale
+    remove_stale(folder, keep, _PIECE_NAME)
 
 
 # ---------------------------------------------------------------------------- reading

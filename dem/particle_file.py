@@ -87,14 +87,8 @@ def _read_text(full, name):
                                    "plain text with comma-separated numbers (or give an .npz file)")
 
 
-def _read_csv(full, name):
-    text = _read_text(full, name)
-    lines = [(k + 1, ln) for k, ln in enumerate(text.splitlines())
-             if ln.strip() and not ln.lstrip().startswith("#")]
-    if not lines:
-        _err(name, "", f"empty file; the first line names the columns ({ALLOWED_TEXT}), "
-                       "then one particle per line")
-    hline, header = lines[0]
+def _header_names(name, hline, header):
+    """The column names of a CSV header line (checked: names, not numbers; known, not repeated)."""
     names = [c.strip().lower() for c in next(csv.reader([header]))]
     try:
         [float(c) for c in names]
@@ -104,6 +98,18 @@ def _read_csv(full, name):
     if numeric:
         _err(name, f"line {hline}", f"the first line must name the columns ({ALLOWED_TEXT}), got numbers")
     _check_names(names, name)
+    return names
+
+
+def _read_csv(full, name):
+    text = _read_text(full, name)
+    lines = [(k + 1, ln) for k, ln in enumerate(text.splitlines())
+             if ln.strip() and not ln.lstrip().startswith("#")]
+    if not lines:
+        _err(name, "", f"empty file; the first line names the columns ({ALLOWED_TEXT}), "
+                       "then one particle per line")
+    hline, header = lines[0]
+    names = _header_names(name, hline, header)
     rows = lines[1:]
     if not rows:
         _err(name, "", f"no particles: only the header line (columns {', '.join(names)})")
@@ -328,15 +334,7 @@ def _read_csv_part(full, name, sc):
     hline = int(hl)
     if lines and lines[0][0] == hline:
         lines = lines[1:]
-    names = [c.strip().lower() for c in next(csv.reader([header]))]
-    try:
-        [float(c) for c in names]
-        numeric = True
-    except ValueError:
-        numeric = False
-    if numeric:
-        _err(name, f"line {hline}", f"the first line must name the columns ({ALLOWED_TEXT}), got numbers")
-    _check_names(names, name)
+    names = _header_names(name, hline, header)
     total = int(sc.sum(len(lines)))
     if total == 0:
         _err(name, "", f"no particles: only the header line (columns {', '.join(names)})")

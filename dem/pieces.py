@@ -279,3 +279,14 @@ def shares(piece_rows, rank, size):
         if hi > lo:
             out.append((k, lo - int(start[k]), hi - int(start[k])))
     return out
+
+
+def remove_stale(folder, keep, name_pattern):
+    """Remove the pieces in ``folder`` that the manifest just written does not name (``keep``),
+    ours only: names that match ``name_pattern`` (a compiled regex of the caller's piece names)."""
+    for name in os.listdir(folder):
+        if name_pattern.fullmatch(name) and name not in keep:
+            try:
+                os.unlink(os.path.join(folder, name))
+            except OSError:
+                pass

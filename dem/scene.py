@@ -623,7 +623,7 @@ def parse(data, file="<dict>", base_dir=".", end_time=None, comm="auto"):
     else:
         rmax = float(part.max(r.max(initial=0.0)))
         _check_periodic_length(v, lo, hi, periodic, np.array([rmax]))
-        _check_walls_part(v, part, walls, x, ids, totals, periodic)
+        _check_walls(v, walls, x, ids, periodic, part, totals)
     o = v.table(data.get("output", {}), "output", OUTPUT_KEYS)
     output = dict(vtk=v.boolean(o, "vtk", "output", default=True))
     pa = v.table(data.get("parallel", {}), "parallel", PARALLEL_KEYS)
@@ -667,10 +667,23 @@ def _check_periodic_length(v, lo, hi, periodic, r):
                                      f"{'xyz'[ax]} or make it non-periodic")
 
 
-def _check_walls(v, walls, x, ids, periodic):
+def _check_walls(v, walls, x, ids, periodic, part=None, totals=None):
     """Walls that cannot be meant: an unbounded wall across a periodic axis, an unbounded
     plane with a particle centre behind it (its normal must point towards the particles),
-    a cylinder with every particle on the wrong side of ``inside``."""
+    a cylinder with every particle on the wrong side of ``inside``. Under MPI (``part``:
+    dem.parallel.setup.SetupComm, ``totals``: the scene's global rows) on this rank's rows:
+    counts reduced, the first particle in scene order agreed."""
+    if part is None:   # one process: every row is here
+        grow, n_all = np.arange(len(x)), len(x)
+
+        def count(c):
+            return c
+
+        def first(key, text):
+            return None if key is None else text()
+    else:
+        count, first = part.sum, part.agree
+        grow, n_all = totals["grow"], totals["n"]
     for k, w in enumerate(walls):
         p = f"walls[{k}]"
         if w["type"] == "plane":
@@ -684,18 +697,21 @@ def _check_walls(v, walls, x, ids, periodic):
                                      f"boundary would meet the wall from behind; remove the wall, give it an "
                                      f"extent, or make axis {'xyz'[cross[0]]} non-periodic")
             s = (x - w["point"]) @ n
-            if np.all(s < 0):
-                v.err(p + ".normal", f"points away from every particle (normal {n.tolist()}, all {s.size} "
+            front = int(count(int(np.count_nonzero(s >= 0))))
+            if front == 0:
+                v.err(p + ".normal", f"points away from every particle (normal {n.tolist()}, all {n_all} "
                                      f"particle centres lie behind the plane through {w['point'].tolist()}); "
                                      f"the normal of a plane points into the region of the particles: use "
                                      f"{(0.0 - n).tolist()}")
             behind = np.nonzero(s < 0)[0]
-            if behind.size:
-                q = behind[0]
-                v.err(p + ".normal", f"particle id {ids[q]} at {x[q].tolist()} lies behind the plane "
-                                     f"(through {w['point'].tolist()}, normal {n.tolist()}); an unbounded "
-                                     f"plane is one-sided: every particle centre must lie on the side its "
-                                     f"normal points to")
+            q = int(behind[0]) if behind.size else None
+            msg = first(None if q is None else int(grow[q]), lambda: (
+                f"particle id {ids[q]} at {x[q].tolist()} lies behind the plane "
+                f"(through {w['point'].tolist()}, normal {n.tolist()}); an unbounded "
+                f"plane is one-sided: every particle centre must lie on the side its "
+                f"normal points to"))
+            if msg is not None:
+                v.err(p + ".normal", msg)
         else:
             a = w["axis"]
             if math.isinf(w["length"]):
@@ -707,14 +723,16 @@ def _check_walls(v, walls, x, ids, periodic):
             rel = x - w["point"]
             s = rel @ a
             along = np.abs(s) <= w["length"] / 2
-            if not np.any(along):
-                continue
             rho = np.linalg.norm(rel[along] - s[along, None] * a, axis=1)
-            if w["inside"] and np.all(rho > w["radius"]):
+            c = count(np.array([along.sum(), np.count_nonzero(rho <= w["radius"]),
+                                np.count_nonzero(rho >= w["radius"])], np.int64))
+            if c[0] == 0:
+                continue
+            if w["inside"] and c[1] == 0:
                 v.err(p + ".inside", f"every particle lies outside the cylinder (radius {w['radius']:g} m "
                                      f"about {w['point'].tolist()}, axis {a.tolist()}) but inside = true "
                                      "keeps particles inside it; set inside = false or check radius and point")
-            if not w["inside"] and np.all(rho < w["radius"]):
+            if not w["inside"] and c[2] == 0:
                 v.err(p + ".inside", f"every particle lies inside the cylinder (radius {w['radius']:g} m "
                                      f"about {w['point'].tolist()}, axis {a.tolist()}) but inside = false "
                                      "keeps particles outside it; set inside = true or check radius and point")
@@ -856,63 +874,6 @@ def _ids_and_domain_part(v, part, P, x, lo, hi, periodic):
     if msg is not None:
         v.err(*msg.split("\n", 1))
     return ids, group, dict(nloc=nloc, goff=goff, gtot=gtot, grow=grow, n=int(gtot.sum()))
-
-
-def _check_walls_part(v, part, walls, x, ids, totals, periodic):
-    """:func:`_check_walls` on this rank's rows: counts reduced, the first particle agreed."""
-    grow = totals["grow"]
-    for k, w in enumerate(walls):
-        p = f"walls[{k}]"
-        if w["type"] == "plane":
-            n = w["normal"]
-            if w["extent"] is not None:
-                continue
-            cross = [a for a in range(3) if periodic[a] and abs(n[a]) > 1e-12]
-            if cross:
-                v.err(p + ".normal", f"an unbounded plane across the periodic axis {'xyz'[cross[0]]} "
-                                     f"(normal {n.tolist()}): particles leaving through the periodic "
-                                     f"boundary would meet the wall from behind; remove the wall, give it an "
-                                     f"extent, or make axis {'xyz'[cross[0]]} non-periodic")
-            s = (x - w["point"]) @ n
-            front = int(part.sum(int(np.count_nonzero(s >= 0))))
-            if front == 0:
-                v.err(p + ".normal", f"points away from every particle (normal {n.tolist()}, all {totals['n']} "
-                                     f"particle centres lie behind the plane through {w['point'].tolist()}); "
-                                     f"the normal of a plane points into the region of the particles: use "
-                                     f"{(0.0 - n).tolist()}")
-            behind = np.nonzero(s < 0)[0]
-            q = int(behind[0]) if behind.size else None
-            msg = part.agree(None if q is None else int(grow[q]), lambda: (
-                f"particle id {ids[q]} at {x[q].tolist()} lies behind the plane "
-                f"(through {w['point'].tolist()}, normal {n.tolist()}); an unbounded "
-                f"plane is one-sided: every particle centre must lie on the side its "
-                f"normal points to"))
-            if msg is not None:
-                v.err(p + ".normal", msg)
-        else:
-            a = w["axis"]
-            if math.isinf(w["length"]):
-                cross = [b for b in range(3) if periodic[b] and np.linalg.norm(np.cross(a, np.eye(3)[b])) > 1e-9]
-                if cross:
-                    v.err(p + ".axis", f"an unbounded cylinder across the periodic axis {'xyz'[cross[0]]} "
-                                       f"(axis {a.tolist()}); a cylinder may only run along periodic axes: "
-                                       f"turn it, give it a length, or make axis {'xyz'[cross[0]]} non-periodic")
-            rel = x - w["point"]
-            s = rel @ a
-            along = np.abs(s) <= w["length"] / 2
-            rho = np.linalg.norm(rel[along] - s[along, None] * a, axis=1)
-            c = part.sum(np.array([along.sum(), np.count_nonzero(rho <= w["radius"]),
-                                   np.count_nonzero(rho >= w["radius"])], np.int64))
-            if c[0] == 0:
-                continue
-            if w["inside"] and c[1] == 0:
-                v.err(p + ".inside", f"every particle lies outside the cylinder (radius {w['radius']:g} m "
-                                     f"about {w['point'].tolist()}, axis {a.tolist()}) but inside = true "
-                                     "keeps particles inside it; set inside = false or check radius and point")
-            if not w["inside"] and c[2] == 0:
-                v.err(p + ".inside", f"every particle lies inside the cylinder (radius {w['radius']:g} m "
-                                     f"about {w['point'].tolist()}, axis {a.tolist()}) but inside = false "
-                                     "keeps particles outside it; set inside = true or check radius and point")
 
 
 def _scene_part(sc, part, totals, P):
