@@ -14,6 +14,7 @@ import re
 import numpy as np
 import pytest
 
+from dem.final import read as read_final
 from test_parallel import assert_same, mpirun
 
 N = 648   # 9 x 9 x 8 beads
@@ -123,8 +124,8 @@ def test_packing_file_read_by_slices_gives_the_serial_run(bed, tmp_path, n, file
     slice ends at a line start: a line's length in bytes more, 2 % slack; an NPZ slice is exact)."""
     s = scene(tmp_path, os.path.join(str(bed), file))
     p = mpirun(n, "run", str(s), "--out", str(tmp_path / "out"))
-    a = np.load(bed / "serial" / "final.npz")
-    b = np.load(tmp_path / "out" / "final.npz")
+    a = read_final(bed / "serial" / "final.npz")
+    b = read_final(tmp_path / "out" / "final.npz")
     assert_same(a, b)
     assert np.array_equal(np.sort(a["id"]), np.arange(100, 100 + N))
     read, held = setup_rows(p.stdout)
@@ -299,7 +300,7 @@ def test_insertion_by_blocks_same_particles_on_1_2_3_ranks(tmp_path):
     for n in (1, 2, 3):
         out = tmp_path / f"np{n}"
         mpirun(n, "run", str(p), "--out", str(out), "--quiet", "--end-time", "0")
-        z = np.load(out / "final.npz")
+        z = read_final(out / "final.npz")
         got[n] = {k: z[k] for k in ("id", "position", "radius")}
     for n in (2, 3):
         for k in ("id", "position", "radius"):
