@@ -13,7 +13,10 @@ it, the times do) and reads its timings.json. Printed per layout:
   it shares with other DEM ranks, the cells of its local mesh (of the mesh's cells) and the
   bytes that mesh holds (geometry, connectivity, location tables: coupling.mesh.PolyMesh.
   nbytes), the bytes it sends to the gas and to other DEM ranks per coupling step, its peak
-  resident memory (MiB).
+  resident memory (MiB);
+* at set-up, per DEM rank: the cells it read (the whole mesh, or with gas_processes > 1 the
+  gas pieces around its box: coupling.pieces), the bytes of that mesh and the peak resident
+  memory at the end of the set-up.
 
 The (1, 1) layout takes the one-frame socket exchange (every cell in one frame, the same
 bytes).
@@ -54,7 +57,9 @@ def run_layout(case: str, m: int, n: int, end: float, work: Path) -> dict:
     ranks = tm["ranks"]
     per = [dict(owned=r["owned_cells"], halo=r["halo_cells"], gas_b=r["gas_bytes_sent"] / steps,
                 dem_b=r["dem_bytes_sent"] / steps, rss=r["peak_rss_mib"], local=r.get("local_cells"),
-                mesh_b=r.get("mesh_bytes")) for r in ranks]
+                mesh_b=r.get("mesh_bytes"), setup_cells=r.get("setup_cells_read"),
+                setup_mesh_b=r.get("setup_mesh_bytes"), setup_rss=r.get("setup_peak_rss_mib"),
+                setup_pieces=r.get("setup_pieces_read")) for r in ranks]
     return dict(dem=m, gas=n, steps=steps, particles=tm["particles"], pss=tm["particle_steps_per_s"],
                 loop_per_step=tm["loop"] / steps, ranks=per)
 
@@ -83,6 +88,13 @@ def main(argv=None):
                       + f"to gas {max(x['gas_b'] for x in rk) / 1024:.1f} KiB/step, "
                       f"to DEM ranks {max(x['dem_b'] for x in rk) / 1024:.1f} KiB/step, "
                       f"peak RSS {max(x['rss'] for x in rk):.0f} MiB", flush=True)
+                if rk[0]["setup_cells"] is not None:   # set-up: the mesh a rank read before dropping it
+                    print(f"  set-up per DEM rank: cells read {min(x['setup_cells'] for x in rk)}-"
+                          f"{max(x['setup_cells'] for x in rk)} of {sum(x['owned'] for x in rk)} "
+                          f"({'pieces' if rk[0]['setup_pieces'] else 'the whole mesh'}), mesh "
+                          f"{min(x['setup_mesh_b'] for x in rk) / 1024:.0f}-{max(x['setup_mesh_b'] for x in rk) / 1024:.0f}"
+                          f" KiB, peak RSS {min(x['setup_rss'] for x in rk):.0f}-{max(x['setup_rss'] for x in rk):.0f}"
+                          " MiB", flush=True)
     if a.json:
         Path(a.json).write_text(json.dumps(rows, indent=1))
 

@@ -105,7 +105,8 @@ class CellShare:
         h = np.sqrt(((mesh.cell_vhi[:nreal] - mesh.cell_vlo[:nreal]) ** 2).sum(axis=1))
         self.cell_reach = float(self.allmax(float(h.max(initial=0.0)))) * float(reach_cells)
         self.n_global = int(getattr(mesh, "n_global", mesh.n_cells))
-        self.setup_read = dict(pieces=getattr(mesh, "pieces", None), cells=int(nreal))
+        self.setup_read = dict(pieces=getattr(mesh, "pieces", None), cells=int(nreal),
+                               mesh_bytes=int(mesh.nbytes()) if hasattr(mesh, "nbytes") else None)
         self.mesh = None
         self.pieces_read = None      # the gas processors' meshes read for the last rebuild
         self._held = None            # (box lo, box hi, halo) the local mesh was cut for

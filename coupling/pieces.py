@@ -36,6 +36,20 @@ _BOX, _N, _DIAG, _UMAX = slice(0, 6), 6, 7, 8
 _OWN = 9
 
 
+def on_rank(rank: int, fn, *a, **kw):
+    """fn(*a, **kw); a file it cannot read or write (missing, unparsable, a gap in the cells)
+    becomes one line naming this DEM rank and the file (CouplingRunError: exit 2; the caller,
+    coupling.transport.Ranks.everywhere, raises the first failure on every rank)."""
+    from .errors import CouplingRunError
+    try:
+        return fn(*a, **kw)
+    except (OSError, ValueError, RuntimeError) as e:
+        name = getattr(e, "filename", None)
+        raise CouplingRunError(f"DEM rank {rank}: {name + ': ' if name else ''}{e} (the set-up reads the gas "
+                               "processor folders decomposePar wrote in --out; if one is damaged, run the "
+                               "case again with --overwrite)") from None
+
+
 def decompose_first(out: Path, n: int) -> None:
     """Rank 0: decompose the meshed case before any DEM rank reads the mesh (fresh start)."""
     from dem import outdir

@@ -65,7 +65,7 @@ from . import pieces
 from .loop import CoupledLoop, LoopPlan
 from .prepare import output_rule, prepare_gas, prepare_output
 from .restart import RestartPoints, continue_command, resume, stopped_line
-from .transport import Ranks, open_link, open_m2m, uses_m2m
+from .transport import Ranks, _peak_rss_mib, open_link, open_m2m, uses_m2m
 
 EXIT_CHECK = 2
 EXIT_COUPLING = 3
@@ -111,7 +111,7 @@ def run_case(case_dir, out=None, *, transport=None, end_time=None, restart=False
         # holding its cells, never the whole mesh (coupling.pieces)
         if not restart:
             R.on_root(pieces.decompose_first, out, cfg.gas_processes)
-        table, mesh = R.everywhere(_pieces_mesh, out, R.par, sim, cfg)
+        table, mesh = R.everywhere(pieces.on_rank, R.par.rank, _pieces_mesh, out, R.par, sim, cfg)
         iface = CouplingInterface.for_case(case, mesh, source=mesh_source(out, cfg, mesh, table))
         iface.cells.setup_read["table"] = table.table_read
         ties = tie_walls(case, iface.mesh, ranks=iface.cells)   # the owned cells' patch faces, reduced
@@ -140,13 +140,14 @@ def run_case(case_dir, out=None, *, transport=None, end_time=None, restart=False
     if table is not None:   # each processor's 0/eps from its cells' owners (coupling.pieces)
         eps_all = None
         if not restart:
-            R.everywhere(pieces.write_eps_pieces, table, iface.cells, eps0)
+            R.everywhere(pieces.on_rank, R.par.rank, pieces.write_eps_pieces, table, iface.cells, eps0)
     else:
         eps_all = iface.cells.gather_owned(eps0)   # rank 0 writes the gas's initial void fraction (set-up)
     ex, exe = R.on_root(prepare_gas, out, cfg, iface.cells.n_global, split, eps_all, end, restart=restart,
                         solver=solver, m2m=m2m, gas_dir=cstate["gas_dir"] if cstate else None,
                         decomposed=table is not None, log=log) or (None, None)
     eps_all = mesh = None   # from here on each rank holds its local mesh only (iface.mesh)
+    iface.cells.setup_read["peak_rss_mib"] = _peak_rss_mib()   # the set-up's peak (timings.json)
     if m2m:
         ex = open_m2m(R, out, cfg, iface.cells)   # every rank listens and writes its plan lines
     sim.warmup()
