@@ -2,7 +2,7 @@
 peak memory per rank (the many-to-many exchange: coupling.cells, coupling.m2m).
 
     python benchmarks/coupled_scaling.py [--case fluidized_bed_cg] [--dem 1,2,4,8] [--gas 1,2,4]
-                                         [--end-time 0.005] [--json out.json]
+                                         [--end-time 0.005] [--json out.json] [--gas-axis x]
 
 Each layout runs ``mpirun -np M python -m coupling.run run CASE`` with ``gas_processes = N``
 (oversubscribed when M + N exceeds the cores: the byte and memory figures do not depend on
@@ -36,12 +36,17 @@ ROOT = Path(__file__).resolve().parent.parent
 CASES = ROOT / "openfoam_cases"
 
 
-def run_layout(case: str, m: int, n: int, end: float, work: Path) -> dict:
+def run_layout(case: str, m: int, n: int, end: float, work: Path, gas_axis: str | None = None) -> dict:
     src = CASES / case
     dst = work / f"case_{m}x{n}"
     shutil.copytree(src, dst, ignore=shutil.ignore_patterns("README.md"))
     t = dst / "coupling.toml"
     t.write_text(t.read_text().replace("[coupling]\n", f"[coupling]\ngas_processes = {n}\n", 1))
+    if gas_axis:   # the gas in n slabs across this axis (decomposeParDict's simple split)
+        import re
+        d = dst / "system" / "decomposeParDict"
+        split = " ".join(str(n) if a == gas_axis else "1" for a in "xyz")
+        d.write_text(re.sub(r"(\bn\s+)\([^)]*\)", rf"\g<1>({split})", d.read_text()))
     out = work / f"out_{m}x{n}"
     cmd = [sys.executable, "-m", "coupling.run", "run", str(dst), "--out", str(out), "--end-time", repr(end),
            "--quiet"]
@@ -71,12 +76,14 @@ def main(argv=None):
     ap.add_argument("--gas", default="1,2,4")
     ap.add_argument("--end-time", type=float, default=0.005)
     ap.add_argument("--json", default=None)
+    ap.add_argument("--gas-axis", choices=["x", "y", "z"], default=None,
+                    help="decompose the gas in slabs across this axis (default: the case's decomposeParDict)")
     a = ap.parse_args(argv)
     rows = []
     with tempfile.TemporaryDirectory(prefix="coupled_scaling_") as tmp:
         for n in [int(x) for x in a.gas.split(",")]:
             for m in [int(x) for x in a.dem.split(",")]:
-                r = run_layout(a.case, m, n, a.end_time, Path(tmp))
+                r = run_layout(a.case, m, n, a.end_time, Path(tmp), a.gas_axis)
                 rows.append(r)
                 rk = r["ranks"]
                 print(f"DEM {m} x gas {n}: {r['pss']:.3g} particle-steps/s, {1e3 * r['loop_per_step']:.1f} ms per "

@@ -36,18 +36,40 @@ _BOX, _N, _DIAG, _UMAX = slice(0, 6), 6, 7, 8
 _OWN = 9
 
 
-def on_rank(rank: int, fn, *a, **kw):
-    """fn(*a, **kw); a file it cannot read or write (missing, unparsable, a gap in the cells)
-    becomes one line naming this DEM rank and the file (CouplingRunError: exit 2; the caller,
-    coupling.transport.Ranks.everywhere, raises the first failure on every rank)."""
+def _run_error(rank: int, e: Exception):
+    """A file this rank could not read or write (missing, unparsable, a gap in the cells) as
+    one line naming the rank and the file (CouplingRunError: exit 2)."""
     from .errors import CouplingRunError
+    if isinstance(e, CouplingRunError):
+        return e
+    name = getattr(e, "filename", None)
+    return CouplingRunError(f"DEM rank {rank}: {name + ': ' if name else ''}{e} (the set-up reads the gas "
+                            "processor folders decomposePar wrote in --out; if one is damaged, run the "
+                            "case again with --overwrite)")
+
+
+def agree(comm, rank: int, err) -> None:
+    """Before a collective: every rank learns whether one failed (one Allreduce of a number);
+    then every rank raises the failure of the lowest failing rank (its message gathered on
+    this failure path only), so no rank waits in a collective the others left."""
+    from mpi4py import MPI
+    mine = np.array([0.0 if err is None else 1.0])
+    anyf = np.empty(1)
+    comm.Allreduce(mine, anyf, op=MPI.MAX)
+    if anyf[0] == 0.0:
+        return
+    msgs = comm.allgather(None if err is None else str(_run_error(rank, err)))
+    from .errors import CouplingRunError
+    raise CouplingRunError(next(m for m in msgs if m is not None))
+
+
+def on_rank(rank: int, fn, *a, **kw):
+    """fn(*a, **kw), its failure as one line naming this DEM rank and the file (the caller,
+    coupling.transport.Ranks.everywhere, raises the first failure on every rank)."""
     try:
         return fn(*a, **kw)
-    except (OSError, ValueError, RuntimeError) as e:
-        name = getattr(e, "filename", None)
-        raise CouplingRunError(f"DEM rank {rank}: {name + ': ' if name else ''}{e} (the set-up reads the gas "
-                               "processor folders decomposePar wrote in --out; if one is damaged, run the "
-                               "case again with --overwrite)") from None
+    except (OSError, ValueError, RuntimeError, IndexError, KeyError) as e:
+        raise _run_error(rank, e) from None
 
 
 def decompose_first(out: Path, n: int) -> None:
@@ -81,6 +103,21 @@ class PieceTable:
         tab = np.zeros((P, _OWN + size))
         reader = MeshPieces(out, 0)
         self.table_read = []
+        err = None
+        try:
+            self._rows(tab, reader, rank, size, P, dec0, _max_speed_of_field)
+        except Exception as e:  # noqa: BLE001  (agreed with every rank before the Allreduce)
+            err = e
+        agree(comm, rank, err)
+        self.tab = np.empty_like(tab)
+        comm.Allreduce(tab, self.tab, op=MPI.SUM)
+        self.n_global = int(self.tab[:, _N].sum())
+        self.boxes = [(self.tab[k, 0:3].copy(), self.tab[k, 3:6].copy()) for k in range(P)]
+        self.cell_diag = float(self.tab[:, _DIAG].max(initial=0.0))
+        self.umax = float(self.tab[:, _UMAX].max(initial=0.0))
+
+    def _rows(self, tab, reader, rank, size, P, dec0, _max_speed_of_field):
+        """This rank's rows of the table: pieces rank, rank + size, ..."""
         for k in range(rank, P, size):
             m = reader.read_pieces([k])
             nreal = m.global_ids.size
@@ -94,12 +131,6 @@ class PieceTable:
             tab[k, _UMAX] = _max_speed_of_field(u, nreal) if u.exists() else 0.0
             tab[k, _OWN:] = np.bincount(dec0.owner(m.cell_centres[:nreal]), minlength=size)
             del m
-        self.tab = np.empty_like(tab)
-        comm.Allreduce(tab, self.tab, op=MPI.SUM)
-        self.n_global = int(self.tab[:, _N].sum())
-        self.boxes = [(self.tab[k, 0:3].copy(), self.tab[k, 3:6].copy()) for k in range(P)]
-        self.cell_diag = float(self.tab[:, _DIAG].max(initial=0.0))
-        self.umax = float(self.tab[:, _UMAX].max(initial=0.0))
 
     def owned_by(self, rank):
         """The pieces holding cells that ``rank`` owns."""
@@ -118,7 +149,12 @@ class PieceTable:
         which = {k for k, (blo, bhi) in enumerate(self.boxes)
                  if np.all(blo <= hi + reach) and np.all(bhi >= lo - reach)}
         which |= set(self.owned_by(self.rank))
-        m = self.pieces().read_pieces(sorted(which))
+        m, err = None, None
+        try:
+            m = self.pieces().read_pieces(sorted(which))
+        except Exception as e:  # noqa: BLE001  (agreed before the reductions)
+            err = e
+        agree(self.comm, self.rank, err)
         nreal = m.global_ids.size
         own = dec0.owner(m.cell_centres[:nreal]) == self.rank
         self.grid, self.tol = _whole_mesh_lattice(self, m, nreal, own)
@@ -200,6 +236,33 @@ def write_eps_pieces(table: PieceTable, cells, eps: np.ndarray, time: str = "0")
     comm, size, rank = table.comm, table.size, table.rank
     eps = np.asarray(eps, np.float64)
     send = [[] for _ in range(size)]
+    err = None
+    try:
+        _eps_messages(table, cells, eps, send)
+    except Exception as e:  # noqa: BLE001  (agreed before the Alltoall)
+        err = e
+    agree(comm, rank, err)
+    bufs = [np.concatenate(s).ravel() if s else np.zeros(0) for s in send]
+    counts = np.array([b.size for b in bufs], np.int64)
+    rcounts = np.empty(size, np.int64)
+    comm.Alltoall(counts, rcounts)
+    sbuf = np.concatenate(bufs) if bufs else np.zeros(0)
+    rbuf = np.empty(int(rcounts.sum()))
+    sdis = np.r_[0, np.cumsum(counts)[:-1]]
+    rdis = np.r_[0, np.cumsum(rcounts)[:-1]]
+    comm.Alltoallv([sbuf, counts, sdis, MPI.DOUBLE], [rbuf, rcounts, rdis, MPI.DOUBLE])
+    got = rbuf.reshape(-1, 3)
+    wrote = []
+    for k in range(rank, len(table.procs), size):
+        mine = got[got[:, 0] == k]
+        _write_piece(table.procs[k], mine[:, 1], mine[:, 2], time)
+        wrote.append(k)
+    return wrote
+
+
+def _eps_messages(table, cells, eps, send):
+    """This rank's (piece, key, value) triples for the writer of each piece."""
+    size, rank = table.size, table.rank
     for j in table.owned_by(rank):           # the pieces holding cells this rank owns
         cpa, own, fpa, bnd = _piece_files(table.procs[j])
         loc = cells.local(cpa)
@@ -217,22 +280,6 @@ def write_eps_pieces(table: PieceTable, cells, eps: np.ndarray, time: str = "0")
             gface = np.abs(fpa[f[ok]]) - 1
             send[k % size].append(np.column_stack([np.full(ok.sum(), k, float), -1.0 - gface.astype(float),
                                                    eps[loc[c[ok]]]]))
-    bufs = [np.concatenate(s).ravel() if s else np.zeros(0) for s in send]
-    counts = np.array([b.size for b in bufs], np.int64)
-    rcounts = np.empty(size, np.int64)
-    comm.Alltoall(counts, rcounts)
-    sbuf = np.concatenate(bufs) if bufs else np.zeros(0)
-    rbuf = np.empty(int(rcounts.sum()))
-    sdis = np.r_[0, np.cumsum(counts)[:-1]]
-    rdis = np.r_[0, np.cumsum(rcounts)[:-1]]
-    comm.Alltoallv([sbuf, counts, sdis, MPI.DOUBLE], [rbuf, rcounts, rdis, MPI.DOUBLE])
-    got = rbuf.reshape(-1, 3)
-    wrote = []
-    for k in range(rank, len(table.procs), size):
-        mine = got[got[:, 0] == k]
-        _write_piece(table.procs[k], mine[:, 1], mine[:, 2], time)
-        wrote.append(k)
-    return wrote
 
 
 def _write_piece(proc_mesh_dir, keys, vals, time):

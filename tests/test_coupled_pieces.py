@@ -96,3 +96,13 @@ def test_two_dem_ranks_on_three_gas_pieces(solver, tmp_path):
     ranks2 = json.loads((out / "timings.json").read_text())["ranks"]
     assert all(r["setup_cells_read"] < n for r in ranks2), ranks2
     assert_close(a, final(out), 1e-13, 1e-10, 1e-10)
+    # a damaged piece (cut short): every rank stops at set-up with one line naming the rank
+    # that read it and the file, exit 2, before the solver starts
+    owner = out / "processor2" / "constant" / "polyMesh" / "owner"
+    text = owner.read_text()
+    owner.write_text(text[:len(text) // 2])
+    q = coupled(2, case, out, "--restart", "--end-time", "0.002", check=False)
+    assert q.returncode == 2, q.stdout[-2000:] + q.stderr[-2000:]
+    lines = [x for x in q.stderr.splitlines() if x.startswith("coupling: error:")]
+    assert len(lines) == 1 and "DEM rank 0" in lines[0] and str(owner) in lines[0], q.stderr[-2000:]
+    assert "Traceback" not in q.stderr
