@@ -66,9 +66,14 @@ def agree(comm, rank: int, err) -> None:
 def on_rank(rank: int, fn, *a, **kw):
     """fn(*a, **kw), its failure as one line naming this DEM rank and the file (the caller,
     coupling.transport.Ranks.everywhere, raises the first failure on every rank)."""
+    from dem.output import DISK_ERRNOS, OutputError
     try:
         return fn(*a, **kw)
-    except (OSError, ValueError, RuntimeError, IndexError, KeyError) as e:
+    except OSError as e:
+        if e.errno in DISK_ERRNOS:   # disk full, quota, read-only: an output failure (exit 4)
+            raise OutputError(e.filename or "(unnamed file)", e) from None
+        raise _run_error(rank, e) from None
+    except (ValueError, RuntimeError, IndexError, KeyError) as e:
         raise _run_error(rank, e) from None
 
 
