@@ -6,7 +6,9 @@
 ``run`` copies the OpenFOAM part of CASE_DIR into the output directory (default
 ``out/<case name>``; new, empty or an earlier output of this tool, never the case folder nor
 inside it: dem.outdir), meshes it (blockMesh), writes the initial void fraction of the
-particles into 0/eps, decomposes it when ``gas_processes > 1``, builds the solver if
+particles into 0/eps, decomposes it when ``gas_processes > 1`` (under MPI with the socket
+transport the other way round: decomposePar first, then each processor's 0/eps from the DEM
+ranks owning its cells, no rank reading the whole mesh: coupling.pieces), builds the solver if
 needed (scripts/build_openfoam_solver.sh, cached), starts thermoDemFoam, runs the coupled
 loop (coupling.interface) and writes
 
