@@ -479,7 +479,7 @@ def wider_void_fraction_models(model: str) -> str | None:
     return {"centre": "'divided' or 'smoothed'", "divided": "'smoothed'"}.get(model)
 
 
-def _cell_size_advice(mesh, cfg: CouplingConfig, dmax: float, dx_min: float) -> dict:
+def _cell_size_advice(mesh, cfg: CouplingConfig, dmax: float, dx_min: float, red=None, own=slice(None)) -> dict:
     """The cell-size rule of the unresolved model, for the case's void-fraction model.
 
     What the rule protects is the volume over which the void fraction is averaged: one
@@ -496,8 +496,9 @@ def _cell_size_advice(mesh, cfg: CouplingConfig, dmax: float, dx_min: float) -> 
     model = cfg.void_fraction
     need = CELL_DIAMETERS * dmax
 
-    def length(m):
-        return float(np.cbrt(averaging_volume(mesh, m, dmax / 2, n_satellites=cfg.n_satellites).min()))
+    def length(m):   # red: a local mesh, the smallest over the ranks' owned cells
+        v = averaging_volume(mesh, m, dmax / 2, n_satellites=cfg.n_satellites)[own]
+        return float(np.cbrt(red.allmin(float(v.min(initial=np.inf))) if red is not None else v.min()))
 
     L = length(model)
     ok = L >= need * (1 - 1e-9)
@@ -531,16 +532,22 @@ def _cell_size_advice(mesh, cfg: CouplingConfig, dmax: float, dx_min: float) -> 
 
 
 def check_coupled_case(case: CoupledCase, mesh, *, eps0: np.ndarray | None = None,
-                       clip: dict | None = None, ranks=None) -> dict:
+                       clip: dict | None = None, ranks=None, umax: float | None = None) -> dict:
     """Run the coupling checks on a loaded case and its mesh. Returns a report dict with
     'values', 'warnings', 'problems'. Raises :class:`CaseConfigError` on the first hard
     error (inconsistent input); failed limits go to 'problems' (the caller refuses to run
     unless coupling.force = true). ``eps0``: initial void fraction (after clipping);
     ``clip``: its clipping (CouplingInterface.clip). ``ranks``: the DEM ranks' reductions
     (coupling.cells.CellShare, the interface's) when each rank holds its own particles: every
-    rank then gets the same report, over all particles; None: one process."""
+    rank then gets the same report, over all particles; None: one process. When ``mesh`` is
+    the rank's local mesh (``mesh.global_ids`` set: coupling.pieces), the mesh values are
+    reduced over the ranks' owned cells (the same numbers as on the whole mesh) and ``eps0``
+    is of the local mesh; ``umax``: the largest |U| of 0/U when already known (the pieces'
+    0/U files, coupling.pieces.PieceTable)."""
     from .cells import CellShare
     red = ranks if ranks is not None else CellShare.serial(mesh.n_cells)
+    local = ranks is not None and ranks.par is not None and mesh.global_ids is not None
+    own = ranks.owned if local else slice(None)
     cfg, sim, gas = case.config, case.sim, case.gas
     vals, warnings, problems = {}, [], []
     cf = case.config_file
@@ -581,19 +588,20 @@ def check_coupled_case(case: CoupledCase, mesh, *, eps0: np.ndarray | None = Non
             raise CaseConfigError(case.dem_file, f"Prandtl number {g[R.PR]:.6g} differs from mu cp / k = "
                                   f"{pr:.6g} of {tp} (heat_capacity must be cp = {gas.cp:g})", "gas.heat_capacity")
     # --- mesh geometry
-    V = mesh.cell_volumes
-    dx_min = float(np.cbrt(V.min()))
-    h = mesh.cell_vhi - mesh.cell_vlo
-    dx_edge = float(h.min())          # smallest cell edge (Courant numbers)
+    V = mesh.cell_volumes[own]
+    v_min = red.allmin(float(V.min(initial=np.inf))) if local else V.min()
+    dx_min = float(np.cbrt(v_min))
+    h = mesh.cell_vhi[own] - mesh.cell_vlo[own]
+    dx_edge = float(red.allmin(float(h.min(initial=np.inf))) if local else h.min())   # smallest cell edge (Courant)
     st = sim.state
     n = st.n_owned
     d = 2 * st.radius[:n]
     d_max = red.allmax(float(d.max(initial=0.0)))
     vals["particles"] = int(red.allsum(float(n)))
-    vals["cells"] = mesh.n_cells
+    vals["cells"] = int(red.allsum(float(V.size))) if local else mesh.n_cells
     vals["cell_size_min"] = dx_min
     vals["cell_over_diameter"] = dx_min / d_max
-    cell_advice = _cell_size_advice(mesh, cfg, d_max, dx_min)
+    cell_advice = _cell_size_advice(mesh, cfg, d_max, dx_min, red=red if local else None, own=own)
     vals["averaging_length"] = cell_advice["length"]
     vals["averaging_over_diameter"] = cell_advice["length"] / d_max
     if dx_min < d_max * (1 - 1e-9):
@@ -615,7 +623,7 @@ def check_coupled_case(case: CoupledCase, mesh, *, eps0: np.ndarray | None = Non
                    f"{cell_advice['clip_advice']}")
             (problems if clip["fraction"] > CLIPPED_VOLUME else warnings).append(
                 msg + (f" (refused above {100 * CLIPPED_VOLUME:g} %)" if clip["fraction"] > CLIPPED_VOLUME else ""))
-    vals["cell_over_particle_volume"] = float(V.min() / ((math.pi / 6) * d_max ** 3))
+    vals["cell_over_particle_volume"] = float(v_min / ((math.pi / 6) * d_max ** 3))
     # particles in the mesh (the one of smallest id named, on every rank)
     cells = mesh.locate(st.position[:n])
     out = np.flatnonzero(cells < 0)
@@ -624,11 +632,16 @@ def check_coupled_case(case: CoupledCase, mesh, *, eps0: np.ndarray | None = Non
     if n_out:
         id_out, x_out = red.best(float(st.id[first]) if first >= 0 else np.inf,
                                  st.position[first] if first >= 0 else np.zeros(3), largest=False)
+        blo, bhi = mesh.bbox_lo, mesh.bbox_hi
+        if local:
+            blo = red.allmin(mesh.cell_vlo[own].min(axis=0, initial=np.inf))
+            bhi = red.allmax(mesh.cell_vhi[own].max(axis=0, initial=-np.inf))
         raise CaseConfigError(case.dem_file, f"{n_out} particle(s) outside the OpenFOAM mesh "
                               f"(first: id {int(id_out)} at {x_out.tolist()}); mesh "
-                              f"bounding box {mesh.bbox_lo.tolist()} .. {mesh.bbox_hi.tolist()}")
+                              f"bounding box {blo.tolist()} .. {bhi.tolist()}")
     # --- gas CFL (interstitial speed ~ superficial / eps)
-    umax = _max_speed_of_field(case.dir / "0" / "U", mesh.n_cells)
+    if umax is None:
+        umax = _max_speed_of_field(case.dir / "0" / "U", mesh.n_cells)
     emin = red.allmin(float(eps0.min())) if eps0 is not None else 1.0
     u_int = umax / max(emin, cfg.eps_min)
     cfl = u_int * dt_cfd / dx_edge

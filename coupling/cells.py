@@ -61,7 +61,9 @@ class CellShare:
     """Ownership and halo of the gas cells among the DEM ranks, and each rank's local mesh
     (serial: one rank owns every cell of the whole mesh, nothing is sent)."""
 
-    def __init__(self, mesh, par=None, *, halo: float = 0.0, reach_cells: float = 2.0, source=None):
+    REACH_CELLS = 2.0   # the stencil's reach, in cell diagonals (module docstring)
+
+    def __init__(self, mesh, par=None, *, halo: float = 0.0, reach_cells: float = REACH_CELLS, source=None):
         """``mesh``: the whole gas mesh (coupling.mesh.PolyMesh; serial: anything with
         ``n_cells``), ``par``: the DEM's ParallelDomain or None, ``halo``: the particle halo (m,
         dem.world.World.halo), ``reach_cells``: the stencil's reach in cell diagonals,
@@ -87,6 +89,7 @@ class CellShare:
             self.halo, self.serve = {}, {}
             self._previous = self._held = self.pieces_read = None
             self.view_reach = float("inf")
+            self.setup_read = dict(pieces=None, cells=self.n_cells)
             return
         import copy
         self.comm = par.comm
@@ -96,9 +99,14 @@ class CellShare:
         self._dec0.nodes = [list(nd) for nd in par.dec.nodes]
         self._dec0.blo, self._dec0.bhi = par.dec.blo.copy(), par.dec.bhi.copy()
         self._source = source if source is not None else (lambda regions: mesh)
-        h = np.sqrt(((mesh.cell_vhi - mesh.cell_vlo) ** 2).sum(axis=1))
+        # the mesh given: the whole mesh, or the pieces a rank read at set-up (coupling.pieces:
+        # together they hold every cell; a phantom cell last, not a real one)
+        nreal = mesh.n_cells if mesh.global_ids is None else mesh.global_ids.size
+        h = np.sqrt(((mesh.cell_vhi[:nreal] - mesh.cell_vlo[:nreal]) ** 2).sum(axis=1))
         self.cell_reach = float(self.allmax(float(h.max(initial=0.0)))) * float(reach_cells)
-        self.n_global = int(mesh.n_cells)
+        self.n_global = int(getattr(mesh, "n_global", mesh.n_cells))
+        self.setup_read = dict(pieces=getattr(mesh, "pieces", None), cells=int(nreal),
+                               mesh_bytes=int(mesh.nbytes()) if hasattr(mesh, "nbytes") else None)
         self.mesh = None
         self.pieces_read = None      # the gas processors' meshes read for the last rebuild
         self._held = None            # (box lo, box hi, halo) the local mesh was cut for

@@ -39,7 +39,16 @@ def gas_pairs(out: Path, n_gas: int, cells) -> dict:
         ids = np.ascontiguousarray(owned, np.int64)
         return {0: (ids, ids.copy())} if ids.size else {}
     pairs = {}
-    for g, addr in enumerate(fc.cell_proc_addressing(out)):
+    # the pieces this rank's local mesh came from hold every cell it owns (coupling.pieces);
+    # a local mesh cut from the whole mesh: every processor's addressing
+    read = cells.pieces_read
+    if read:
+        from .mesh import read_foam_list
+        procs = [(int(p[9:]), read_foam_list(str(Path(out) / p / "constant" / "polyMesh" / "cellProcAddressing")))
+                 for p in read]
+    else:
+        procs = enumerate(fc.cell_proc_addressing(out))
+    for g, addr in procs:
         loc = np.flatnonzero(np.isin(addr, owned, assume_unique=True)).astype(np.int64)
         if loc.size:
             pairs[g] = (addr[loc].astype(np.int64), loc)

@@ -83,6 +83,7 @@ class MeshPieces:
         self.n_global = int(n_cells)
         self.grid, self.tol = grid, float(tol)
         self._boxes = None
+        self._pieces = None
         self.last_read = []
 
     @staticmethod
@@ -115,6 +116,13 @@ class MeshPieces:
         boxes = self.boxes()
         which = [k for k, (blo, bhi) in enumerate(boxes)
                  if any(np.all(blo <= hi) and np.all(bhi >= lo) for lo, hi in regions)]
+        return self.read_pieces(which)
+
+    def read_pieces(self, which) -> "PolyMesh":
+        """The mesh of the pieces ``which`` (processor numbers, sorted), as :meth:`read`."""
+        if self._pieces is None:
+            self._pieces = self.procs(self.case)
+        which = sorted(int(k) for k in which)
         self.last_read = [os.path.basename(os.path.dirname(os.path.dirname(self._pieces[k]))) for k in which]
         gf, go, gn, gpatch, loops, lens, cells, pts, pids = [], [], [], [], [], [], [], [], []
         names = None

@@ -46,10 +46,12 @@ def prepare_output(case, out: Path, *, restart: bool, overwrite: bool = False) -
         fc.block_mesh(out)
 
 
-def prepare_gas(out: Path, cfg, mesh, split, eps0, end: float, *, restart: bool, solver=None, m2m=False,
-                gas_dir=None, log=print):
+def prepare_gas(out: Path, cfg, n_cells: int, split, eps0, end: float, *, restart: bool, solver=None, m2m=False,
+                gas_dir=None, decomposed=False, log=print):
     """The gas case in --out ready to start (rank 0); returns (exchange, solver executable).
-    ``eps0``: the initial void fraction (written on a fresh start), ``split``: the tied
+    ``n_cells``: the gas mesh's cells; ``eps0``: the initial void fraction (written on a fresh
+    start; None with ``decomposed``: the case was decomposed first and each processor's 0/eps
+    written by the DEM ranks, coupling.pieces), ``split``: the tied
     walls (their couplingDict entries), ``end``: the run's end time (s); ``m2m``: the
     many-to-many transport (each rank's exchange is made afterwards:
     coupling.transport.open_m2m); ``gas_dir``: the gas time folder of the restart point (moved
@@ -58,15 +60,15 @@ def prepare_gas(out: Path, cfg, mesh, split, eps0, end: float, *, restart: bool,
     ctl = out / "system" / "controlDict"
     # 17 significant digits: a written time is a restart point that continues to round-off
     fc.set_entries(ctl, {"endTime": repr(end), "startFrom": "latestTime", "writePrecision": 17})
-    if not restart:
+    if not restart and not decomposed:
         fc.write_eps(out, eps0)
-    ex = open_exchange(out, cfg, mesh.n_cells, split.couplingdict_entries(), m2m=m2m)
+    ex = open_exchange(out, cfg, n_cells, split.couplingdict_entries(), m2m=m2m)
     if restart and gas_dir is not None:
         from .restart import relayout_gas
         moved = relayout_gas(out, Path(gas_dir), cfg.gas_processes)   # a restart on another gas layout
         if moved:
             log(f"coupling: {moved}")
-    elif cfg.gas_processes > 1:
+    elif cfg.gas_processes > 1 and not decomposed:
         for name in ["log.decomposePar"] + [f"processor{i}" for i in range(cfg.gas_processes)]:
             outdir.claim(out / name)
         fc.decompose(out, cfg.gas_processes)

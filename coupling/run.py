@@ -6,7 +6,9 @@
 ``run`` copies the OpenFOAM part of CASE_DIR into the output directory (default
 ``out/<case name>``; new, empty or an earlier output of this tool, never the case folder nor
 inside it: dem.outdir), meshes it (blockMesh), writes the initial void fraction of the
-particles into 0/eps, decomposes it when ``gas_processes > 1``, builds the solver if
+particles into 0/eps, decomposes it when ``gas_processes > 1`` (under MPI with the socket
+transport the other way round: decomposePar first, then each processor's 0/eps from the DEM
+ranks owning its cells, no rank reading the whole mesh: coupling.pieces), builds the solver if
 needed (scripts/build_openfoam_solver.sh, cached), starts thermoDemFoam, runs the coupled
 loop (coupling.interface) and writes
 
@@ -61,10 +63,11 @@ from .diagnostics import (Diagnostics, Outputs, RunWatch, check_gas_fields, form
                           plot, timings, write_timings)
 from .errors import CouplingError, CouplingRunError, GasFieldError, RunInterrupted  # noqa: F401
 from .launch import scrub_mpi_env, start_solver
+from . import pieces
 from .loop import CoupledLoop, LoopPlan
 from .prepare import output_rule, prepare_gas, prepare_output
 from .restart import RestartPoints, continue_command, resume, stopped_line
-from .transport import Ranks, open_link, open_m2m, uses_m2m
+from .transport import Ranks, _peak_rss_mib, open_link, open_m2m, uses_m2m
 
 EXIT_CHECK = 2
 EXIT_COUPLING = 3
@@ -103,29 +106,50 @@ def run_case(case_dir, out=None, *, transport=None, end_time=None, restart=False
     R.barrier()   # every rank has checked --out before rank 0 claims it
     R.on_root(prepare_output, case, out, restart=restart, overwrite=overwrite)
     R.on_root(remove_stale_temporaries, str(out))  # left by a kill -9 of an earlier run (ours only)
-    # the whole mesh, at set-up only: each DEM rank keeps the cells it sees (its local mesh,
-    # coupling.cells) and reads the whole mesh again only when a re-cut of the DEM boxes moves
-    # its view beyond them
-    mesh = read_polymesh(str(out))
-    ties = tie_walls(case, mesh)          # tied walls checked on the gas mesh
-    ledger = EnergyLedger(mesh, ties)
-    iface = CouplingInterface.for_case(case, mesh, source=mesh_source(out, cfg, mesh))
+    m2m = uses_m2m(cfg, R.size)
+    table = None
+    if R.par is not None and pieces.pieced(out, cfg, restart, m2m):
+        # the gas decomposed first; each DEM rank reads the pieces around its box and those
+        # holding its cells, never the whole mesh (coupling.pieces)
+        if not restart:
+            R.on_root(pieces.decompose_first, out, cfg.gas_processes)
+        table, mesh = R.everywhere(pieces.on_rank, R.par.rank, _pieces_mesh, out, R.par, sim, cfg)
+        iface = CouplingInterface.for_case(case, mesh, source=mesh_source(out, cfg, mesh, table))
+        iface.cells.setup_read["table"] = table.table_read
+        ties = tie_walls(case, iface.mesh, ranks=iface.cells)   # the owned cells' patch faces, reduced
+    else:
+        # the whole mesh, at set-up only: each DEM rank keeps the cells it sees (its local mesh,
+        # coupling.cells) and reads the whole mesh again only when a re-cut of the DEM boxes moves
+        # its view beyond them
+        mesh = read_polymesh(str(out))
+        ties = tie_walls(case, mesh)          # tied walls checked on the gas mesh
+        iface = CouplingInterface.for_case(case, mesh, source=mesh_source(out, cfg, mesh))
+    ledger = EnergyLedger(iface.mesh, ties)   # the patches (names, types: every local mesh has them all)
     split = FluxSplit(case, iface.mesh, ties)   # tied walls: the particles' paths per cell (fixed flux: the split)
     # ---- checks of the case (on the scene's packing: the DEM check evaluates the contact
     # forces, so it must run before a restart loads its checkpoint)
     eps0 = iface.initial_void_fraction()
-    _check(R, case, mesh, iface, iface.cells.spread(eps0, 1.0), quiet, log)
+    if table is not None:
+        _check(R, case, iface.mesh, iface, eps0, quiet, log, umax=table.umax)
+    else:
+        _check(R, case, mesh, iface, iface.cells.spread(eps0, 1.0), quiet, log)
     # ---- restart: the latest restart point (gas time + DEM checkpoint + coupling state)
     i0, t_start, cstate = resume(R, out, iface, ledger, split, case.dt_cfd, log) if restart else (0, 0.0, None)
     end = case.end_time if end_time is None else float(end_time)
     plan = _plan(case, restart, end, i0, t_start, cstate)
     if plan.n_steps < 1:
         return _nothing_to_run(R, case_dir, case, out, end_time, end, restart, plan, log)
-    m2m = uses_m2m(cfg, R.size)
-    eps_all = iface.cells.gather_owned(eps0)   # rank 0 writes the gas's initial void fraction (set-up)
-    ex, exe = R.on_root(prepare_gas, out, cfg, mesh, split, eps_all, end, restart=restart, solver=solver,
-                        m2m=m2m, gas_dir=cstate["gas_dir"] if cstate else None, log=log) or (None, None)
+    if table is not None:   # each processor's 0/eps from its cells' owners (coupling.pieces)
+        eps_all = None
+        if not restart:
+            R.everywhere(pieces.on_rank, R.par.rank, pieces.write_eps_pieces, table, iface.cells, eps0)
+    else:
+        eps_all = iface.cells.gather_owned(eps0)   # rank 0 writes the gas's initial void fraction (set-up)
+    ex, exe = R.on_root(prepare_gas, out, cfg, iface.cells.n_global, split, eps_all, end, restart=restart,
+                        solver=solver, m2m=m2m, gas_dir=cstate["gas_dir"] if cstate else None,
+                        decomposed=table is not None, log=log) or (None, None)
     eps_all = mesh = None   # from here on each rank holds its local mesh only (iface.mesh)
+    iface.cells.setup_read["peak_rss_mib"] = _peak_rss_mib()   # the set-up's peak (timings.json)
     if m2m:
         ex = open_m2m(R, out, cfg, iface.cells)   # every rank listens and writes its plan lines
     sim.warmup()
@@ -142,28 +166,39 @@ def run_case(case_dir, out=None, *, transport=None, end_time=None, restart=False
     return _finish(R, loop, case, out, cont, t_wall0, quiet, log)
 
 
-def mesh_source(out, cfg, mesh):
+def mesh_source(out, cfg, mesh, table=None):
     """Where a DEM rank reads gas cells again after a re-cut of the DEM boxes moved its view
     beyond its local mesh (coupling.cells.CellShare): the pieces of the decomposed gas case
     that overlap the regions it needs (gas_processes > 1), else the whole mesh. Keeps only
-    the whole mesh's size, lattice spacing and location tolerance."""
+    the whole mesh's size, lattice spacing and location tolerance (``table``: the pieces'
+    boxes, coupling.pieces.PieceTable, when the set-up read by pieces)."""
     from .mesh import MeshPieces, UniformGrid, read_polymesh
     ug = mesh.uniform_grid
     grid = None if ug is None else UniformGrid(ug.origin, ug.h, ug.dims, np.zeros(0, np.int64))
-    pieces = MeshPieces(out, mesh.n_cells, grid, mesh.tol)
+    reader = (table.pieces(grid, mesh.tol) if table is not None
+              else MeshPieces(out, getattr(mesh, "n_global", mesh.n_cells), grid, mesh.tol))
 
     def read(regions):
         if cfg.gas_processes > 1 and MeshPieces.procs(str(out)):
-            return pieces.read(regions)
+            return reader.read(regions)
         return read_polymesh(str(out))
     return read
 
 
-def _check(R, case, mesh, iface, eps0, quiet, log):
+def _pieces_mesh(out, par, sim, cfg):
+    """(PieceTable, the mesh of the pieces this rank needs) (coupling.pieces)."""
+    from .cells import CellShare
+    table = pieces.PieceTable(out, par.comm, par.dec, par.rank, par.size)
+    reach = sim.world.halo() + table.cell_diag * CellShare.REACH_CELLS
+    mesh = table.local_mesh((par.dec.blo[par.rank], par.dec.bhi[par.rank]), reach, par.dec)
+    return table, mesh
+
+
+def _check(R, case, mesh, iface, eps0, quiet, log, umax=None):
     """The coupling checks on every rank (report on rank 0); CouplingRunError if refused."""
     from .case import check_coupled_case, format_report
     rep = R.everywhere(check_coupled_case, case, mesh, eps0=eps0, clip=dict(iface.clip),
-                       ranks=iface.cells)
+                       ranks=iface.cells, umax=umax)
     rep = R.bcast(rep)
     if not quiet and R.root:
         log(format_report(case, rep))

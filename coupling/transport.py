@@ -388,7 +388,10 @@ class _M2MLink(_SolverLink):
         cs, ex = self.cells, self.ex
         return dict(owned_cells=int(cs.owned.size), halo_cells=cs.halo_cells, gas_partners=len(ex.pairs),
                     local_cells=int(cs.n_cells), mesh_bytes=int(cs.mesh.nbytes()), mesh_rebuilds=cs.rebuilds,
-                    mesh_pieces_read=cs.pieces_read, dem_recuts=0 if cs.par is None else int(cs.par.rebalances),
+                    mesh_pieces_read=cs.pieces_read, setup_pieces_read=cs.setup_read["pieces"],
+                    setup_cells_read=cs.setup_read["cells"], table_pieces_read=cs.setup_read.get("table"),
+                    setup_mesh_bytes=cs.setup_read.get("mesh_bytes"),
+                    setup_peak_rss_mib=cs.setup_read.get("peak_rss_mib"), dem_recuts=0 if cs.par is None else int(cs.par.rebalances),
                     restart_pieces=self.restart_pieces, view_reach=cs.view_reach,
                     view_box=None if cs.view_box is None else [b.tolist() for b in cs.view_box],
                     gas_bytes_sent=ex.bytes_sent, gas_bytes_received=ex.bytes_received,
