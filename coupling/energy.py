@@ -203,62 +203,11 @@ def tie_walls(case, mesh, ranks=None) -> dict[int, int]:
     """Check the tied pairs on the gas mesh; returns {DEM wall index: patch index (in the
     boundary's order, the ledger's)}. CaseConfigError naming both when a pair does not
     coincide. ``ranks``: coupling.cells.CellShare when ``mesh`` is a DEM rank's local mesh
-    (coupling.pieces): each rank checks the patch faces of the cells it owns, the farthest
-    point, the area and the face count are reduced over the ranks (the same answer on each)."""
-    if ranks is not None and ranks.par is not None:
-        return _tie_walls_local(case, mesh, ranks)
-    from dem.thermal.wall_heat import wall_area
-    ties = case.config.walls
-    if not ties:
-        return {}
-    sc = case.sim.scene
-    names = [w["name"] for w in sc.walls]
-    dmin = 2.0 * float(sc.rmin if getattr(sc, "distributed", False) else np.min(sc.radius))
-    out = {}
-    for k, t in enumerate(ties):
-        key = f"walls[{k}]"
-        wi = names.index(t["dem"])
-        w = sc.walls[wi]
-        pi, p = _patch(mesh, t["patch"])
-        if p is None:
-            raise CaseConfigError(case.config_file, f"no gas patch {t['patch']!r} in the mesh", f"{key}.patch")
-        if p.get("type") != "wall":
-            raise CaseConfigError(case.config_file, f"gas patch {t['patch']!r} is of type {p.get('type')!r}; a tied "
-                                                    f"patch must be of type wall (constant/polyMesh/boundary, "
-                                                    f"blockMeshDict)", f"{key}.patch")
-        f0, nf = int(p["startFace"]), int(p["nFaces"])
-        pts = np.unique(np.concatenate([mesh.face_points[mesh.face_offsets[f]:mesh.face_offsets[f + 1]]
-                                        for f in range(f0, f0 + nf)])) if nf else np.zeros(0, int)
-        x = mesh.points[pts]
-        tol = t["tolerance"] if t["tolerance"] is not None else 0.1 * dmin
-        both = f"DEM wall {t['dem']!r} ({case.dem_file.name}) and gas patch {t['patch']!r}"
-        if nf == 0:
-            raise CaseConfigError(case.config_file, f"{both}: the patch has no faces", key)
-        d = _surface_distance(w, x)
-        j = int(np.argmax(d))
-        if d[j] > tol:
-            raise CaseConfigError(case.config_file, f"{both} do not coincide: the patch's point "
-                                                    f"{np.array2string(x[j], precision=6)} is {d[j]:.3g} m from the "
-                                                    f"DEM wall (tolerance {tol:.3g} m); move one of them or set "
-                                                    f"{key}.tolerance", key)
-        a_wall = wall_area(w, sc.domain["min"], sc.domain["max"])
-        a_patch = float(np.linalg.norm(mesh.face_areas[f0:f0 + nf], axis=1).sum())
-        chord = 0.0
-        if w["type"] == "cylinder":   # the patch's polygon lies inside the circle through its points
-            chord = 1.0 - a_patch / max(a_wall, 1e-300)
-            chord = min(max(chord, 0.0), 0.05)
-        if a_wall <= 0 or abs(a_patch / a_wall - 1.0) > AREA_RTOL + chord:
-            raise CaseConfigError(case.config_file, f"{both} do not coincide: the patch's area is {a_patch:.6g} m^2, "
-                                                    f"the DEM wall's {a_wall:.6g} m^2 within the DEM domain "
-                                                    f"(allowed: {100 * AREA_RTOL:g} %); the patch must cover the "
-                                                    f"wall the particles touch", key)
-        out[wi] = pi
-    return out
-
-
-def _tie_walls_local(case, mesh, red) -> dict[int, int]:
-    """tie_walls on the DEM ranks' local meshes: the patch faces of each rank's owned cells
-    (every boundary face once over the ranks)."""
+    (coupling.pieces): each rank checks the patch faces of the cells it owns (every boundary
+    face once over the ranks), the farthest point, the area and the face count are reduced
+    over the ranks (the same answer on each); None: one process, the whole mesh."""
+    from .cells import CellShare
+    red = ranks if ranks is not None else CellShare.serial(mesh.n_cells)
     from dem.thermal.wall_heat import wall_area
     ties = case.config.walls
     if not ties:

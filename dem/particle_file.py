@@ -49,14 +49,19 @@ def read(full):
     else:
         cols, lines = _read_csv(full, name)
         where = lambda k: f"line {lines[k]}"  # noqa: E731
+    _check_columns(cols, name)
+    _check_values(cols, name, where)
+    return cols, where
+
+
+def _check_columns(cols, name):
+    """Every required column present, none unknown."""
     missing = [c for c in REQUIRED if c not in cols]
     if missing:
         raise ParticleFileError(f"{name}: missing column {missing[0]!r} ({ALLOWED_TEXT})")
     unknown = [c for c in cols if c not in COLUMNS]
     if unknown:
         _err(name, f"column {unknown[0]!r}", f"unknown column; allowed: {', '.join(COLUMNS)}")
-    _check_values(cols, name, where)
-    return cols, where
 
 
 def _err(name, where, msg):
@@ -263,12 +268,7 @@ def read_part(full, sc):
     else:
         cols, lines, start, total = _read_csv_part(full, name, sc)
         where = lambda k: f"line {lines[k]}"  # noqa: E731
-    missing = [c for c in REQUIRED if c not in cols]
-    if missing:
-        raise ParticleFileError(f"{name}: missing column {missing[0]!r} ({ALLOWED_TEXT})")
-    unknown = [c for c in cols if c not in COLUMNS]
-    if unknown:
-        _err(name, f"column {unknown[0]!r}", f"unknown column; allowed: {', '.join(COLUMNS)}")
+    _check_columns(cols, name)
     _check_values_part(cols, name, where, start, lines, sc)
     return Part(cols, start, total, where)
 
