@@ -209,10 +209,8 @@ def _write_state_pieces(R, iface, path: Path, step, t, fluid, ledger=None, split
         d["piece_ids"] = metas[:, 1:3].astype(np.int64)
         d["piece_lo"], d["piece_hi"] = metas[:, 3:6].copy(), metas[:, 6:9].copy()
         save_npz(str(path), durable=True, **d)
-        keep = set(str(n) for n in d["pieces"])
-        for f in folder.iterdir():
-            if _PIECE_NAME.fullmatch(f.name) and f.name not in keep:
-                f.unlink()
+        from dem.pieces import remove_stale
+        remove_stale(str(folder), set(str(n) for n in d["pieces"]), _PIECE_NAME)
     R.on_root(manifest)   # a failure there stops every rank
 
 

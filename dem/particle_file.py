@@ -209,21 +209,28 @@ def _read_npz(full, name):
     return cols
 
 
+def _bound_checks(cols):
+    """The physical bounds of the columns, in the order they are checked: (bad-row mask,
+    column, what is allowed)."""
+    checks = [(np.abs(a) > MAX_MAGNITUDE, c, f"too large to compute with (|value| <= {MAX_MAGNITUDE:g}); "
+                                              "check the units") for c, a in cols.items()]
+    checks.append((~(cols["radius"] > 0), "radius", "must be > 0"))
+    if "temperature" in cols:
+        checks.append((~(cols["temperature"] > 0), "temperature", "must be > 0 K"))
+    if "id" in cols:
+        ids = cols["id"]
+        checks.append(((ids != np.round(ids)) | (ids < 0) | (ids >= 2 ** 53), "id", "must be a whole number >= 0"))
+    return checks
+
+
 def _check_values(cols, name, where):
-    """Physical bounds of the columns."""
-    def first_bad(mask, col, msg):
+    """Physical bounds of the columns (:func:`_bound_checks`), then unique ids."""
+    for mask, col, msg in _bound_checks(cols):
         bad = np.nonzero(mask)[0]
         if bad.size:
             _err(name, f"{where(bad[0])}, column {col}", f"{msg}, got {float(cols[col][bad[0]])!r}")
-    for c, a in cols.items():
-        first_bad(np.abs(a) > MAX_MAGNITUDE, c, f"too large to compute with (|value| <= {MAX_MAGNITUDE:g}); "
-                                               "check the units")
-    first_bad(~(cols["radius"] > 0), "radius", "must be > 0")
-    if "temperature" in cols:
-        first_bad(~(cols["temperature"] > 0), "temperature", "must be > 0 K")
     if "id" in cols:
         ids = cols["id"]
-        first_bad((ids != np.round(ids)) | (ids < 0) | (ids >= 2 ** 53), "id", "must be a whole number >= 0")
         s = np.argsort(ids, kind="stable")
         eq = np.nonzero(ids[s][1:] == ids[s][:-1])[0]
         if eq.size:
@@ -494,16 +501,8 @@ def _read_npz_part(full, name, sc):
 
 def _check_values_part(cols, name, where, start, lines, sc):
     """:func:`_check_values` on a slice: each check's first bad row in file order over the ranks."""
-    checks = [(np.abs(a) > MAX_MAGNITUDE, c, f"too large to compute with (|value| <= {MAX_MAGNITUDE:g}); "
-                                              "check the units") for c, a in cols.items()]
-    checks.append((~(cols["radius"] > 0), "radius", "must be > 0"))
-    if "temperature" in cols:
-        checks.append((~(cols["temperature"] > 0), "temperature", "must be > 0 K"))
-    if "id" in cols:
-        ids = cols["id"]
-        checks.append(((ids != np.round(ids)) | (ids < 0) | (ids >= 2 ** 53), "id", "must be a whole number >= 0"))
     bad = None
-    for j, (mask, col, msg) in enumerate(checks):
+    for j, (mask, col, msg) in enumerate(_bound_checks(cols)):
         r = np.nonzero(mask)[0]
         if r.size:
             k = int(r[0])

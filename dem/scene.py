@@ -555,21 +555,7 @@ def parse(data, file="<dict>", base_dir=".", end_time=None, comm="auto"):
         ids = np.arange(1, n + 1, dtype=np.int64)
     if part is None:
         group = np.concatenate(P["group"])
-        # inside the domain (non-periodic axes: the centre inside; periodic: wrapped later)
-        for ax in range(3):
-            if periodic[ax]:
-                continue
-            out = np.nonzero((x[:, ax] < lo[ax]) | (x[:, ax] > hi[ax]))[0]
-            if out.size:
-                q = out[0]
-                g = int(group[q])
-                i = q - int(np.argmax(group == g))   # index within its [[particles]] group
-                key = {"positions": f"particles[{g}].positions[{i}]", "file": f"particles[{g}].file",
-                       "count": f"particles[{g}].region"}[P["mode"][g]]
-                in_file = f" ({P['where'][g](i)})" if P["mode"][g] == "file" else ""
-                v.err(key, f"particle id {ids[q]}{in_file} at "
-                             f"{x[q].tolist()} lies outside the domain [{lo.tolist()}, {hi.tolist()}] on axis "
-                             f"{'xyz'[ax]}; particle centres must lie within domain.min .. domain.max")
+    _check_inside_domain(v, P, x, ids, group, lo, hi, periodic, part, totals if part is not None else None)
     # --- walls
     walls = []
     if not isinstance(data.get("walls", []), list):
@@ -851,6 +837,20 @@ def _ids_and_domain_part(v, part, P, x, lo, hi, periodic):
     else:
         ids = grow + 1
     group = np.concatenate(P["group"])
+    return ids, group, dict(nloc=nloc, goff=goff, gtot=gtot, grow=grow, gi=gi, n=int(gtot.sum()))
+
+
+def _check_inside_domain(v, P, x, ids, group, lo, hi, periodic, part=None, totals=None):
+    """Every particle centre inside the domain (non-periodic axes; periodic ones are wrapped
+    later): the first particle outside, in scene order (by axis, then row), named with its key
+    and, from a file, its line or row. Under MPI (``part``, ``totals``: _ids_and_domain_part)
+    on this rank's rows, the first over the ranks agreed."""
+    nloc = np.array([len(a) for a in P["x"]], np.int64)
+    if part is None:   # one process: every row is here, in scene order
+        gi = [np.arange(m, dtype=np.int64) for m in nloc]
+        grow = np.arange(len(x), dtype=np.int64)
+    else:
+        gi, grow = totals["gi"], totals["grow"]
     local_start = np.concatenate([[0], np.cumsum(nloc)[:-1]])
     best, text = None, None
     for ax in range(3):
@@ -870,10 +870,9 @@ def _ids_and_domain_part(v, part, P, x, lo, hi, periodic):
                                  f"{x[q].tolist()} lies outside the domain [{lo.tolist()}, {hi.tolist()}] on axis "
                                  f"{'xyz'[ax]}; particle centres must lie within domain.min .. domain.max")
             break
-    msg = part.agree(best, text)
+    msg = text if part is None else part.agree(best, text)
     if msg is not None:
         v.err(*msg.split("\n", 1))
-    return ids, group, dict(nloc=nloc, goff=goff, gtot=gtot, grow=grow, n=int(gtot.sum()))
 
 
 def _scene_part(sc, part, totals, P):
