@@ -120,6 +120,7 @@ def main(argv=None):
                          "reference is exact)")
     ap.add_argument("--work", default=str(ROOT / "out" / "bed_surface"))
     ap.add_argument("--verbose", action="store_true", help="print the layer-by-layer table")
+    ap.add_argument("--drag-void-fraction", default=None, choices=["cell", "voronoi", "kernel"])
     a = ap.parse_args(argv)
     from dem import outdir
     from stability.coupled import write_case
@@ -149,7 +150,7 @@ def main(argv=None):
                    diameter=cd.D_P, density=cd.RHO_P, dt_dem=dt_dem, interval=k,
                    n_steps=int(round(a.end / (k * dt_dem))), u_in=u, void_fraction="divided", eps_min=0.3,
                    heat=False, rho_g=cd.RHO_G, nu_g=cd.NU_G, friction=0.5, restitution=0.3, walls_top=False,
-                   drag="gidaspow_1994", mechanics=False)
+                   drag="gidaspow_1994", mechanics=False, drag_void_fraction=a.drag_void_fraction)
         code, text, d = cd.run(case, out)
         if code != 0:
             print(f"| {h * 1e3:g} | run failed (exit {code}) |")

@@ -15,6 +15,8 @@ Layout::
     drag = "di_felice_1994"       # di_felice_1994 | gidaspow_1994 | beetstra_2007 | huilin_gidaspow_2003
     drag_integration = "implicit_bed"  # implicit_bed | implicit_particle | explicit (docs/models.md)
     void_fraction = "divided"     # centre | divided | smoothed
+    drag_void_fraction = "cell"   # cell | voronoi | kernel: the void fraction each particle's drag sees
+    drag_averaging_length = 0.003 # m, support of the kernel method (kernel only; default 3 largest diameters)
     interpolation = "cell"        # cell | idw | linear
     eps_min = 0.3                 # lower bound of the DEM void fraction
     smoothing_time = 0.0          # s, time relaxation of eps / Ksl (0 = off)
@@ -64,6 +66,7 @@ from .drag import DRAG_MODELS, drag_coefficients, drag_model_id
 from .forces import LIFT_MODELS, TORQUE_MODELS
 from .interface import GasProperties
 from .interpolate import METHODS as INTERP_METHODS
+from .particle_void import METHODS as DRAG_VOID_METHODS
 from .voidfraction import MODELS as VF_MODELS
 
 __all__ = ["CaseConfigError", "CouplingConfig", "CoupledCase", "load_case", "check_coupled_case",
@@ -84,6 +87,8 @@ class CouplingConfig:
     drag: str = "di_felice_1994"
     drag_integration: str = "implicit_bed"
     void_fraction: str = "divided"
+    drag_void_fraction: str = "cell"
+    drag_averaging_length: float | None = None
     interpolation: str = "cell"
     eps_min: float = 0.3
     smoothing_time: float = 0.0
@@ -109,6 +114,8 @@ _KEYS = {
     "drag": (str, tuple(DRAG_MODELS)),
     "drag_integration": (str, ("implicit_bed", "implicit_particle", "explicit")),
     "void_fraction": (str, VF_MODELS),
+    "drag_void_fraction": (str, DRAG_VOID_METHODS),
+    "drag_averaging_length": (float, (0.0, None)),
     "interpolation": (str, INTERP_METHODS),
     "eps_min": (float, (0.01, 0.99)),
     "smoothing_time": (float, (0.0, None)),
@@ -204,6 +211,10 @@ def load_config(path: Path) -> CouplingConfig:
         setattr(cfg, key, val)
     if cfg.output_interval == 0.0:
         raise CaseConfigError(path, "must be > 0", "coupling.output_interval")
+    if cfg.drag_averaging_length is not None and cfg.drag_void_fraction != "kernel":
+        raise CaseConfigError(path, f"is the support of the kernel method: set drag_void_fraction = \"kernel\" "
+                                    f"(now \"{cfg.drag_void_fraction}\"; voronoi averages over its particles' "
+                                    f"first shells) or remove it", "coupling.drag_averaging_length")
     if "walls" in data:
         from .energy import parse_ties
         cfg.walls = parse_ties(path, data["walls"])
@@ -312,10 +323,19 @@ def load_case(case_dir, *, build_sim: bool = True) -> CoupledCase:
         if scene.end_time_in_file and not _same_time(scene.simulation["end_time"], end):
             raise CaseConfigError(dem_file, _end_time_conflict(scene.simulation["end_time"], "[simulation] end_time",
                                                                dem_file, end, ctl_file), "simulation.end_time")
+        from .particle_void import ParticleVoidFraction
+        method, ell = cfg.drag_void_fraction, cfg.drag_averaging_length
+        scene.ghost_reach = lambda rmax: ParticleVoidFraction.ghost_reach(method, rmax, ell)
         try:
             sim = dem.Simulation(scene)  # memory checked before allocating
         except SceneError as e:
             raise CaseConfigError(dem_file, str(e).split(": ", 1)[-1]) from None
+        if ell is not None and ell < 2.0 * sim.world.rmax:
+            raise CaseConfigError(cfg_file, f"{ell:g} m is less than the largest particle diameter "
+                                            f"{2.0 * sim.world.rmax:.4g} m: a kernel narrower than a particle "
+                                            f"measures the particle, not the packing around it; use at least "
+                                            f"{2.0 * sim.world.rmax:.4g} m (the default is 3 diameters)",
+                                  "coupling.drag_averaging_length")
     case = CoupledCase(case_dir, cfg, dem_file, cfg_file, gas, mt, ctl, sim)
     from .energy import check_tie_names
     check_tie_names(case)
@@ -733,10 +753,23 @@ def check_coupled_case(case: CoupledCase, mesh, *, eps0: np.ndarray | None = Non
     return dict(values=vals, warnings=warnings, problems=problems)
 
 
+def _drag_void_text(case) -> str:
+    """What the drag void fraction averages over, against the gas cells."""
+    from .particle_void import ParticleVoidFraction
+    cfg = case.config
+    rmax = float(case.sim.world.rmax) if case.sim is not None else 0.0
+    if cfg.drag_void_fraction == "cell" or rmax <= 0.0:
+        return "the gas cells' void fraction at each particle" if cfg.drag_void_fraction == "cell" else \
+            "around each particle"
+    pv = ParticleVoidFraction(cfg.drag_void_fraction, rmax, cfg.drag_averaging_length, n_directions=2)
+    return pv.averaging().replace(", 2 directions", "")
+
+
 def format_report(case: CoupledCase, rep: dict) -> str:
     lines = [f"coupled case {case.dir}",
              f"  transport {case.config.transport}, drag {case.config.drag}, void fraction "
-             f"{case.config.void_fraction}, model {case.model_type}, interpolation {case.config.interpolation}"]
+             f"{case.config.void_fraction}, model {case.model_type}, interpolation {case.config.interpolation}",
+             f"  drag void fraction {case.config.drag_void_fraction}: {_drag_void_text(case)}"]
     cfg = case.config
     if cfg.torque != "none" or cfg.lift != "none" or cfg.virtual_mass:
         lines.append(f"  fluid torque {cfg.torque}, lift {cfg.lift}, virtual mass "

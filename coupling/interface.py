@@ -97,6 +97,8 @@ class CouplingInterface:
     gas: GasProperties
     drag: str = "di_felice_1994"
     void_fraction: str = "divided"
+    drag_void_fraction: str = "cell"  # | voronoi | kernel (coupling.particle_void)
+    drag_averaging_length: float | None = None
     interpolation: str = "cell"
     model_type: str = "A"
     eps_min: float = 0.3
@@ -118,6 +120,7 @@ class CouplingInterface:
         coupling.toml, its gas, its model type and its scene's gravity."""
         cfg = case.config
         return cls(mesh, case.sim, case.gas, mesh_source=source, drag=cfg.drag, void_fraction=cfg.void_fraction,
+                   drag_void_fraction=cfg.drag_void_fraction, drag_averaging_length=cfg.drag_averaging_length,
                    interpolation=cfg.interpolation, model_type=case.model_type, eps_min=cfg.eps_min,
                    smoothing_time=cfg.smoothing_time,
                    gravity=np.asarray(case.sim.scene.simulation["gravity"], float),
@@ -159,6 +162,12 @@ class CouplingInterface:
         # fraction of the particle volume, smallest unclipped eps and its cell
         self.clip = dict(cells=0, volume=0.0, fraction=0.0, eps_raw_min=1.0, cell=-1)
         self.eps_change = (0.0, -1)   # largest |eps_n - eps_(n-1)| sent to the gas, and its cell
+        # the void fraction each particle's drag sees (coupling.particle_void); "cell": the
+        # stencil's mean of the cells', as the gas sees it
+        from .particle_void import ParticleVoidFraction
+        self.local_void = ParticleVoidFraction(self.drag_void_fraction, self.sim.world.rmax, self.drag_averaging_length)
+        st = self.sim.state
+        self.rmin = float(self.cells.allmin(float(st.radius[:st.n_owned].min(initial=math.inf))))
 
     def _note_clipping(self, eps_raw) -> None:
         """The eps_min clipping of the cells this rank owns, summed over the ranks."""
@@ -337,6 +346,15 @@ class CouplingInterface:
                 uf[lost] = 0.0
                 gradp[lost] = 0.0
                 tg[lost] = np.nan
+            eps_loc = _CELL_VOID
+            uloc = uf
+            if self.local_void.method != "cell":
+                # the drag law at the void fraction around each particle, written against the
+                # cells' (docs/models.md, "The void fraction a particle's drag sees")
+                eps_p = _stencil_inverse_square_mean(pw.cells, pw.weights, eps)
+                eps_loc = self.local_void(sim, eps_p, self.rmin, self.eps_min)
+                eps_loc[lost] = 1.0
+                uloc = _local_gas_velocity(uf, vel, eps_p, eps_loc)
             extra = self.torque_id != 0 or self.lift_id != 0 or self.virtual_mass
             if extra:
                 # gas velocity gradient (least squares, coupling.interpolate.cell_gradient):
@@ -353,8 +371,8 @@ class CouplingInterface:
             up = vel if self.us_sent is None else _gather_vector(pw.cells, pw.weights, self.us_sent, vel)
             at = AtParticles(rad, vel, uf, cells)
             force, beta, bimp, fexp = _particle_forces(self.drag_id, self.model_type == "B", self.drag_mode, at,
-                                                       st.cg[:n], gradp, eps_p, up, self.gas.rho, self.gas.mu,
-                                                       self.gravity)
+                                                       st.cg[:n], gradp, eps_p, eps_loc, up, self.gas.rho,
+                                                       self.gas.mu, self.gravity)
             tframe = None
             if extra:
                 fadd, texp, krot, madd, tframe = _extra_terms(
@@ -369,7 +387,10 @@ class CouplingInterface:
             # -beta_imp (v - v_frame), implicitly in v; it gets beta_imp and the explicit part
             if self.heat:
                 tgas = np.where(lost, st.temperature[:n], tg)
-                sim.set_fluid(force=fexp, drag=bimp, velocity=uf, temperature=tgas, porosity=eps_p, **fl)
+                # the Nusselt correlations at the same local void fraction, with the interstitial
+                # gas velocity there (the superficial slip eps |u - v| of the cell kept)
+                sim.set_fluid(force=fexp, drag=bimp, velocity=uloc, temperature=tgas,
+                              porosity=eps_p if eps_loc.shape[0] == 0 else eps_loc, **fl)
                 hA = sim.thermal.convection_h()[:n]
                 hA[lost] = 0.0
                 Tp = st.temperature[:n]
@@ -383,7 +404,7 @@ class CouplingInterface:
             ksl = self._relax(self.ksl_sent, ksl_raw, dt_cfd)
             self.ksl_sent = ksl
             self.us_sent = us
-        self.last = dict(beta=beta, force=force, hA=hA, eps_p=eps_p, uf=uf, eps_raw=eps_raw,
+        self.last = dict(beta=beta, force=force, hA=hA, eps_p=eps_p, eps_loc=eps_loc, uf=uf, eps_raw=eps_raw,
                          Tg=tg, torque=tframe, ids=st.id[:n].copy())
         self._frame = dict(eps=eps, Ksl=ksl, Us=us, Simp=simp, Sexp=sexp)
         return self._frame
@@ -422,6 +443,44 @@ def _gather_cell(scells, sweights, cells, U, gradp, T, eps):
         if ws > 0.0:
             ep[p] = es / ws
     return uf, gp, tg, ep
+
+
+_CELL_VOID = np.zeros(0)   # no local void fraction: the drag law at the cells' (drag_void_fraction = "cell")
+
+
+@njit(cache=True, error_model="numpy")
+def _stencil_inverse_square_mean(scells, sweights, eps):
+    """The cell void fraction at each particle as its drag's exchange needs it,
+    ebar = (sum_c w_c / eps_c^2 / sum_c w_c)^(-1/2) over its stencil: the particle's
+    coefficient K is shared to the cells by w_c, and a cell's gas feels K_c u_s / eps_c^2
+    (model A), so the bed's pressure drop is sum_p K_p u_s / ebar_p^2 exactly. 1 outside the
+    mesh."""
+    n = scells.shape[0]
+    out = np.ones(n)
+    for p in range(n):
+        ws = 0.0
+        s = 0.0
+        for j in range(scells.shape[1]):
+            c = scells[p, j]
+            if c >= 0:
+                ws += sweights[p, j]
+                s += sweights[p, j] / (eps[c] * eps[c])
+        if ws > 0.0 and s > 0.0:
+            out[p] = 1.0 / math.sqrt(s / ws)
+    return out
+
+
+@njit(cache=True, error_model="numpy")
+def _local_gas_velocity(uf, vel, ebar, eloc):
+    """Interstitial gas velocity around each particle: v + (u_f - v) ebar / eps_loc, the
+    superficial slip of its cell, ebar (u_f - v), through its own void fraction."""
+    n = uf.shape[0]
+    out = np.empty((n, 3))
+    for p in range(n):
+        g = ebar[p] / eloc[p]
+        for i in range(3):
+            out[p, i] = vel[p, i] + (uf[p, i] - vel[p, i]) * g
+    return out
 
 
 # how the DEM integrates the drag over a coupling step (coupling.toml drag_integration;
@@ -465,9 +524,17 @@ AtParticles = namedtuple("AtParticles", "rad vel uf cells")
 
 
 @njit(cache=True, error_model="numpy")
-def _particle_forces(model_id, model_b, mode, at, cg, gradp, eps_p, up, rho, mu, g):
+def _particle_forces(model_id, model_b, mode, at, cg, gradp, eps_p, eps_loc, up, rho, mu, g):
     """beta_p (drag law; /eps for model B) and the fluid force on each particle at the frame:
     A: beta (u_f - u_p) - V_p grad p;  B: beta (u_f - u_p) - rho V_p g.
+
+    ``eps_loc`` (empty: the cells') the void fraction around each particle, ``eps_p`` then the
+    cells' at it as the exchange sees them (ebar): the law is evaluated at eps_loc with the
+    slip there, |u_f - u_p| ebar / eps_loc, and the coefficient written against the cell's
+    gas, K = beta(eps_loc) (ebar / eps_loc)^2 (model A; B: beta(eps_loc) / eps_loc
+    (ebar / eps_loc)): the fluid force on a particle held in a bed, K u_f plus its share of
+    the pressure gradient, is then its law's at eps_loc wherever the cell faces cut the bed
+    (docs/models.md, "The void fraction a particle's drag sees").
     A parcel (cg: its coarse-graining factor; empty without coarse graining) takes the drag of its
     cg^3 real particles: beta = cg^3 beta(d / cg), the law at the real diameter (its Re and drag
     coefficient), and V_p its own volume (cg^3 real volumes; docs/models.md, "Coarse graining").
@@ -495,6 +562,7 @@ def _particle_forces(model_id, model_b, mode, at, cg, gradp, eps_p, up, rho, mu,
     beta = np.zeros(n)
     bimp = np.zeros(n)
     has_cg = cg.shape[0] > 0
+    local = eps_loc.shape[0] > 0
     for p in range(n):
         if cells[p] < 0:
             continue
@@ -503,12 +571,24 @@ def _particle_forces(model_id, model_b, mode, at, cg, gradp, eps_p, up, rho, mu,
         r1 = uf[p, 1] - vel[p, 1]
         r2 = uf[p, 2] - vel[p, 2]
         ur = math.sqrt(r0 * r0 + r1 * r1 + r2 * r2)
-        if has_cg:
-            b = drag_coefficient(model_id, d / cg[p], eps_p[p], rho, mu, ur) * cg[p] ** 3
+        if local:
+            el = eps_loc[p]
+            gr = eps_p[p] / el
+            if has_cg:
+                b = drag_coefficient(model_id, d / cg[p], el, rho, mu, ur * gr) * cg[p] ** 3
+            else:
+                b = drag_coefficient(model_id, d, el, rho, mu, ur * gr)
+            if model_b:
+                b *= gr / el
+            else:
+                b *= gr * gr
         else:
-            b = drag_coefficient(model_id, d, eps_p[p], rho, mu, ur)
-        if model_b:
-            b /= eps_p[p]
+            if has_cg:
+                b = drag_coefficient(model_id, d / cg[p], eps_p[p], rho, mu, ur) * cg[p] ** 3
+            else:
+                b = drag_coefficient(model_id, d, eps_p[p], rho, mu, ur)
+            if model_b:
+                b /= eps_p[p]
         beta[p] = b
         e = eps_p[p]
         if mode == DRAG_IMPLICIT_BED:

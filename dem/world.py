@@ -67,6 +67,10 @@ class World:
         else:
             self.rmax = float(st.radius.max(initial=0.0))
             self.n_total = st.n_owned  # every rank holds the whole scene at this point
+        # how far beyond contact a coupled run's particle void fraction looks for neighbours
+        # (coupling.particle_void): the ghost layer covers it; the pair list does not
+        reach_of = getattr(scene, "ghost_reach", None)
+        self.ghost_reach = float(reach_of(self.rmax)) if callable(reach_of) else 0.0
 
     def _params(self):
         sc = self.scene
@@ -109,8 +113,9 @@ class World:
         return max(v0, vw, math.sqrt(2 * g * h), 1e-3)
 
     def halo(self):
-        """Ghost layer width: the longest pair reach 2 r_max + reach + skin."""
-        return 2.0 * self.rmax + self.reach + self.state.fp[K.FP.skin]
+        """Ghost layer width: the longest pair reach 2 r_max + reach + skin, or further when
+        a coupled run's particle void fraction searches further (``ghost_reach``)."""
+        return 2.0 * self.rmax + max(self.reach, self.ghost_reach) + self.state.fp[K.FP.skin]
 
     def set_step(self, step_count):
         """Set the clock to step number ``step_count`` (the time follows: step_count x dt)."""

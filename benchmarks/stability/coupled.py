@@ -53,7 +53,8 @@ def write_case(dest: Path, *, L: float, H: float, nxy: int, nz: int, positions, 
                periodic: bool = True, walls_top: bool = True, max_overlap_ratio: float | None = None,
                heat: bool = True, diameter: float = D, density: float = 2500.0, rho_g: float = RHO_G,
                nu_g: float = NU_G, drag: str = "di_felice_1994", friction: float = 0.3,
-               restitution: float = 0.9, floor: float = 0.0, drag_integration: str | None = None) -> Path:
+               restitution: float = 0.9, floor: float = 0.0, drag_integration: str | None = None,
+               drag_void_fraction: str | None = None, drag_averaging_length: float | None = None) -> Path:
     """A coupled case: L x L x H box meshed nxy x nxy x nz, hot gas entering at the bottom
     at u_in (superficial), beads of 2 mm at the given positions (300 K)."""
     from dem import outdir   # dest: new, empty or this benchmark's earlier case (replaced), never a user's
@@ -152,7 +153,9 @@ vtk = false
         f"interpolation = \"cell\"\neps_min = {eps_min!r}\nsmoothing_time = {smoothing_time!r}\n"
         f"heat = {'true' if heat else 'false'}\ntimeout = 60\nend_time = {end!r}\noutput_interval = {dt_cfd!r}\n"
         f"force = {'true' if force else 'false'}\n"
-        + (f"drag_integration = \"{drag_integration}\"\n" if drag_integration else ""))
+        + (f"drag_integration = \"{drag_integration}\"\n" if drag_integration else "")
+        + (f"drag_void_fraction = \"{drag_void_fraction}\"\n" if drag_void_fraction else "")
+        + (f"drag_averaging_length = {drag_averaging_length!r}\n" if drag_averaging_length else ""))
     return dest
 
 
