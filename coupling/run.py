@@ -331,6 +331,13 @@ def cmd_compile(args) -> int:
             iface.prepare(fluid, case.dt_cfd)
             iface.advance_dem(1)
             iface.map_particles()
+            if case_dir == cases[0]:
+                # the particle void fraction of every method (coupling.particle_void), whatever
+                # the case chose: a user's case switching it on starts at once too
+                from .particle_void import METHODS, ParticleVoidFraction
+                eps_c = np.full(st.n_owned, 0.5)
+                for method in METHODS[1:]:
+                    ParticleVoidFraction(method, case.sim.world.rmax)(case.sim, eps_c, iface.rmin, 0.3)
         print(f"  {case.dir.name}: compiled", flush=True)
     print(f"coupling kernels compiled and cached in {time.perf_counter() - t0:.1f} s")
     return 0
