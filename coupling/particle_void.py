@@ -44,17 +44,24 @@ layout. Cost (docs/benchmarks.md): about 5.6 us per particle and coupling step f
 from __future__ import annotations
 
 import math
+from collections import namedtuple
 
 import numpy as np
 from numba import njit
 
 from dem.contact.walls import wall_distance
-from dem.neighbors import _axis_cell, _key_range, cell_grid
+from dem.neighbors import Box, _axis_cell, _key_range, cell_grid
 
 __all__ = ["METHODS", "VORONOI_REACH", "N_DIRECTIONS", "directions", "exact_reach", "neighbour_vectors",
            "voronoi_1908_cell", "wendland_1995_fraction", "ParticleVoidFraction", "KERNEL_LENGTH_D"]
 
 METHODS = ("cell", "voronoi", "kernel")
+# what bounds a particle's surroundings: the domain (its non-periodic faces), the walls (Walls
+# tables wf, wi of dem.contact.walls) at time t
+Bounds = namedtuple("Bounds", "lo hi periodic wf wi t")
+# the neighbours of each listed row (CSR): start[i]..start[i + 1] into the vectors x_j - x_i,
+# the radii r_j and the rows j
+Neighbours = namedtuple("Neighbours", "start vec rj jr")
 VORONOI_REACH = 1.2        # the planes of the first shell: neighbours to 1.2 r_max beyond contact (rays to 1.6 r)
 N_DIRECTIONS = 128         # 0.4 % rms error of the cell volume against the exact tessellation
 KERNEL_LENGTH_D = 3.0      # default support of the kernel method, in largest diameters
@@ -107,12 +114,14 @@ def _grow(vec, rj, jr, m):
 
 
 @njit(cache=True, error_model="numpy")
-def neighbour_vectors(x, r, n, nown, lo, hi, periodic, glo, ghi, gwrap, a):
+def neighbour_vectors(x, r, n, nown, dom, grid, a):
     """For each owned row i the vectors x_j - x_i and radii r_j of every row j < n (owned or
     ghost) with |x_j - x_i| < r_i + r_j + a: minimum image on periodic axes, and the further
     images along a periodic axis shorter than two search reaches (a thin slab sees a
     neighbour on both sides, and itself). Returns CSR (start[nown + 1], vec[m, 3], rj[m])."""
-    ncell, cc, cmin, ext, order, table, dense = cell_grid(x, r, n, glo, ghi, gwrap, a, 0.0)
+    lo, hi, periodic = dom.lo, dom.hi, dom.periodic
+    gwrap = grid.periodic
+    ncell, cc, cmin, ext, order, table, dense = cell_grid(x, r, n, grid.lo, grid.hi, gwrap, a, 0.0)
     length = hi - lo
     rmax = 0.0
     for i in range(n):
@@ -195,7 +204,7 @@ def neighbour_vectors(x, r, n, nown, lo, hi, periodic, glo, ghi, gwrap, a):
                                         jr[m] = j
                                         m += 1
         start[i + 1] = m
-    return start, vec[:m], rj[:m], jr[:m]
+    return Neighbours(start, vec[:m], rj[:m], jr[:m])
 
 
 @njit(cache=True, error_model="numpy")
@@ -211,9 +220,10 @@ def _bound_by_plane(dx, dy, dz, w0, w1, w2, inv):
 
 
 @njit(cache=True, error_model="numpy")
-def _walls_and_faces(i, x, lo, hi, periodic, wf, wi, t, dx, dy, dz, lim, inv):
+def _walls_and_faces(i, x, B, dx, dy, dz, lim, inv):
     """The walls and the non-periodic faces of the domain nearer than ``lim`` as planes of
-    particle i's cell (a wall by its tangent plane at its nearest point)."""
+    particle i's cell (a wall by its tangent plane at its nearest point); B: Bounds."""
+    lo, hi, periodic, wf, wi, t = B.lo, B.hi, B.periodic, B.wf, B.wi, B.t
     for w in range(wf.shape[0]):
         dist, nx, ny, nz = wall_distance(wf, wi, w, x[i, 0], x[i, 1], x[i, 2], t)
         if dist < lim and dist > 0.0:
@@ -261,12 +271,14 @@ def voronoi_1908_cell(ri, vec, rj, k0, k1, dx, dy, dz, lim, inv):
 
 
 @njit(cache=True, error_model="numpy")
-def _enclosed_cells(x, r, rows, start, vec, rj, lo, hi, periodic, wf, wi, t, dirs, rmin, a):
+def _enclosed_cells(x, r, rows, nb, B, dirs, rmin, a):
     """Pass 1, rows [0, rows): the part of each particle's cell its neighbours enclose.
 
     Returns (ve, vs): ve the volume of the cones of the directions that a neighbour, a wall or
     a face ends within lim (or whose opposite ray a neighbour ends: reflected), vs the
-    particle's own volume in them, f V_p (f their share of the directions)."""
+    particle's own volume in them, f V_p (f their share of the directions). nb: Neighbours,
+    B: Bounds."""
+    start, vec, rj = nb.start, nb.vec, nb.rj
     m_dirs = dirs.shape[0]
     half = m_dirs // 2
     dx = np.ascontiguousarray(dirs[:, 0])
@@ -283,7 +295,7 @@ def _enclosed_cells(x, r, rows, start, vec, rj, lo, hi, periodic, wf, wi, t, dir
         inv_nb[:] = 0.0
         voronoi_1908_cell(ri, vec, rj, start[i], start[i + 1], dx, dy, dz, lim, inv_nb)
         inv[:] = inv_nb
-        _walls_and_faces(i, x, lo, hi, periodic, wf, wi, t, dx, dy, dz, lim, inv)
+        _walls_and_faces(i, x, B, dx, dy, dz, lim, inv)
         s3 = 0.0
         nb = 0
         for m in range(m_dirs):
@@ -301,13 +313,14 @@ def _enclosed_cells(x, r, rows, start, vec, rj, lo, hi, periodic, wf, wi, t, dir
 
 
 @njit(cache=True, error_model="numpy")
-def _average(rows, start, vec, jr, ve, vs, hop):
+def _average(rows, nb, ve, vs, hop):
     """One hop of the average, rows [0, rows): the particle's own (ve, vs) plus its
     neighbours' nearer than ``hop`` (its first shell), with equal weights. Two hops average
     over the first shells of the first shell, some 3 diameters across: the sums of cell and
     solid volumes, a ratio estimator, so a particle's law sees the packing of its
     surroundings, not the few-percent scatter of its own cell (which, through the convex
-    laws, would raise the bed's drag by 2-5 %)."""
+    laws, would raise the bed's drag by 2-5 %). nb: Neighbours."""
+    start, vec, jr = nb.start, nb.vec, nb.jr
     ae = np.empty(rows)
     av = np.empty(rows)
     h2 = hop * hop
@@ -371,7 +384,9 @@ def wendland_1995_fraction(ri, vec, rj, k0, k1, ell, eta):
 
 
 @njit(cache=True, error_model="numpy")
-def _kernel_all(x, r, nown, start, vec, rj, lo, hi, periodic, wf, wi, t, dirs, ell, eps_min):
+def _kernel_all(x, r, nown, nb, B, dirs, ell, eps_min):
+    """The kernel method's void fraction of the owned rows (nb: Neighbours, B: Bounds)."""
+    start, vec, rj = nb.start, nb.vec, nb.rj
     m_dirs = dirs.shape[0]
     dx = np.ascontiguousarray(dirs[:, 0])
     dy = np.ascontiguousarray(dirs[:, 1])
@@ -380,7 +395,7 @@ def _kernel_all(x, r, nown, start, vec, rj, lo, hi, periodic, wf, wi, t, dirs, e
     inv = np.empty(m_dirs)
     for i in range(nown):
         inv[:] = 0.0
-        _walls_and_faces(i, x, lo, hi, periodic, wf, wi, t, dx, dy, dz, ell, inv)
+        _walls_and_faces(i, x, B, dx, dy, dz, ell, inv)
         eta = 0.0
         for m in range(m_dirs):
             eta += _wendland_cumulative(1.0 / (inv[m] * ell)) if inv[m] > 0.0 else 1.0
@@ -447,18 +462,15 @@ class ParticleVoidFraction:
             glo, ghi, gwrap = st.lo, st.hi, st.periodic
         x = np.ascontiguousarray(st.position[:n])
         r = np.ascontiguousarray(st.radius[:n])
-        t = sim.world.time
+        B = Bounds(st.lo, st.hi, st.periodic, st.wf, st.wi, float(sim.world.time))
+        dom, grid = Box(st.lo, st.hi, st.periodic), Box(glo, ghi, gwrap)
         ec = np.ascontiguousarray(eps_cell, dtype=np.float64)
         if self.method == "voronoi":
-            start, vec, rj, jr = neighbour_vectors(x, r, n, n, st.lo, st.hi, st.periodic, glo, ghi, gwrap,
-                                                   self.search)
-            ve, vs = _enclosed_cells(x, r, n, start, vec, rj, st.lo, st.hi, st.periodic, st.wf, st.wi, t,
-                                     self.dirs, float(rmin), self.search)
-            ae, av = _average(n, start, vec, jr, ve, vs, self.hop)      # every row: the ghosts' too
-            se, sv = _average(nown, start, vec, jr, ae, av, self.hop)   # the owned rows
+            nb = neighbour_vectors(x, r, n, n, dom, grid, self.search)
+            ve, vs = _enclosed_cells(x, r, n, nb, B, self.dirs, float(rmin), self.search)
+            ae, av = _average(n, nb, ve, vs, self.hop)       # every row: the ghosts' too
+            se, sv = _average(nown, nb, ae, av, self.hop)    # the owned rows
             return _voronoi_all(r, nown, vs, se, sv, ec, float(eps_min))
         # every centre within the kernel's support
-        reach = max(self.length - 2.0 * float(rmin), 0.0)
-        start, vec, rj, jr = neighbour_vectors(x, r, n, nown, st.lo, st.hi, st.periodic, glo, ghi, gwrap, reach)
-        return _kernel_all(x, r, nown, start, vec, rj, st.lo, st.hi, st.periodic, st.wf, st.wi, t, self.dirs,
-                           self.length, float(eps_min))
+        nb = neighbour_vectors(x, r, n, nown, dom, grid, max(self.length - 2.0 * float(rmin), 0.0))
+        return _kernel_all(x, r, nown, nb, B, self.dirs, self.length, float(eps_min))
