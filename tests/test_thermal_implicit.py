@@ -101,14 +101,17 @@ def test_line_steady_state_exact_at_any_step(net_limit, factor):
     assert Tss.max() < 400.0 and Tss.min() > 300.0 and np.all(np.diff(Tss) < -1.0)
 
 
-def test_two_particle_relaxation_discrete_formula():
+@pytest.mark.parametrize("integrator", ["implicit", "trbdf2"])
+def test_two_particle_relaxation_discrete_formula(integrator):
     """Two spheres (R, 1.5 R), one contact conductance H: backward Euler multiplies
-    T1 - T2 by 1 / (1 + H (1/C1 + 1/C2) dt) a step (a 2 x 2 system: two CG iterations are
-    exact up to round-off), and sum C T is constant."""
+    T1 - T2 by 1 / (1 + z) a step, TR-BDF2 by its amplification R(z) (dem.thermal.step_error),
+    z = H (1/C1 + 1/C2) dt (2 x 2 systems: two CG iterations are exact up to round-off), and
+    sum C T is constant."""
+    from dem.thermal.step_error import amplification
     sc = base([{"material": "p", "positions": [[0, 0, 0]], "radius": R, "temperature": 400.0},
                {"material": "p", "positions": [[2.5 * R - 2e-5, 0, 0]], "radius": 1.5 * R,
                 "temperature": 300.0}],
-              {"direct": "batchelor_obrien", "time_step": 7.0, "integrator": "implicit"}, end=84.0)
+              {"direct": "batchelor_obrien", "time_step": 7.0, "integrator": integrator}, end=84.0)
     sim = Simulation.from_dict(sc)
     st = sim.state
     C = 1.0 / st.inv_heat_capacity
@@ -120,7 +123,7 @@ def test_two_particle_relaxation_discrete_formula():
     ratio = (st.temperature[0] - st.temperature[1]) / 100.0
     z = H[0] * (1 / C[0] + 1 / C[1]) * 7.0
     assert z > 0.1  # a step the exponential formula and backward Euler tell apart
-    assert ratio == pytest.approx((1.0 + z) ** -n, rel=1e-12)
+    assert ratio == pytest.approx(float(amplification(integrator, z)) ** n, rel=1e-12)
     assert np.sum(C * st.temperature) == pytest.approx(C[0] * 400 + C[1] * 300, rel=1e-14)
 
 
@@ -160,7 +163,7 @@ def test_line_transient_within_derived_bound(net_limit):
     assert bounds[1] / bounds[0] == pytest.approx(0.5, rel=0.05)
 
 
-def bed_scene(dt, end):
+def bed_scene(dt, end, integrator="implicit"):
     """A frozen 4 x 4 x 3 lattice of touching spheres (20 um overlaps) on a floor at 400 K, a
     side wall with a fixed flux of 2 kW/m2, gas convection (350 K gas), continuum radiation
     and a source of 5 mW per particle of group 1."""
@@ -174,18 +177,20 @@ def bed_scene(dt, end):
     parts = [{"material": "p", "positions": pos[:24], "radius": R, "temperature": 300.0},
              {"material": "p", "positions": pos[24:], "radius": R, "temperature": 320.0}]
     sc = base(parts, {"direct": "batchelor_obrien", "convection": "ranz_marshall", "radiation": "zhou_2009",
-                      "time_step": dt, "integrator": "implicit", "sources": [{"group": 1, "power": 0.005}]},
+                      "time_step": dt, "integrator": integrator, "sources": [{"group": 1, "power": 0.005}]},
               walls=walls, gas=dict(AIR, temperature=350.0, velocity=[0.0, 0.0, 0.5]), end=end,
               mats=[dict(MATP)])
     sc["domain"] = {"min": [-0.001, -0.001, -0.001], "max": [0.01, 0.01, 0.01]}
     return sc
 
 
-def test_energy_conserved_on_a_bed_with_walls_gas_radiation_sources(net_limit):
+@pytest.mark.parametrize("integrator", ["implicit", "trbdf2"])
+def test_energy_conserved_on_a_bed_with_walls_gas_radiation_sources(net_limit, integrator):
     """sum C (T - T0) equals the heat in from the walls (fixed temperature and flux), the gas,
     radiation and the sources, to the CG tolerance (relative 1e-10 a step), at a step far
-    above the explicit limits."""
-    sim = Simulation.from_dict(bed_scene(100.0, 3000.0))
+    above the explicit limits (TR-BDF2: each link counted at T^n, T^g and T^{n+1} with the
+    weights a, a, w of its two stages)."""
+    sim = Simulation.from_dict(bed_scene(100.0, 3000.0, integrator))
     st = sim.state
     C = 1.0 / st.inv_heat_capacity
     e0 = np.sum(C * st.temperature)
@@ -247,7 +252,7 @@ def test_cli_bad_integrator_name(tmp_path):
     assert "Traceback" not in p.stderr
     msg = p.stderr
     assert "line.toml" in msg and "thermal.integrator" in msg and "'backward_euler'" in msg
-    for name in ("auto", "euler", "exponential", "implicit"):
+    for name in ("auto", "euler", "exponential", "implicit", "trbdf2"):
         assert name in msg
     assert not (tmp_path / "out").exists()
 
