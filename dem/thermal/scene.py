@@ -112,8 +112,12 @@ def parse_thermal(v, sc, data):
         v.err("thermal.integrator", f"\"{integ}\" runs on one process only (this run has {ranks} MPI "
                                     f"ranks: its solver needs global sums inside the compiled step); "
                                     f"under MPI use auto, euler or exponential")
+    th["integrator_auto"] = integ == "auto"
     if integ == "auto":
-        integ = "euler" if mech else "exponential"
+        # with mechanics: Euler, fused into the force loop. Frozen: under MPI the exponential
+        # update; on one process TR-BDF2 until the conductances are known, when
+        # dem.thermal.kernel.ThermalModel.choose_integrator picks by the step (step_error.choose)
+        integ = "euler" if mech else ("exponential" if ranks > 1 else "trbdf2")
     th["integrator"] = integ
     th["integrator_id"] = INTEGRATORS[integ]
     if "time_step" in t and mech:

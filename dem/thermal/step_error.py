@@ -61,3 +61,91 @@ def mode_error(name, zmax):
         err = np.abs(np.sign(R) ** n * np.abs(R) ** n - np.exp(-n * z))
     return float(err.max())
 
+
+# The exponential update on a frozen chain (benchmarks/accuracy/run.py, line_of_ten, and
+# tests/test_thermal_implicit.py's line of ten: k_p = 1 W/(m K), walls at 400 and 300 K, from a
+# linear 350 -> 300 K start): (dt / network limit, the steady-state error, the largest transient
+# error |T - T_exact| over the run, both as fractions of the walls' temperature difference).
+# Strang splitting leaves O((H dt / C)^2) in the fixed point (about 0.0045 (dt / limit)^2 below the
+# limit); beyond 10 limits the update is the wall-to-wall exchange of one sweep and stops growing.
+EXPONENTIAL_LINE_ERROR = ((0.01, 4.68e-7, 8.91e-7), (0.03, 4.21e-6, 8.02e-6), (0.1, 4.68e-5, 8.90e-5),
+                          (0.3, 4.20e-4, 7.99e-4), (1.0, 4.53e-3, 8.58e-3), (3.0, 3.21e-2, 5.90e-2),
+                          (10.0, 9.30e-2, 0.175), (30.0, 9.88e-2, 0.283), (100.0, 9.88e-2, 0.355),
+                          (1000.0, 9.88e-2, 0.360))
+
+
+def exponential_line_error(ratio):
+    """(steady-state, transient) error of the exponential update at dt = ratio x the network
+    limit, as fractions of the driving temperature difference, interpolated in log-log on the
+    measured line of ten (EXPONENTIAL_LINE_ERROR; (dt / limit)^2 below its first point, flat
+    beyond its last)."""
+    pts = EXPONENTIAL_LINE_ERROR
+    if ratio <= pts[0][0]:
+        f = (ratio / pts[0][0]) ** 2
+        return pts[0][1] * f, pts[0][2] * f
+    for a, b in zip(pts, pts[1:]):
+        if ratio <= b[0]:
+            w = math.log(ratio / a[0]) / math.log(b[0] / a[0])
+            return tuple(math.exp(math.log(a[k]) + w * (math.log(b[k]) - math.log(a[k]))) for k in (1, 2))
+    return pts[-1][1], pts[-1][2]
+
+
+# auto runs TR-BDF2 up to this many network limits, backward Euler beyond (choose)
+TRBDF2_MAX_RATIO = 80.0
+
+
+def choose(dt, network_limit, radiation_limit, ranks):
+    """``integrator = "auto"`` on a frozen packing: the integrator and why, with its expected
+    errors at this step, as a dict (integrator, integrator_reason, expected_transient_error,
+    expected_steady_error: text for `dem check`; auto_ratio, auto_zmax, auto_transient,
+    auto_steady: numbers).
+
+    On one process the candidates are TR-BDF2 and backward Euler, both exact at steady state at
+    any step (fixed point Q(T) = 0); the exponential update is not (EXPONENTIAL_LINE_ERROR: 0.45 %
+    of the wall-to-wall difference at the network limit, 9.9 % from 30 limits on). TR-BDF2 runs
+    up to TRBDF2_MAX_RATIO = 80 network limits, backward Euler beyond, by the measured errors
+    (docs/benchmarks.md, "Line of ten", "Frozen packed bed heated from its floor"): on the
+    Beaulieu-size bed TR-BDF2 is 45 to 440 x more accurate than backward Euler from 0.03 to 3.4
+    limits, and 2.3 x below the exponential update at and below the limit on the line of ten;
+    the largest transient error of the line of ten (a 50 K jump at the hot wall) is TR-BDF2's
+    2.8 / 5.6 / 5.97 K against backward Euler's 5.7 / 6.2 / 6.5 K at 3 / 40 / 70 limits, and
+    6.2 / 3.2 K against 5.9 / 0.82 K at 100 / 1000 limits, where the step is beyond every time
+    scale of the network and the L-stable damping of backward Euler, 1 / (1 + z) against
+    TR-BDF2's about 4.8 / z for stiff modes, wins (besides costing one solve a step, not two).
+
+    The expected transient error stated is the worst mode's, mode_error(name, zmax) with zmax =
+    dt (2 / network limit + 1 / radiation limit) >= lam_max dt (Gershgorin: every rate of the
+    network is at most max_i (2 sum_j H_ij + K_i) / C_i): a bound, as a fraction of a mode's
+    initial amplitude, that stiff modes of little amplitude reach.
+
+    Under MPI (ranks > 1) the solvers are refused (global sums inside the compiled step): the
+    exponential update runs, and its errors are stated from the measured line of ten."""
+    zmax = dt * (2.0 / network_limit + (1.0 / radiation_limit if radiation_limit > 0 else 0.0))
+    ratio = dt / network_limit
+    out = dict(auto_zmax=zmax, auto_ratio=ratio)
+    rad = (f" and {dt / radiation_limit:.3g} x the radiation limit" if math.isfinite(radiation_limit) else "")
+    at = f"dt = {ratio:.3g} x the network limit{rad}"
+    if ranks > 1:
+        ss, tr = exponential_line_error(ratio)
+        out.update(integrator="exponential", auto_steady=ss, auto_transient=tr,
+                   integrator_reason=f"{ranks} MPI ranks: the implicit solvers run on one process only; {at}",
+                   expected_transient_error=f"about {100 * tr:.2g} % of the driving temperature difference "
+                                            f"(measured on the line of ten at this dt / limit)",
+                   expected_steady_error=f"NOT exact: about {100 * ss:.2g} % of the driving temperature "
+                                         f"difference (Strang splitting, O((H dt/C)^2); measured on the line of "
+                                         f"ten; run on one process, or lower thermal.time_step, for an exact "
+                                         f"steady state)")
+        return out
+    if ratio <= TRBDF2_MAX_RATIO:
+        name, why = "trbdf2", f"second order, L-stable, up to {TRBDF2_MAX_RATIO:g} network limits"
+    else:
+        name, why = "implicit", (f"beyond {TRBDF2_MAX_RATIO:g} network limits the step outruns the network's time "
+                                 f"scales and backward Euler damps them best")
+    err = mode_error(name, zmax)
+    out.update(integrator=name, auto_steady=0.0, auto_transient=err,
+               integrator_reason=f"{at}: {why}",
+               expected_transient_error=(f"at most {100 * err:.2g} % of a mode's initial amplitude (worst mode, "
+                                         f"lam dt <= {zmax:.3g})"),
+               expected_steady_error="exact (fixed point Q(T) = 0, to the solver tolerance 1e-10 of the heat "
+                                     "rates)")
+    return out
