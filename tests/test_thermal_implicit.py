@@ -206,6 +206,31 @@ def test_energy_conserved_on_a_bed_with_walls_gas_radiation_sources(net_limit, i
     assert np.all(np.isfinite(st.temperature)) and st.temperature.min() > 300.0
 
 
+def test_trbdf2_wall_table_second_order_and_balanced(net_limit):
+    """A hot wall ramped 300 -> 400 K over 60 s (a temperature table): TR-BDF2 takes the wall at
+    each stage's time (t_n, t_n + gamma dt, t_n+1), so halving the step divides the error at
+    t = 120 s (against a run at dt / 16) by about 4, second order (with the wall at the end of
+    the step only it would be first order: about 2); the heat balance closes at each step."""
+    ramp = {"condition": "fixed_temperature", "table": [[0.0, 300.0], [60.0, 400.0]]}
+    dts = (120.0 / 8, 120.0 / 16, 120.0 / 128)   # 0.82, 0.41, 0.05 network limits; the ramp's end on a step
+    finals = []
+    for dt in dts:
+        n = int(round(120.0 / dt))
+        sim = Simulation.from_dict(line_scene(dt, "trbdf2", n * dt, hot=ramp))
+        st = sim.state
+        C = 1.0 / st.inv_heat_capacity
+        e0 = np.sum(C * st.temperature)
+        sim.run(progress=False)
+        assert sim.step_count == n
+        gain = np.sum(C * st.temperature) - e0
+        assert gain == pytest.approx(sim.thermal.wtot.sum(), rel=1e-9)
+        finals.append(st.temperature.copy())
+    e1 = np.abs(finals[0] - finals[2]).max()
+    e2 = np.abs(finals[1] - finals[2]).max()
+    assert e1 > 1e-6   # the ramp is resolved by neither step exactly
+    assert 3.0 < e1 / e2 < 5.0
+
+
 # ------------------------------------------------------------------ the frozen default (auto)
 def _steps_to_converge(name, lam, dt, drop=1e13):
     """Steps after which every mode of rates lam has decayed by ``drop`` under the scheme

@@ -522,11 +522,13 @@ def _implicit_assemble(P, C, W, TB, prm, m, dt_diag, dt, t, has_ind, b, dg):
 
 
 @njit(cache=True, error_model="numpy")
-def _implicit_totals(P, C, W, prm, m, Ts, d, t, f, has_ind, hconv, qrad, krad, wgt, aw1, qw, om):
+def _implicit_totals(P, C, W, prm, m, Ts, d, t, f, has_ind, links):
     """Add to the run totals the heat of every linear link at the temperatures Ts (rows
     [0, m)) times the weight f (s): pairs |H (T_j - T_i)|, fixed-temperature walls at time t,
     convection, and the linearised radiation qrad - krad d (d = Ts - T^n), a radiating wall's
-    part qw - omega krad d (link data from _implicit_assemble)."""
+    part qw - omega krad d (``links`` = (hconv, qrad, krad, wgt, aw1, qw, om) of
+    _implicit_assemble)."""
+    hconv, qrad, krad, wgt, aw1, qw, om = links
     nb, nnb, Hd, Hi = C.nb, C.nnb, C.Hd, C.Hi
     wnb, wnn, Hw, tf = P.wnb, P.wnn, P.Hw, P.tf
     wth, wtab, wtot, wgap, wrad = W.wth, W.wtab, W.wtot, W.wgap, W.wrad
@@ -620,7 +622,7 @@ def _implicit_step(P, C, W, TB, prm, m, dt, t, has_ind):
     nb, nnb, Hd, Hi = C.nb, C.nnb, C.Hd, C.Hi
     b = np.zeros(m)   # Q(T^n), W
     dg = np.empty(m)  # C/dt + K, W/K
-    hconv, qrad, krad, wgt, aw1, qw, om = _implicit_assemble(P, C, W, TB, prm, m, dt, dt, t, has_ind, b, dg)
+    links = _implicit_assemble(P, C, W, TB, prm, m, dt, dt, t, has_ind, b, dg)
     # solve, update
     d = np.empty(m)
     jacobi_pcg(m, nb, nnb, Hd, Hi, has_ind, dg, b, d, CG_RTOL, 10 * m + 100)
@@ -628,7 +630,7 @@ def _implicit_step(P, C, W, TB, prm, m, dt, t, has_ind):
         T[i] += d[i]
         Q[i] = d[i] / (cinv[i] * dt)
     # totals at T^{n+1}
-    _implicit_totals(P, C, W, prm, m, T, d, t, dt, has_ind, hconv, qrad, krad, wgt, aw1, qw, om)
+    _implicit_totals(P, C, W, prm, m, T, d, t, dt, has_ind, links)
     return _temperature_guard(T, m)
 
 
@@ -690,7 +692,7 @@ def _trbdf2_step(P, C, W, TB, prm, m, dt, t, has_ind):
     tg = t0 + g * dt
     b = np.zeros(m)   # Q(T^n) with the walls at t_n+1
     dg = np.empty(m)  # C/dt1 + K
-    hconv, qrad, krad, wgt, aw1, qw, om = _implicit_assemble(P, C, W, TB, prm, m, dt1, dt, t, has_ind, b, dg)
+    links = _implicit_assemble(P, C, W, TB, prm, m, dt1, dt, t, has_ind, b, dg)
     wth = W.wth
     tables = False
     for k in range(wth.shape[0]):
@@ -722,9 +724,9 @@ def _trbdf2_step(P, C, W, TB, prm, m, dt, t, has_ind):
         T[i] += d2[i]
         Q[i] = d2[i] / (cinv[i] * dt)
     # totals: the links at T^n (walls at t_n), T^g (t_n + gamma dt) and T^{n+1} (t_n+1)
-    _implicit_totals(P, C, W, prm, m, Tn, zero, t0, a, has_ind, hconv, qrad, krad, wgt, aw1, qw, om)
-    _implicit_totals(P, C, W, prm, m, Tg, d1, tg, a, has_ind, hconv, qrad, krad, wgt, aw1, qw, om)
-    _implicit_totals(P, C, W, prm, m, T, d2, t, w, has_ind, hconv, qrad, krad, wgt, aw1, qw, om)
+    _implicit_totals(P, C, W, prm, m, Tn, zero, t0, a, has_ind, links)
+    _implicit_totals(P, C, W, prm, m, Tg, d1, tg, a, has_ind, links)
+    _implicit_totals(P, C, W, prm, m, T, d2, t, w, has_ind, links)
     return _temperature_guard(T, m)
 
 
