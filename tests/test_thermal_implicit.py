@@ -294,6 +294,26 @@ def test_default_line_transient_at_and_below_the_limit(net_limit, frac):
     assert errs["auto"] <= errs["exponential"]
 
 
+def test_default_restart_continues_exactly(tmp_path):
+    """TR-BDF2 (auto at 1 network limit) keeps no history between steps: a frozen run stopped at a
+    checkpoint and continued ends with the same temperatures, bit for bit, as one run."""
+    def scene():
+        sc = line_scene(18.0, "auto", 720.0)
+        sc["simulation"].update(output_interval=180.0, checkpoint_interval=360.0)
+        return sc
+    one = Simulation.from_dict(scene())
+    one.run(out_dir=str(tmp_path / "one"), progress=False)
+    assert one.thermal.cfg["integrator"] == "trbdf2"
+    first = Simulation.from_dict(scene())
+    first.run(end_time=360.0, out_dir=str(tmp_path / "two"), progress=False)
+    second = Simulation.from_dict(scene())
+    second.run(out_dir=str(tmp_path / "two"), restart=str(tmp_path / "two" / "checkpoint.npz"), progress=False)
+    a, b = read_final(tmp_path / "one" / "final.npz"), read_final(tmp_path / "two" / "final.npz")
+    assert second.step_count == one.step_count == 40
+    assert np.array_equal(a["temperature"], b["temperature"])
+    assert a["temperature"].max() > 300.5   # the hot wall's heat came in
+
+
 ENV = dict(os.environ, PYTHONPATH=ROOT + os.pathsep + os.environ.get("PYTHONPATH", ""))
 
 
