@@ -326,7 +326,7 @@ class ThermalModel:
         integ = f"{c['integrator']} thermal integration"
         if self.auto is not None:
             a = self.auto
-            integ += (f" (auto, chosen by the step at {a['auto_ratio']:.3g} x the network limit; steady state "
+            integ += (f" (auto, chosen by the step: {a['integrator_reason'].split(':')[0]}; steady state "
                       f"{'exact' if a['auto_steady'] == 0.0 else 'not exact'}: see `thermal integrator`)")
         elif c.get("integrator_auto"):
             integ += " (auto: euler with mechanics, fused into the force loop)"

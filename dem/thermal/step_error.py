@@ -126,7 +126,10 @@ def choose(dt, network_limit, radiation_limit, ranks):
     ratio = dt / network_limit
     out = dict(auto_zmax=zmax, auto_ratio=ratio)
     rad = (f" and {dt / radiation_limit:.3g} x the radiation limit" if math.isfinite(radiation_limit) else "")
-    at = f"dt = {ratio:.3g} x the network limit{rad}"
+    if math.isfinite(network_limit):
+        at = f"dt = {ratio:.3g} x the network limit{rad}"
+    else:   # no pair or fixed-temperature wall conductance (e.g. convection only)
+        at = f"no conduction network{rad}"
     if ranks > 1:
         ss, tr = exponential_line_error(ratio)
         out.update(integrator="exponential", auto_steady=ss, auto_transient=tr,
@@ -137,6 +140,9 @@ def choose(dt, network_limit, radiation_limit, ranks):
                                          f"difference (Strang splitting, O((H dt/C)^2); measured on the line of "
                                          f"ten; run on one process, or lower thermal.time_step, for an exact "
                                          f"steady state)")
+        if ss == 0.0:   # no network: each particle relaxes exactly towards its reservoirs
+            out["expected_steady_error"] = "exact (no conduction network: exact relaxation to the reservoirs)"
+            out["expected_transient_error"] = "exact for reservoirs held over the step (no conduction network)"
         return out
     if ratio <= TRBDF2_MAX_RATIO:
         name, why = "trbdf2", f"second order, L-stable, up to {TRBDF2_MAX_RATIO:g} network limits"
