@@ -48,6 +48,12 @@ def cmd_check(args):
         p(f"thermal step: {rep['thermal_step']:.4g} s; thermal critical step rho c R / k: "
           f"{rep['thermal_critical_step']:.4g} s (ratio {rep['thermal_step_ratio']:.3g}); "
           f"euler network limit min C_i / sum H_ij: {rep['network_step_limit']:.4g} s")
+    if "integrator" in rep:
+        line = f"thermal integrator: {rep['integrator']}"
+        if "integrator_reason" in rep:
+            line += (f" (auto: {rep['integrator_reason']}); expected error: transient "
+                     f"{rep['expected_transient_error']}; steady state {rep['expected_steady_error']}")
+        p(line)
     if "radiation_step_limit" in rep:
         p(f"euler radiation limit C / (4 eps sigma A T_max^3): {rep['radiation_step_limit']:.4g} s")
     if "biot_max" in rep:
@@ -82,7 +88,11 @@ def cmd_run(args):
         sim = _load(args.scene)
         if args.restart is not None:
             sim.prepare_restart(args.restart)  # a bad checkpoint or a refused scene edit: exit 2 now
-        sim.check()
+        rep = sim.check()
+        if rep.get("auto_steady", 0.0) > 0.0 and sim.is_root:
+            # auto could not pick an integrator exact at steady state (MPI): said at the start of the run
+            print(f"note: thermal integrator {rep['integrator']} (auto: {rep['integrator_reason']}); steady "
+                  f"state {rep['expected_steady_error']}", file=sys.stderr, flush=True)
         if sim.par is not None:
             sim.par.comm.Barrier()         # every rank has checked the folder before rank 0 claims it
         outdir.claim_collective(out, sim.par.comm if sim.par is not None else None, sim.is_root, **rule)

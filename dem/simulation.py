@@ -64,6 +64,8 @@ class Simulation:
             # frozen packing: contacts, overlaps and conductances are computed once, here
             self.stepper.compute_forces()
             self.stepper.forces_ready = True
+            # integrator = "auto": chosen from the step and the network's rates (dem.thermal.step_error)
+            self.thermal.choose_integrator(world.dt, self.par)
 
     @classmethod
     def from_file(cls, path, end_time=None):

@@ -3,7 +3,7 @@ same argument types, a disabled feature being an empty array of the same dtype a
 
 Runs every example and test scene plus variants that switch each optional array on (rolling
 springs, contact age, friction heat, indirect conduction, radiation, group sources,
-exponential and implicit integration, frozen packing, fluid forces, fluid torque and virtual
+exponential, implicit and TR-BDF2 integration, frozen packing, fluid forces, fluid torque and virtual
 mass, no walls, periodic axes) in this one
 process, then counts the compiled signatures of each kernel: at most two (heat on, heat off:
 the ``hon`` switch), whatever ran before in this test session (this file runs last).
@@ -40,6 +40,10 @@ def _variants():
     yield "heat, euler fused", {"thermal": dict(heat)}
     yield "heat, exponential", {"thermal": dict(heat, integrator="exponential")}
     yield "heat, implicit", {"thermal": dict(heat, integrator="implicit")}
+    yield "heat, trbdf2", {"thermal": dict(heat, integrator="trbdf2")}
+    yield "trbdf2, radiation, convection, sources", {
+        "thermal": dict(heat, integrator="trbdf2", radiation="zhou_2009", convection="ranz_marshall",
+                        sources=[{"group": 0, "power": 1e-3}]), "gas": GAS}
     yield "implicit, radiation, convection, sources", {
         "thermal": dict(heat, integrator="implicit", radiation="zhou_2009", convection="ranz_marshall",
                         sources=[{"group": 0, "power": 1e-3}]), "gas": GAS}
@@ -65,7 +69,8 @@ def _run_variant(extra, steps=30):
 
 
 KERNELS = (K.advance, K.compute_forces, K.after_build, K.drift, K.kick_guard, K.heat_phase, K.outside,
-           H.heat_step, H._implicit_step, IM.jacobi_pcg, IM.laplacian_apply, NB.build_half_list)
+           H.heat_step, H._implicit_step, H._trbdf2_step, H._implicit_assemble, H._implicit_totals,
+           IM.jacobi_pcg, IM.laplacian_apply, NB.build_half_list)
 
 
 def test_every_scene_shares_one_kernel_per_heat_switch():

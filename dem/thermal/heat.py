@@ -11,6 +11,8 @@ the temperatures with either
 * ``implicit``: backward Euler over the whole conductance network,
   (C/dt + K + L)(T^{n+1} - T^n) = Q(T^n), solved by Jacobi-preconditioned conjugate
   gradients (dem.thermal.implicit; see _implicit_step), or
+* ``trbdf2``: the second-order, L-stable TR-BDF2 (a trapezoidal stage, then BDF2) on the same
+  network and solver, two solves a step, steady state exact at any step (_trbdf2_step), or
 * ``exponential``: each pair (and each particle-reservoir link: fixed-temperature
   wall, convection) is advanced with its exact two-body solution
   dT = (T_j - T_i)(1 - exp(-H (1/C_i + 1/C_j) dt)) in sequence; explicit terms
@@ -45,7 +47,7 @@ TI = slots("TI", (
     ("rad", "radiation model"),
     ("fric", "friction heat model (dem.thermal.generation)"),
     ("part", "friction heat partition model"),
-    ("integ", "integrator: 0 euler, 1 exponential, 2 implicit"),
+    ("integ", "integrator: 0 euler, 1 exponential, 2 implicit, 3 trbdf2"),
     ("age", "1: contact age and impact speed are kept"),
     ("localpor", "1: the local porosity is measured at each neighbour build"),
     ("fused", "1: pairs and walls accumulated in the force loop (mechanics + euler)"),
@@ -254,6 +256,8 @@ def heat_step(P, C, W, TB, prm, n, nown, dt, t):
     has_ind = Hi.shape[0] == n
     if integ == 2:
         return _implicit_step(P, C, W, TB, prm, nown, dt, t, has_ind)
+    if integ == 3:
+        return _trbdf2_step(P, C, W, TB, prm, nown, dt, t, has_ind)
     conv = thi[TI.conv]
     rad = thi[TI.rad]
     fused = thi[TI.fused] == 1
@@ -421,28 +425,16 @@ def heat_step(P, C, W, TB, prm, n, nown, dt, t):
     return -1
 
 
-@njit(cache=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
-def _implicit_step(P, C, W, TB, prm, m, dt, t, has_ind):
-    """Backward Euler heat step of the rows [0, m) (``integrator = "implicit"``; the scene
-    parser refuses it under MPI, so every row is owned): with d = T^{n+1} - T^n,
-
-        (C/dt + K + L) d = Q(T^n)                                   (dem.thermal.implicit, eq. 1)
-
-    i.e. C (T^{n+1} - T^n) / dt = Q(T^{n+1}) for the linear links: pair conduction (L),
-    fixed-temperature walls at their end-of-step temperature, gas convection h A (T_f - T)
-    (K), and explicit heat rates (generation, sources, fixed wall fluxes). Radiation is
-    linearised about T^n: Q_r(T^{n+1}) ~ Q_r(T^n) - 4 eps sigma A T_i^3 d_i with the
-    environment temperature T_e of T^n (the error of one step is
-    6 eps sigma A T^2 d^2 / 2 in heat rate; nothing at steady state, where d = 0).
-
-    Backward Euler is L-stable (every mode decays, stiff ones at once, no ringing) for any
-    step, and its fixed point (d = 0) is Q(T) = 0: the steady state of the network itself,
-    whatever dt. Energy: sum C d = dt sum(reservoir and explicit heat at T^{n+1}) + dt sum(r)
-    with r the CG residual, ||r|| <= CG_RTOL ||Q(T^n)||, so the balance holds to that
-    tolerance (the pair terms cancel exactly). The totals count the heats at T^{n+1}.
-    Returns the first particle with a non-finite or non-positive temperature, or -1."""
-    T, cinv, Q, v, r, x, mat = (P.temperature, P.inv_heat_capacity, P.heat_rate, P.velocity, P.radius,
-                                P.position, P.material)
+@njit(cache=True, error_model="numpy")
+def _implicit_assemble(P, C, W, TB, prm, m, dt_diag, dt, t, has_ind, b, dg):
+    """The linear system of an implicit heat step of the rows [0, m) (every row owned):
+    b = Q(T^n), the net heat rate of each particle at the start of the step with the
+    fixed-temperature walls at time t (W), and dg = C/dt_diag + K (W/K), K the conductances
+    of the reservoir links (fixed-temperature walls, gas convection h A, the radiation
+    tangent 4 eps sigma A T_i^3). The explicit heat (fixed wall fluxes, generation, sources)
+    is in b and its energy over dt goes to the totals. Returns the link data the totals
+    need (_implicit_totals): (hconv, qrad, krad, wgt, aw1, qw, om)."""
+    T, cinv, v, r, x, mat = P.temperature, P.inv_heat_capacity, P.velocity, P.radius, P.position, P.material
     wnb, wnn, Hw, tf, uf, por, qgen, qsrc = P.wnb, P.wnn, P.Hw, P.tf, P.uf, P.por, P.qgen, P.qsrc
     nb, nnb, Hd, Hi, rnear = C.nb, C.nnb, C.Hd, C.Hi, C.rnear
     wth, wtab, wtot, tmat, gas = W.wth, W.wtab, W.wtot, TB.tmat, TB.gas
@@ -450,12 +442,9 @@ def _implicit_step(P, C, W, TB, prm, m, dt, t, has_ind):
     conv = thi[TI.conv]
     rad = thi[TI.rad]
     n = T.shape[0]
-    Hwg, wgap, wrad, cgv = P.Hwg, W.wgap, W.wrad, heat_cg(P.cg, thi)
-    has_wg = Hwg.shape[0] == n
-    b = np.zeros(m)   # Q(T^n), W
-    dg = np.empty(m)  # C/dt + K, W/K
+    cgv = heat_cg(P.cg, thi)
     for i in range(m):
-        dg[i] = 1.0 / (cinv[i] * dt)
+        dg[i] = 1.0 / (cinv[i] * dt_diag)
     # pairs
     for i in range(m):
         ti = T[i]
@@ -469,7 +458,7 @@ def _implicit_step(P, C, W, TB, prm, m, dt, t, has_ind):
             q = h * (T[j] - ti)
             b[i] += q
             b[j] -= q
-    # walls: fixed temperature (implicit, at the end of the step), fixed flux (explicit)
+    # walls: fixed temperature (implicit, at time t), fixed flux (explicit)
     for i in range(m):
         for q in range(wnn[i]):
             h = Hw[i, q]
@@ -529,13 +518,27 @@ def _implicit_step(P, C, W, TB, prm, m, dt, t, has_ind):
             b[i] += qrad[i]
     # explicit heat: generation, sources
     explicit_heat(m, n, x, r, qgen, qsrc, srcbox, dt, b, tot)
-    # solve, update
-    d = np.empty(m)
-    jacobi_pcg(m, nb, nnb, Hd, Hi, has_ind, dg, b, d, CG_RTOL, 10 * m + 100)
-    for i in range(m):
-        T[i] += d[i]
-        Q[i] = d[i] / (cinv[i] * dt)
-    # totals at T^{n+1}
+    return hconv, qrad, krad, wgt, aw1, qw, om
+
+
+@njit(cache=True, error_model="numpy")
+def _implicit_totals(P, C, W, prm, m, Ts, d, t, f, has_ind, links):
+    """Add to the run totals the heat of every linear link at the temperatures Ts (rows
+    [0, m)) times the weight f (s): pairs |H (T_j - T_i)|, fixed-temperature walls at time t,
+    convection, and the linearised radiation qrad - krad d (d = Ts - T^n), a radiating wall's
+    part qw - omega krad d (``links`` = (hconv, qrad, krad, wgt, aw1, qw, om) of
+    _implicit_assemble)."""
+    hconv, qrad, krad, wgt, aw1, qw, om = links
+    nb, nnb, Hd, Hi = C.nb, C.nnb, C.Hd, C.Hi
+    wnb, wnn, Hw, tf = P.wnb, P.wnn, P.Hw, P.tf
+    wth, wtab, wtot, wgap, wrad = W.wth, W.wtab, W.wtot, W.wgap, W.wrad
+    tot = prm.tot
+    Hwg = P.Hwg
+    has_wg = Hwg.shape[0] == P.temperature.shape[0]
+    conv = prm.thi[TI.conv]
+    rad = prm.thi[TI.rad]
+    wr = rad >= 0 and prm.thi[TI.wrad] == 1
+    nw = wth.shape[0]
     ed = 0.0
     ei = 0.0
     for i in range(m):
@@ -548,7 +551,7 @@ def _implicit_step(P, C, W, TB, prm, m, dt, t, has_ind):
             h = hd + hi
             if h <= 0.0:
                 continue
-            e = abs(h * (T[j] - T[i])) * dt
+            e = abs(h * (Ts[j] - Ts[i])) * f
             ed += e * hd / h
             ei += e * hi / h
     tot[TOT.direct] += ed
@@ -558,36 +561,173 @@ def _implicit_step(P, C, W, TB, prm, m, dt, t, has_ind):
             h = Hw[i, q]
             w = wnb[i, q]
             if h > 0.0 and wth[w, WT.cond] == 1.0:
-                dtw = wall_temperature(wth, wtab, w, t) - T[i]
-                ew = h * dtw * dt
+                dtw = wall_temperature(wth, wtab, w, t) - Ts[i]
+                ew = h * dtw * f
                 wtot[w] += ew
                 tot[TOT.wall] += ew
                 if has_wg:
-                    wgap[w] += Hwg[i, q] * dtw * dt
+                    wgap[w] += Hwg[i, q] * dtw * f
     if conv >= 0:
         ec = 0.0
         for i in range(m):
-            ec += hconv[i] * (tf[i] - T[i]) * dt
+            ec += hconv[i] * (tf[i] - Ts[i]) * f
         tot[TOT.conv] += ec
     if rad >= 0:
-        # the linearised rate qrad - krad d at T^{n+1}; a wall's part qw - omega krad d
+        # the linearised rate qrad - krad d at Ts; a wall's part qw - omega krad d
         er = 0.0
         for i in range(m):
-            e = (qrad[i] - krad[i] * d[i]) * dt
+            e = (qrad[i] - krad[i] * d[i]) * f
             if wr and aw1[i] > 0.0:
                 for w in range(nw):
                     if wgt[i, w] > 0.0:
-                        ew = (qw[i, w] - om[i, w] * krad[i] * d[i]) * dt
+                        ew = (qw[i, w] - om[i, w] * krad[i] * d[i]) * f
                         wtot[w] += ew
                         wrad[w] += ew
                         tot[TOT.wall] += ew
                         e -= ew
             er += e
         tot[TOT.rad] += er
+
+
+@njit(cache=True, error_model="numpy")
+def _temperature_guard(T, m):
+    """The first of the rows [0, m) with a non-finite or non-positive temperature, or -1."""
     for i in range(m):
         if not (T[i] > 0.0) or not math.isfinite(T[i]):
             return i
     return -1
+
+
+@njit(cache=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
+def _implicit_step(P, C, W, TB, prm, m, dt, t, has_ind):
+    """Backward Euler heat step of the rows [0, m) (``integrator = "implicit"``; the scene
+    parser refuses it under MPI, so every row is owned): with d = T^{n+1} - T^n,
+
+        (C/dt + K + L) d = Q(T^n)                                   (dem.thermal.implicit, eq. 1)
+
+    i.e. C (T^{n+1} - T^n) / dt = Q(T^{n+1}) for the linear links: pair conduction (L),
+    fixed-temperature walls at their end-of-step temperature, gas convection h A (T_f - T)
+    (K), and explicit heat rates (generation, sources, fixed wall fluxes). Radiation is
+    linearised about T^n: Q_r(T^{n+1}) ~ Q_r(T^n) - 4 eps sigma A T_i^3 d_i with the
+    environment temperature T_e of T^n (the error of one step is
+    6 eps sigma A T^2 d^2 / 2 in heat rate; nothing at steady state, where d = 0).
+
+    Backward Euler is L-stable (every mode decays, stiff ones at once, no ringing) for any
+    step, and its fixed point (d = 0) is Q(T) = 0: the steady state of the network itself,
+    whatever dt. Energy: sum C d = dt sum(reservoir and explicit heat at T^{n+1}) + dt sum(r)
+    with r the CG residual, ||r|| <= CG_RTOL ||Q(T^n)||, so the balance holds to that
+    tolerance (the pair terms cancel exactly). The totals count the heats at T^{n+1}.
+    Returns the first particle with a non-finite or non-positive temperature, or -1."""
+    T, cinv, Q = P.temperature, P.inv_heat_capacity, P.heat_rate
+    nb, nnb, Hd, Hi = C.nb, C.nnb, C.Hd, C.Hi
+    b = np.zeros(m)   # Q(T^n), W
+    dg = np.empty(m)  # C/dt + K, W/K
+    links = _implicit_assemble(P, C, W, TB, prm, m, dt, dt, t, has_ind, b, dg)
+    # solve, update
+    d = np.empty(m)
+    jacobi_pcg(m, nb, nnb, Hd, Hi, has_ind, dg, b, d, CG_RTOL, 10 * m + 100)
+    for i in range(m):
+        T[i] += d[i]
+        Q[i] = d[i] / (cinv[i] * dt)
+    # totals at T^{n+1}
+    _implicit_totals(P, C, W, prm, m, T, d, t, dt, has_ind, links)
+    return _temperature_guard(T, m)
+
+
+# TR-BDF2's stage fraction gamma = 2 - sqrt(2) (Hosea & Shampine 1996): both stages then have
+# the same matrix up to the coefficient of C, and the scheme is L-stable
+TRBDF2_GAMMA = 2.0 - math.sqrt(2.0)
+
+
+@njit(cache=True, error_model="numpy")
+def _wall_source_shift(P, W, m, t, t0, out):
+    """out[i] += sum_w H_w (T_w(t) - T_w(t0)) over particle i's fixed-temperature walls (rows
+    [0, m)): the change of the wall heat rates between the times t0 and t of a wall table."""
+    wnb, wnn, Hw = P.wnb, P.wnn, P.Hw
+    wth, wtab = W.wth, W.wtab
+    for i in range(m):
+        for q in range(wnn[i]):
+            h = Hw[i, q]
+            w = wnb[i, q]
+            if h > 0.0 and wth[w, WT.cond] == 1.0 and wth[w, WT.ntab] > 0:
+                out[i] += h * (wall_temperature(wth, wtab, w, t) - wall_temperature(wth, wtab, w, t0))
+
+
+@njit(cache=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
+def _trbdf2_step(P, C, W, TB, prm, m, dt, t, has_ind):
+    """TR-BDF2 heat step of the rows [0, m) (``integrator = "trbdf2"``; every row owned, as for
+    "implicit"): the trapezoidal rule to t_n + gamma dt, then the second-order backward
+    difference formula through t_n, t_n + gamma dt and t_n + dt (Bank, Coughran, Fichtner,
+    Grosse, Rose & Smith 1985, IEEE Trans. Electron Devices 32, 1992; Hosea & Shampine 1996,
+    Appl. Numer. Math. 20, 21), gamma = 2 - sqrt(2). For C dT/dt = Q(T) = b - A T, A = K + L
+    (dem.thermal.implicit, eq. 1) and d1 = T^g - T^n, d2 = T^{n+1} - T^n:
+
+        trapezoid:  (2 C / (gamma dt) + A) d1 = Q(T^n, t_n) + Q(T^n, t_n + gamma dt)
+        BDF2:       (C / w + A) d2 = Q(T^n, t_n+1) + C d1 / (w gamma (2 - gamma)),
+                    w = (1 - gamma) / (2 - gamma) dt
+
+    (the BDF2 stage T^{n+1} = (T^g - (1-gamma)^2 T^n) / (gamma (2-gamma)) + w C^-1 Q(T^{n+1})
+    written for the increment, using 1 - (1-gamma)^2 = gamma (2-gamma)). Both systems are the
+    symmetric positive definite one of backward Euler with another coefficient of C, solved by
+    the same Jacobi-preconditioned conjugate gradients on the half list (two solves a step, no
+    history: a restart continues exactly). Walls at their temperatures at each stage's time
+    (tables), radiation linearised about T^n as in _implicit_step (the environment
+    temperatures from T^n).
+
+    Second order (local error -(3 gamma^2 - 4 gamma + 2) / (12 (2 - gamma)) dt^3 T''' = 0.040
+    dt^3 |T'''|, half the trapezoidal rule's), L-stable (amplification 0 for infinitely stiff
+    modes, |R(z)| < 1 for every z > 0: no growth and no lasting ringing, unlike Crank-Nicolson),
+    and its fixed point is Q(T) = 0: d1 = 0 and d2 = 0 when Q(T^n) = 0, so the steady state is
+    that of the network itself at any step (to the CG tolerance, relative to Q, which vanishes
+    there). Energy: C d2 = a (Q^n + Q^g) + w Q^{n+1} with a = dt / (2 (2 - gamma)), 2 a + w = dt;
+    the totals count each link with these weights at T^n, T^g and T^{n+1}. Returns the first
+    particle with a non-finite or non-positive temperature, or -1."""
+    T, cinv, Q = P.temperature, P.inv_heat_capacity, P.heat_rate
+    nb, nnb, Hd, Hi = C.nb, C.nnb, C.Hd, C.Hi
+    g = TRBDF2_GAMMA
+    dt1 = 0.5 * g * dt
+    w = (1.0 - g) / (2.0 - g) * dt
+    a = 0.5 * dt / (2.0 - g)
+    t0 = t - dt
+    tg = t0 + g * dt
+    b = np.zeros(m)   # Q(T^n) with the walls at t_n+1
+    dg = np.empty(m)  # C/dt1 + K
+    links = _implicit_assemble(P, C, W, TB, prm, m, dt1, dt, t, has_ind, b, dg)
+    wth = W.wth
+    tables = False
+    for k in range(wth.shape[0]):
+        if wth[k, WT.cond] == 1.0 and wth[k, WT.ntab] > 0:
+            tables = True
+    # trapezoid to t_n + gamma dt
+    rhs = np.empty(m)
+    for i in range(m):
+        rhs[i] = 2.0 * b[i]
+    if tables:
+        _wall_source_shift(P, W, m, t0, t, rhs)
+        _wall_source_shift(P, W, m, tg, t, rhs)
+    d1 = np.empty(m)
+    jacobi_pcg(m, nb, nnb, Hd, Hi, has_ind, dg, rhs, d1, CG_RTOL, 10 * m + 100)
+    # BDF2 to t_n + dt
+    c2 = 1.0 / (w * g * (2.0 - g))
+    for i in range(m):
+        ci = 1.0 / cinv[i]
+        dg[i] += ci / w - ci / dt1
+        rhs[i] = b[i] + ci * d1[i] * c2
+    d2 = np.empty(m)
+    jacobi_pcg(m, nb, nnb, Hd, Hi, has_ind, dg, rhs, d2, CG_RTOL, 10 * m + 100)
+    Tn = np.empty(m)
+    Tg = np.empty(m)
+    zero = np.zeros(m)
+    for i in range(m):
+        Tn[i] = T[i]
+        Tg[i] = T[i] + d1[i]
+        T[i] += d2[i]
+        Q[i] = d2[i] / (cinv[i] * dt)
+    # totals: the links at T^n (walls at t_n), T^g (t_n + gamma dt) and T^{n+1} (t_n+1)
+    _implicit_totals(P, C, W, prm, m, Tn, zero, t0, a, has_ind, links)
+    _implicit_totals(P, C, W, prm, m, Tg, d1, tg, a, has_ind, links)
+    _implicit_totals(P, C, W, prm, m, T, d2, t, w, has_ind, links)
+    return _temperature_guard(T, m)
 
 
 @njit(cache=True, error_model="numpy")

@@ -140,6 +140,7 @@ class ThermalModel:
         if st.qsrc.shape[0]:
             st.qsrc[:] = qsrc
         self.E0 = None
+        self.auto = None   # auto's choice on a frozen packing (choose_integrator)
 
     # -------------------------------------------------------------- run totals
     @property
@@ -205,6 +206,41 @@ class ThermalModel:
             lim = np.where(hsum > 0, C / hsum, np.inf)
         return float(lim.min())
 
+    def radiation_limit(self):
+        """(C / (4 eps sigma A T_max^3) of the particles (s, smallest), T_max): the explicit
+        radiation step limit at the hottest temperature in play (walls, particles, gas)."""
+        from .radiation import SIGMA_SB
+        st = self.state
+        tw = [w["temperature"] for w in self.cfg["walls"]] + [float(np.max(st.temperature))]
+        if np.isfinite(self.gas[R.T_F]):
+            tw.append(self.gas[R.T_F])
+        tmax = max(tw)
+        eps_r = self.tmat[st.material, R.EMISSIVITY]
+        C = 1.0 / st.inv_heat_capacity
+        with np.errstate(divide="ignore"):
+            rl = float(np.min(C / (4 * eps_r * SIGMA_SB * 4 * np.pi * st.radius ** 2 * tmax ** 3), initial=np.inf))
+        return rl, tmax
+
+    def choose_integrator(self, dt, par=None):
+        """``integrator = "auto"`` on a frozen packing, once its conductances are computed: the
+        integrator whose error at this step is smallest (dem.thermal.step_error.choose) from the
+        step, the network limit min C_i / sum H_ij and the radiation limit (over every rank,
+        ``par``); sets the kernel switch and self.auto (integrator, reason, expected errors)."""
+        if not self.cfg.get("integrator_auto") or self.scene.simulation["mechanics"]:
+            return
+        from .scene import INTEGRATORS
+        from .step_error import choose
+        lim = self.network_limit()
+        rl = self.radiation_limit()[0] if self.thi[TI.rad] >= 0 else math.inf
+        if par is not None:
+            lim, rl = par.allmin(lim), par.allmin(rl)
+        ranks = par.size if par is not None else 1
+        self.auto = choose(dt, lim, rl, ranks)
+        name = self.auto["integrator"]
+        self.cfg["integrator"] = name
+        self.cfg["integrator_id"] = INTEGRATORS[name]
+        self.thi[TI.integ] = INTEGRATORS[name]
+
     def check(self, dt, compute_forces):
         """Thermal time-step report and warnings; ``compute_forces()`` evaluates the
         conductances of every slot at the current state (the network limit needs them)."""
@@ -229,16 +265,12 @@ class ThermalModel:
             warnings.append(f"euler thermal step {dt:.3g} s exceeds the network stability limit "
                             f"min C_i/sum H_ij = {lim:.3g} s: use thermal.integrator = \"exponential\" "
                             f"or a smaller step")
+        if self.auto is not None:
+            rep.update(self.auto)
+        else:
+            rep["integrator"] = self.cfg["integrator"]
         if self.thi[TI.rad] >= 0:
-            # explicit radiation: dt < C / (4 eps sigma A T^3) at the hottest temperature in play
-            from .radiation import SIGMA_SB
-            tw = [w["temperature"] for w in self.cfg["walls"]] + [float(np.max(st.temperature))]
-            if np.isfinite(self.gas[R.T_F]):
-                tw.append(self.gas[R.T_F])
-            tmax = max(tw)
-            eps_r = self.tmat[st.material, R.EMISSIVITY]
-            C = 1.0 / st.inv_heat_capacity
-            rl = float(np.min(C / (4 * eps_r * SIGMA_SB * 4 * np.pi * st.radius ** 2 * tmax ** 3)))
+            rl, tmax = self.radiation_limit()
             rep["radiation_step_limit"] = rl
             if self.cfg["integrator"] == "euler" and dt > rl:
                 warnings.append(f"euler thermal step {dt:.3g} s exceeds the radiation limit "
@@ -292,6 +324,12 @@ class ThermalModel:
         c = self.cfg
         runs, skipped = [], []
         integ = f"{c['integrator']} thermal integration"
+        if self.auto is not None:
+            a = self.auto
+            integ += (f" (auto, chosen by the step: {a['integrator_reason'].split(':')[0]}; steady state "
+                      f"{'exact' if a['auto_steady'] == 0.0 else 'not exact'}: see `thermal integrator`)")
+        elif c.get("integrator_auto"):
+            integ += " (auto: euler with mechanics, fused into the force loop)"
         runs.append(integ)
         for mech in ("direct", "indirect", "convection", "radiation", "friction"):
             key, label = R.MECHANISMS[mech]

@@ -11,6 +11,8 @@ stability map's frozen bed, docs/benchmarks.md: 1.4 % at 10 s, 3.8 % at 20 s).
 """
 import math
 
+import numpy as np
+
 # (dt / radiation limit, error in % of the temperature change)
 RADIATION_EXPONENTIAL_ERROR = ((0.25, 2.0), (0.5, 3.84), (1.0, 7.17), (2.0, 13.6), (4.0, 24.4), (8.0, 29.9))
 
@@ -26,3 +28,132 @@ def expected_radiation_error(ratio):
             w = math.log(ratio / f0) / math.log(f1 / f0)
             return e0 + w * (e1 - e0)
     return pts[-1][1]
+
+
+# ---------------------------------------------------------------- frozen packings: auto's choice
+def amplification(name, z):
+    """Per-step amplification R(z) of a mode of rate lam of C dT/dt = -A T at z = lam dt
+    (numpy array z >= 0): backward Euler ("implicit") 1 / (1 + z); TR-BDF2 ("trbdf2", gamma =
+    2 - sqrt 2) the trapezoidal factor (1 - gamma z / 2) / (1 + gamma z / 2) followed by the BDF2
+    stage, (R_tr / (gamma (2 - gamma)) - (1 - gamma)^2 / (gamma (2 - gamma))) / (1 + w z),
+    w = (1 - gamma) / (2 - gamma) (dem.thermal.heat._trbdf2_step)."""
+    z = np.asarray(z, float)
+    if name == "implicit":
+        return 1.0 / (1.0 + z)
+    g = 2.0 - math.sqrt(2.0)
+    rt = (1.0 - 0.5 * g * z) / (1.0 + 0.5 * g * z)
+    k = g * (2.0 - g)
+    return (rt / k - (1.0 - g) ** 2 / k) / (1.0 + (1.0 - g) / (2.0 - g) * z)
+
+
+def mode_error(name, zmax):
+    """Largest error of a mode's amplitude, max over its rate (z = lam dt in (0, zmax]) and the
+    step count n >= 1 of |R(z)^n - exp(-n z)|, as a fraction of the mode's initial amplitude:
+    the transient error of the scheme ``name`` ("implicit" or "trbdf2") on a linear network
+    whose fastest rate times dt is at most zmax, in the worst case over the modes (grids of
+    z and n geometric, 2 % apart: the maximum is found to about 1 %)."""
+    if zmax <= 0.0:
+        return 0.0
+    z = np.geomspace(min(1e-4, zmax), zmax, 600)[:, None]
+    n = np.unique(np.geomspace(1, 1e8, 1000).astype(np.int64)).astype(float)[None, :]
+    R = amplification(name, z)
+    with np.errstate(under="ignore"):
+        err = np.abs(np.sign(R) ** n * np.abs(R) ** n - np.exp(-n * z))
+    return float(err.max())
+
+
+# The exponential update on a frozen chain (benchmarks/frozen_line_errors.py on
+# tests/test_thermal_implicit.py's line of ten: k_p = 1 W/(m K), walls at 400 and 300 K, from a
+# linear 350 -> 300 K start): (dt / network limit, the steady-state error, the largest transient
+# error |T - T_exact| over the run, both as fractions of the walls' temperature difference).
+# Strang splitting leaves O((H dt / C)^2) in the fixed point (about 0.0045 (dt / limit)^2 below the
+# limit); beyond 10 limits the update is the wall-to-wall exchange of one sweep and stops growing.
+EXPONENTIAL_LINE_ERROR = ((0.01, 4.68e-7, 8.91e-7), (0.03, 4.21e-6, 8.02e-6), (0.1, 4.68e-5, 8.90e-5),
+                          (0.3, 4.20e-4, 7.99e-4), (1.0, 4.53e-3, 8.58e-3), (3.0, 3.21e-2, 5.90e-2),
+                          (10.0, 9.30e-2, 0.175), (30.0, 9.88e-2, 0.283), (100.0, 9.88e-2, 0.355),
+                          (1000.0, 9.88e-2, 0.360))
+
+
+def exponential_line_error(ratio):
+    """(steady-state, transient) error of the exponential update at dt = ratio x the network
+    limit, as fractions of the driving temperature difference, interpolated in log-log on the
+    measured line of ten (EXPONENTIAL_LINE_ERROR; (dt / limit)^2 below its first point, flat
+    beyond its last)."""
+    pts = EXPONENTIAL_LINE_ERROR
+    if ratio <= pts[0][0]:
+        f = (ratio / pts[0][0]) ** 2
+        return pts[0][1] * f, pts[0][2] * f
+    for a, b in zip(pts, pts[1:]):
+        if ratio <= b[0]:
+            w = math.log(ratio / a[0]) / math.log(b[0] / a[0])
+            return tuple(math.exp(math.log(a[k]) + w * (math.log(b[k]) - math.log(a[k]))) for k in (1, 2))
+    return pts[-1][1], pts[-1][2]
+
+
+# auto runs TR-BDF2 up to this many network limits, backward Euler beyond (choose)
+TRBDF2_MAX_RATIO = 80.0
+
+
+def choose(dt, network_limit, radiation_limit, ranks):
+    """``integrator = "auto"`` on a frozen packing: the integrator and why, with its expected
+    errors at this step, as a dict (integrator, integrator_reason, expected_transient_error,
+    expected_steady_error: text for `dem check`; auto_ratio, auto_zmax, auto_transient,
+    auto_steady: numbers).
+
+    On one process the candidates are TR-BDF2 and backward Euler, both exact at steady state at
+    any step (fixed point Q(T) = 0); the exponential update is not (EXPONENTIAL_LINE_ERROR: 0.45 %
+    of the wall-to-wall difference at the network limit, 9.9 % from 30 limits on). TR-BDF2 runs
+    up to TRBDF2_MAX_RATIO = 80 network limits, backward Euler beyond, by the measured errors
+    (docs/benchmarks.md, "Line of ten", "Frozen packed bed heated from its floor"): on the
+    Beaulieu-size bed TR-BDF2 is 230 to 24,000 x more accurate than backward Euler and 1,700 to
+    2,400 x more than the exponential update from 0.03 to 3.4 limits, and its largest transient
+    error on the line of ten is 1.9 to 2.3 x below the exponential update's at and below the limit;
+    the largest transient error of the line of ten (a 50 K jump at the hot wall;
+    benchmarks/frozen_line_errors.py) is TR-BDF2's
+    2.8 / 5.6 / 5.97 K against backward Euler's 5.7 / 6.2 / 6.5 K at 3 / 40 / 70 limits, and
+    6.2 / 3.2 K against 5.9 / 0.82 K at 100 / 1000 limits, where the step is beyond every time
+    scale of the network and the L-stable damping of backward Euler, 1 / (1 + z) against
+    TR-BDF2's about 4.8 / z for stiff modes, wins (besides costing one solve a step, not two).
+
+    The expected transient error stated is the worst mode's, mode_error(name, zmax) with zmax =
+    dt (2 / network limit + 1 / radiation limit) >= lam_max dt (Gershgorin: every rate of the
+    network is at most max_i (2 sum_j H_ij + K_i) / C_i): a bound, as a fraction of a mode's
+    initial amplitude, that stiff modes of little amplitude reach.
+
+    Under MPI (ranks > 1) the solvers are refused (global sums inside the compiled step): the
+    exponential update runs, and its errors are stated from the measured line of ten."""
+    zmax = dt * (2.0 / network_limit + (1.0 / radiation_limit if radiation_limit > 0 else 0.0))
+    ratio = dt / network_limit
+    out = dict(auto_zmax=zmax, auto_ratio=ratio)
+    rad = (f" and {dt / radiation_limit:.3g} x the radiation limit" if math.isfinite(radiation_limit) else "")
+    if math.isfinite(network_limit):
+        at = f"dt = {ratio:.3g} x the network limit{rad}"
+    else:   # no pair or fixed-temperature wall conductance (e.g. convection only)
+        at = f"no conduction network{rad}"
+    if ranks > 1:
+        ss, tr = exponential_line_error(ratio)
+        out.update(integrator="exponential", auto_steady=ss, auto_transient=tr,
+                   integrator_reason=f"{ranks} MPI ranks: the implicit solvers run on one process only; {at}",
+                   expected_transient_error=f"about {100 * tr:.2g} % of the driving temperature difference "
+                                            f"(measured on the line of ten at this dt / limit)",
+                   expected_steady_error=f"NOT exact: about {100 * ss:.2g} % of the driving temperature "
+                                         f"difference (Strang splitting, O((H dt/C)^2); measured on the line of "
+                                         f"ten; run on one process, or lower thermal.time_step, for an exact "
+                                         f"steady state)")
+        if ss == 0.0:   # no network: each particle relaxes exactly towards its reservoirs
+            out["expected_steady_error"] = "exact (no conduction network: exact relaxation to the reservoirs)"
+            out["expected_transient_error"] = "exact for reservoirs held over the step (no conduction network)"
+        return out
+    if ratio <= TRBDF2_MAX_RATIO:
+        name, why = "trbdf2", f"second order, L-stable, up to {TRBDF2_MAX_RATIO:g} network limits"
+    else:
+        name, why = "implicit", (f"beyond {TRBDF2_MAX_RATIO:g} network limits the step outruns the network's time "
+                                 f"scales and backward Euler damps them best")
+    err = mode_error(name, zmax)
+    out.update(integrator=name, auto_steady=0.0, auto_transient=err,
+               integrator_reason=f"{at}: {why}",
+               expected_transient_error=(f"at most {100 * err:.2g} % of a mode's initial amplitude (worst mode, "
+                                         f"lam dt <= {zmax:.3g})"),
+               expected_steady_error="exact (fixed point Q(T) = 0, to the solver tolerance 1e-10 of the heat "
+                                     "rates)")
+    return out
