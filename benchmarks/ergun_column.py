@@ -114,18 +114,25 @@ def bed_drop(d, dz, t_from):
     return mean, float(np.sqrt(((dp - mean) ** 2).mean()) / abs(mean))
 
 
-def held(work, x, n, dz, frac, method, m, end=0.05, columns=1):
-    """One held-bed run; returns (pressure drop Pa, Ergun with the bulk height, with the top)."""
+def run_column(work, tag, x, dz, u, method, mechanics, end, columns=1):
+    """Write and run one column case (through `coupling run`); returns (run folder,
+    coupling.csv rows). Raises RuntimeError with the run's output if it fails."""
     from dem import outdir
-    u = frac * cd.minimum_fluidization(m["eps_core"])
-    tag = f"{method}_{dz * 1e3:g}mm_{frac:g}"
     case, out = work / f"case_{tag}", work / f"out_{tag}"
     outdir.claim(case)
     outdir.claim(out)
-    write(case, x, dz, u, method, False, end, columns=columns)
+    write(case, x, dz, u, method, mechanics, end, columns=columns)
     code, text, d = cd.run(case, out)
     if code != 0:
         raise RuntimeError(f"coupling run failed (exit {code}):\n{text[-3000:]}")
+    return out, d
+
+
+def held(work, x, n, dz, frac, method, m, end=0.05, columns=1):
+    """One held-bed run; returns (pressure drop Pa, Ergun over the profile, Ergun at the core
+    packing times the bulk height, in-bed gradient, Ergun there)."""
+    u = frac * cd.minimum_fluidization(m["eps_core"])
+    out, d = run_column(work, f"{method}_{dz * 1e3:g}mm_{frac:g}", x, dz, u, method, False, end, columns)
     dp, _ = bed_drop(d, dz, end - 10e-3)
     grad, grad_ref = in_bed(out, x, dz, u, m)
     return (dp, ergun_series(u, m["eps_slabs"]), cd.ergun_gradient(u, m["eps_core"]) * m["height"], grad, grad_ref)
@@ -154,16 +161,8 @@ def in_bed(out, x, dz, u, m):
 def fluidized(work, x, n, dz, frac, method, m, end=0.3, columns=1):
     """One free-bed run above U_mf; returns (mean pressure drop of the second half, its rms
     departure, the buoyant weight per area)."""
-    from dem import outdir
     u = frac * cd.minimum_fluidization(m["eps_core"])
-    tag = f"fluid_{method}_{dz * 1e3:g}mm_{frac:g}"
-    case, out = work / f"case_{tag}", work / f"out_{tag}"
-    outdir.claim(case)
-    outdir.claim(out)
-    write(case, x, dz, u, method, True, end, columns=columns)
-    code, text, d = cd.run(case, out)
-    if code != 0:
-        raise RuntimeError(f"coupling run failed (exit {code}):\n{text[-3000:]}")
+    _, d = run_column(work, f"fluid_{method}_{dz * 1e3:g}mm_{frac:g}", x, dz, u, method, True, end, columns)
     dp, rms = bed_drop(d, dz, 0.5 * end)
     w = n * math.pi / 6 * cd.D_P ** 3 * (cd.RHO_P - cd.RHO_G) * 9.81 / (cd.L * cd.L)
     return dp, rms, w

@@ -102,15 +102,23 @@ def _near_image(d, length, periodic):
 
 
 @njit(cache=True, error_model="numpy")
-def _grow(vec, rj, jr, m):
-    cap = 2 * vec.shape[0]
-    v2 = np.empty((cap, 3))
-    v2[:m] = vec[:m]
-    r2 = np.empty(cap)
-    r2[:m] = rj[:m]
-    j2 = np.empty(cap, np.int64)
-    j2[:m] = jr[:m]
-    return v2, r2, j2, cap
+def _append(vec, rj, jr, m, d0, d1, d2, r, j):
+    """Entry m of the list (grown by doubling when full); returns the arrays and m + 1."""
+    if m == vec.shape[0]:
+        cap = 2 * vec.shape[0]
+        v2 = np.empty((cap, 3))
+        v2[:m] = vec[:m]
+        r2 = np.empty(cap)
+        r2[:m] = rj[:m]
+        j2 = np.empty(cap, np.int64)
+        j2[:m] = jr[:m]
+        vec, rj, jr = v2, r2, j2
+    vec[m, 0] = d0
+    vec[m, 1] = d1
+    vec[m, 2] = d2
+    rj[m] = r
+    jr[m] = j
+    return vec, rj, jr, m + 1
 
 
 @njit(cache=True, error_model="numpy")
@@ -171,14 +179,7 @@ def neighbour_vectors(x, r, n, nown, dom, grid, a):
                         rc = ri + rs[q] + a
                         if not any_short:
                             if j != i and d0 * d0 + d1 * d1 + d2 * d2 < rc * rc:
-                                if m == cap:
-                                    vec, rj, jr, cap = _grow(vec, rj, jr, m)
-                                vec[m, 0] = d0
-                                vec[m, 1] = d1
-                                vec[m, 2] = d2
-                                rj[m] = rs[q]
-                                jr[m] = j
-                                m += 1
+                                vec, rj, jr, m = _append(vec, rj, jr, m, d0, d1, d2, rs[q], j)
                             continue
                         for s0 in range(-1, 2):
                             if s0 != 0 and not short[0]:
@@ -195,14 +196,7 @@ def neighbour_vectors(x, r, n, nown, dom, grid, a):
                                     e1 = d1 + s1 * length[1]
                                     e2 = d2 + s2 * length[2]
                                     if e0 * e0 + e1 * e1 + e2 * e2 < rc * rc:
-                                        if m == cap:
-                                            vec, rj, jr, cap = _grow(vec, rj, jr, m)
-                                        vec[m, 0] = e0
-                                        vec[m, 1] = e1
-                                        vec[m, 2] = e2
-                                        rj[m] = rs[q]
-                                        jr[m] = j
-                                        m += 1
+                                        vec, rj, jr, m = _append(vec, rj, jr, m, e0, e1, e2, rs[q], j)
         start[i + 1] = m
     return Neighbours(start, vec[:m], rj[:m], jr[:m])
 
