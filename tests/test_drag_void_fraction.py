@@ -10,7 +10,8 @@
 * The same bed free at 1.5 U_mf: the pressure drop is the bed's buoyant weight per area
   within 2 % (measured -0.5 %).
 * The summed drag on the particles equals the gas's momentum loss to round-off, and a
-  lone particle's drag is its cell's, for each method.
+  lone particle's drag is its cell's, for each method; the Nusselt correlations take the same
+  local void fraction with the cell's superficial slip.
 * Two DEM ranks see every neighbour a serial run sees: the same pressure drop.
 * Bad settings are refused with the file, the key and what is allowed.
 """
@@ -181,3 +182,29 @@ def test_restart_continues_the_same_run(tmp_path, solver, column):
     assert np.abs(a["position"] - x - [0.0, 0.0, 3e-3]).max() > 1e-6      # the beads moved
     for k in ("position", "velocity"):
         assert np.array_equal(a[k], b[k]), k
+
+
+def test_nusselt_takes_the_local_void_fraction(tmp_path, solver, column):
+    """With heat on, the particles' convection gets the void fraction around them and the
+    interstitial gas velocity there, v + (u_f - v) ebar / eps_loc: the superficial slip of the
+    cell, eps |u - v|, is kept (the Reynolds number of the Nusselt correlations)."""
+    from stability.coupled import write_case
+    from coupling.run import _case_on_temporary_mesh
+    x, _m = column
+    case = write_case(tmp_path / "case", L=CD.L, H=EC.H_COL, nxy=2, nz=12, positions=x + [0.0, 0.0, 3e-3],
+                      floor=3e-3, diameter=CD.D_P, density=CD.RHO_P, dt_dem=1e-5, interval=10, n_steps=2,
+                      u_in=0.01, void_fraction="divided", eps_min=0.3, heat=True, rho_g=CD.RHO_G, nu_g=CD.NU_G,
+                      walls_top=False, drag="gidaspow_1994", drag_void_fraction="voronoi")
+    with _case_on_temporary_mesh(case) as (case, mesh, iface, _e, _r):
+        nc = iface.V.shape[0]
+        U = np.array([0.0, 0.0, 0.02])
+        fluid = {"U": np.tile(U, (nc, 1)), "gradp": np.zeros((nc, 3)), "T": np.full(nc, 350.0)}
+        iface.prepare(fluid, case.dt_cfd)
+        st = case.sim.state
+        n = st.n_owned
+        eloc, ebar = iface.last["eps_loc"], iface.last["eps_p"]
+        assert np.array_equal(st.por[:n], eloc)
+        slip_sent = eloc[:, None] * (st.uf[:n] - st.velocity[:n])
+        slip_cell = ebar[:, None] * (U - st.velocity[:n])
+        assert np.allclose(slip_sent, slip_cell, rtol=1e-12, atol=1e-15)
+        assert np.abs(eloc - ebar).max() > 0.01     # the two void fractions differ in this bed
