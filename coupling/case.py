@@ -754,25 +754,23 @@ def check_coupled_case(case: CoupledCase, mesh, *, eps0: np.ndarray | None = Non
 
 
 def _drag_void_text(case, rep) -> str:
-    """What the drag void fraction averages over, against the gas cells."""
+    """What the drag void fraction averages over (coupling.particle_void), against the gas cells."""
     from .particle_void import ParticleVoidFraction
     cfg = case.config
-    rmax = float(case.sim.world.rmax) if case.sim is not None else 0.0
     ratio = rep["values"].get("cell_over_diameter")
-    if cfg.drag_void_fraction == "cell":
-        text = "the gas cells' void fraction at each particle"
-        if ratio is not None and ratio >= 2.0:
-            text += (f" (cells of {ratio:.2g} diameters: where a packed bed fills a cell in part, its ends, the "
-                     f"cell's void fraction is high and the drag low, 7 % less pressure drop on cells of 3 "
-                     f"diameters in benchmarks/ergun_column.py; drag_void_fraction = \"voronoi\" takes it around "
-                     f"each particle, docs/models.md)")
-        return text
+    rmax = float(case.sim.world.rmax) if case.sim is not None else 0.0
     if rmax <= 0.0:
-        return "around each particle"
-    pv = ParticleVoidFraction(cfg.drag_void_fraction, rmax, cfg.drag_averaging_length, n_directions=2)
-    text = pv.averaging()
-    if ratio is not None:
-        text += f"; the gas cells are {ratio:.2g} diameters"
+        return cfg.drag_void_fraction
+    text = ParticleVoidFraction(cfg.drag_void_fraction, rmax, cfg.drag_averaging_length, n_directions=2).averaging()
+    if ratio is None:
+        return text
+    if cfg.drag_void_fraction != "cell":
+        return text + f"; the gas cells are {ratio:.2g} diameters"
+    if ratio >= 2.0:
+        text += (f" (cells of {ratio:.2g} diameters: where a packed bed fills a cell in part, its ends, the "
+                 f"cell's void fraction is high and the drag low, 7 % less pressure drop on cells of 3 "
+                 f"diameters in benchmarks/ergun_column.py; drag_void_fraction = \"voronoi\" takes it around "
+                 f"each particle, docs/models.md)")
     return text
 
 

@@ -346,15 +346,6 @@ class CouplingInterface:
                 uf[lost] = 0.0
                 gradp[lost] = 0.0
                 tg[lost] = np.nan
-            eps_loc = _CELL_VOID
-            uloc = uf
-            if self.local_void.method != "cell":
-                # the drag law at the void fraction around each particle, written against the
-                # cells' (docs/models.md, "The void fraction a particle's drag sees")
-                eps_p = _stencil_inverse_square_mean(pw.cells, pw.weights, eps)
-                eps_loc = self.local_void(sim, eps_p, self.rmin, self.eps_min)
-                eps_loc[lost] = 1.0
-                uloc = _local_gas_velocity(uf, vel, eps_p, eps_loc)
             extra = self.torque_id != 0 or self.lift_id != 0 or self.virtual_mass
             if extra:
                 # gas velocity gradient (least squares, coupling.interpolate.cell_gradient):
@@ -364,6 +355,17 @@ class CouplingInterface:
                 acc = (_material_derivative(U, G, np.zeros((0, 3)) if self.u_prev is None else self.u_prev, dt_cfd)
                        if self.virtual_mass else np.zeros((0, 3)))
                 self.u_prev = U.copy()
+
+        eps_loc = _CELL_VOID
+        uloc = uf
+        if self.local_void.method != "cell":
+            with self.timer("void_fraction"):
+                # the drag law at the void fraction around each particle, written against the
+                # cells' (docs/models.md, "The void fraction a particle's drag sees")
+                eps_p = _stencil_inverse_square_mean(pw.cells, pw.weights, eps)
+                eps_loc = self.local_void(sim, eps_p, self.rmin, self.eps_min)
+                eps_loc[lost] = 1.0
+                uloc = _local_gas_velocity(uf, vel, eps_p, eps_loc)
 
         with self.timer("exchange_terms"):
             # the particle velocity the gas of this frame responded to: Us of the last frame at the
