@@ -75,7 +75,7 @@ EXIT_DEM = 4
 
 
 def run_case(case_dir, out=None, *, transport=None, end_time=None, restart=False,
-             quiet=False, solver=None, log=print, external_solver=False, overwrite=False):
+             quiet=False, solver=None, log=print, external_solver=False, overwrite=False, threads=1):
     """Run a coupled case; returns a summary dict. Raises CouplingError / CaseConfigError /
     SimulationError / CouplingRunError / dem.outdir.OutputFolderError (``main`` maps them to
     exit codes). ``out`` must be new, empty or an earlier output of this tool (continued with
@@ -98,6 +98,7 @@ def run_case(case_dir, out=None, *, transport=None, end_time=None, restart=False
     if transport is not None:
         cfg.transport = transport
     sim = case.sim
+    sim.set_threads(threads)   # the DEM's threads in each DEM rank ('auto': dem.threads)
     R = Ranks(sim)
     if R.size > 1 and cfg.transport != "socket":
         raise CouplingRunError(f"{case.config_file}: transport = \"{cfg.transport}\" runs with one DEM rank; with "
@@ -343,13 +344,21 @@ def cmd_compile(args) -> int:
     return 0
 
 
+def _threads_arg(text):
+    from dem.threads import parse, ThreadsError
+    try:
+        return parse(text)
+    except ThreadsError as exc:
+        raise argparse.ArgumentTypeError(str(exc).split(": ", 1)[1]) from None
+
+
 def cmd_run(args) -> int:
     # SIGINT/SIGTERM from here on (also during meshing and compiling) only set a flag: the
     # coupled loop ends its current coupling step, writes a restart point and stops
     with StopSignals():
         run_case(args.case, args.out, transport=args.transport, end_time=args.end_time,
                  restart=args.restart, quiet=args.quiet, external_solver=args.external_solver,
-                 overwrite=args.overwrite)
+                 overwrite=args.overwrite, threads=args.threads)
     return 0
 
 
@@ -369,6 +378,9 @@ def main(argv=None) -> int:
                    help="replace an earlier output in --out: removes only what the tool wrote there "
                         "(listed in its .thermodem-manifest.json) and refuses if anything else is there")
     r.add_argument("--quiet", action="store_true")
+    r.add_argument("--threads", type=_threads_arg, default="auto",
+                   help="threads of each DEM rank (default auto: the cores of this process, shared among the DEM "
+                        "ranks of its node); the gas runs between the DEM intervals")
     r.add_argument("--external-solver", action="store_true",
                    help="do not start thermoDemFoam: print the command to run it by hand in a second "
                         "terminal and wait for it")
@@ -390,6 +402,7 @@ def main(argv=None) -> int:
     from dem.output import DISK_ERRNOS, OutputError
     from dem.scene import SceneError
     from dem.simulation import SimulationError
+    from dem.threads import ThreadsError
     try:
         return {"check": cmd_check, "compile": cmd_compile, "run": cmd_run}[args.cmd](args)
     except CouplingError as e:
@@ -398,7 +411,7 @@ def main(argv=None) -> int:
     except SimulationError as e:
         print(f"coupling: error: DEM failed: {e}", file=sys.stderr)
         return EXIT_DEM
-    except (CaseConfigError, CaseError, SceneError, CouplingRunError, FoamError) as e:
+    except (CaseConfigError, CaseError, SceneError, CouplingRunError, FoamError, ThreadsError) as e:
         print(f"coupling: error: {e}", file=sys.stderr)
         return EXIT_CHECK
     except MemoryError:

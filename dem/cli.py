@@ -77,15 +77,26 @@ def cmd_check(args):
     return 0
 
 
+def _threads_arg(text):
+    from .threads import parse, ThreadsError
+    try:
+        return parse(text)
+    except ThreadsError as exc:
+        raise argparse.ArgumentTypeError(str(exc).split(": ", 1)[1]) from None
+
+
 def cmd_run(args):
     from .interrupt import StopRequested, StopSignals
     from .output import OutputError
-    from . import outdir
+    from . import outdir, threads
+    if args.threads != "auto":
+        threads.resolve(args.threads)   # more than this machine runs: refused before anything is read
     out = args.out or os.path.join("out", os.path.splitext(os.path.basename(args.scene))[0])
     rule = dict(overwrite=args.overwrite, restart=bool(args.restart), keep=[args.scene])
     outdir.check(out, **rule)          # a user's folder is refused before the scene is even read
     with StopSignals():  # a signal during loading or compiling stops at the first chunk boundary
         sim = _load(args.scene)
+        sim.set_threads(threads.resolve(args.threads, sim.par.comm if sim.par is not None else None))
         if args.restart is not None:
             sim.prepare_restart(args.restart)  # a bad checkpoint or a refused scene edit: exit 2 now
         rep = sim.check()
@@ -123,6 +134,7 @@ def cmd_run(args):
         setup = [int(v) for v in sim.par.flags(rows["read"], rows["held"])]
     if sim.is_root:
         ranks = f" on {sim.par.size} ranks ({sim.par.describe()})" if sim.par is not None else ""
+        ranks += f", {sim.threads} thread{'s' if sim.threads > 1 else ''}" + (" per rank" if sim.par is not None else "")
         if stats:
             print(f"parallel: {stats['ghosts']} ghosts ({100 * stats['ghosts'] / max(n, 1):.1f} % of the particles), "
                   f"halo traffic {stats['halo_bytes'] / 1024:.1f} KiB per step in {stats['messages']} messages, "
@@ -236,6 +248,9 @@ def _main(argv=None):
     r.add_argument("scene")
     r.add_argument("--out", help="output folder (default out/<scene name>)")
     r.add_argument("--restart", help="checkpoint to continue from (--out may then be the earlier output)")
+    r.add_argument("--threads", type=_threads_arg, default="auto",
+                   help="threads of each process (default auto: the cores this process may use, shared among "
+                        "the MPI ranks of its node); results are deterministic for a given count")
     r.add_argument("--overwrite", action="store_true",
                    help="replace an earlier output in --out: removes only what the tool wrote there "
                         "(listed in its .thermodem-manifest.json) and refuses if anything else is there")
@@ -256,12 +271,13 @@ def _main(argv=None):
     from .errors import SceneError
     from .simulation import SimulationError
     from .parallel.domain import ParallelError
+    from .threads import ThreadsError
     from .parallel import launched_rank
     root = launched_rank() == 0
     try:
         return {"run": cmd_run, "check": cmd_check, "render": cmd_render, "compile": cmd_compile,
                 "gather": cmd_gather}[args.cmd](args)
-    except (SceneError, ParallelError) as exc:
+    except (SceneError, ParallelError, ThreadsError) as exc:
         if root:  # every rank found the same problem: say it once
             print(f"error: {exc}", file=sys.stderr)
         return 2

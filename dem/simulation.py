@@ -21,6 +21,7 @@ the public API (README, coupling/), each one line into the part that does it.
 import time
 
 from . import reports
+from . import step as K
 from . import scene as scene_mod
 from .checkpointer import Checkpointer
 from .errors import SimulationError  # noqa: F401  (dem.simulation.SimulationError, as before)
@@ -53,6 +54,7 @@ class Simulation:
         self.energy_guard = None   # set by the run's EnergyCheck operation
         self.compile_seconds = None
         self.wall_seconds = None
+        self.threads = 1
         self.stepper.init_neighbors()
         if self.par is not None and getattr(scene, "distributed", False):
             from .parallel.setup import check_overlaps
@@ -113,6 +115,16 @@ class Simulation:
         return reports.time_scales(self.world, self.par)
 
     # ------------------------------------------------------------------ stepping
+    def set_threads(self, k):
+        """Run this process's kernels on ``k`` threads from now on (blocks of rows at once,
+        dem.step.interact_blocks; deterministic for a given k). Applies to calls made from the
+        calling thread (Numba's setting is per thread)."""
+        from . import threads
+        k = threads.resolve(k, self.par.comm if self.par is not None else None)
+        threads.apply(k)
+        self.threads = k
+        self.state.ip[K.IP.threads] = k
+
     def warmup(self):
         """Compile (or load from Numba's cache) the kernels; returns seconds spent."""
         t0 = time.perf_counter()

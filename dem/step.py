@@ -17,7 +17,7 @@ import math
 from collections import namedtuple
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 from .contact.hertz_mindlin import hertz_mindlin
 from .contact.linear import linear_spring_dashpot
@@ -40,6 +40,7 @@ IP = slots("IP", (
     ("nwalls", "number of walls"),
     ("mech", "1: mechanics on; 0: a frozen packing (heat alone)"),
     ("nown", "owned rows (the rest are ghosts)"),
+    ("threads", "threads of this process: blocks of rows the kernels run at once (1: one block, serial order)"),
 ), size=8)
 # float parameters (Params.fp)
 FP = slots("FP", (
@@ -65,6 +66,25 @@ TAB = slots("TAB", (
     ("mu", "sliding friction coefficient"),
     ("mur", "rolling friction coefficient"),
 ))
+# what a pair gives its other particle j when j is in another block of rows (interact_rows' xv)
+XV = slots("XV", (
+    ("fx", "x of the force on i (j gets minus it)"),
+    ("fy", "y of the force on i"),
+    ("fz", "z of the force on i"),
+    ("cx", "x of n x F_t (j's torque gets r_j times it)"),
+    ("cy", "y of n x F_t"),
+    ("cz", "z of n x F_t"),
+    ("mx", "x of the rolling torque on i (j gets minus it)"),
+    ("my", "y of the rolling torque on i"),
+    ("mz", "z of the rolling torque on i"),
+    ("q", "fused heat rate into j (W)"),
+    ("psi", "share of the friction heat that goes to j"),
+    ("qf", "friction heat of the contact (W)"),
+))
+# (xv holds the factors of what j gets, not their products: a product written on both sides of
+# the block test would be computed once before it, and j's own sum would lose its fused
+# multiply-add: one block would then no longer be the serial loop bit for bit)
+XV_SIZE = XV.SIZE
 # status
 OK, OVERLAP, NONFINITE, LEFT_DOMAIN, BAD_TEMPERATURE, REBUILD_DUE = 0, 1, 2, 3, 4, 5
 # phases of one step (advance's ``phases`` bits): a serial run asks for all of them, an MPI run
@@ -154,15 +174,24 @@ def _rotate_history(h, i, s, nx, ny, nz):
 
 @njit(cache=True, error_model="numpy", fastmath={"nsz", "arcp", "contract", "afn", "reassoc"},
       no_cpython_wrapper=True, no_cfunc_wrapper=True)
-def compute_forces(P, C, W, TB, prm, n, t, hon):
-    """Contact + wall + body forces, and (when heat is on) the conductances of every
-    neighbour slot and wall candidate for the heat step: Hd, Hi, Hw, the radiation
-    neighbour flags and the friction heat. Returns (max overlap ratio, i, j (-1-wall),
-    2 x contacts). ``hon``: True with heat, None without (a type, so that the mechanics-only
-    specialisation is compiled without the heat code). Rows >= ip[IP.nown] are ghosts
-    (copies of another rank's particles, no pairs of their own); a pair with a ghost is
-    computed on both ranks, so it counts 1 (of 2) and half its exchanged heat goes into the
-    totals here."""
+def interact_rows(P, C, W, TB, prm, n, t, hon, i0, i1, xj, xv, k0, wtot, wgap):
+    """The interact phase of rows [i0, i1): body forces, the pairs of the half list that start
+    at those rows, and their walls; with heat, the conductances of every neighbour slot and wall
+    candidate for the heat step (Hd, Hi, Hw, the radiation neighbour flags) and the friction
+    heat. ``hon``: True with heat, None without (a type, so that the mechanics-only
+    specialisation is compiled without the heat code). Rows >= ip[IP.nown] are ghosts (copies
+    of another rank's particles, no pairs of their own); a pair with a ghost is computed on both
+    ranks, so it counts 1 (of 2) and half its exchanged heat goes into the totals.
+
+    A pair whose other particle j lies outside [i0, i1) does not touch j's rows: what it gives
+    j (force, torque, fused heat rate, friction heat) is written to row k of ``xj`` (j) and
+    ``xv`` (8 values, :data:`XV`), k counting from ``k0`` in loop order, for the caller to add
+    once every block is done (:func:`interact_blocks`). With [i0, i1) = [0, n) (one block) no
+    pair goes there, and the arithmetic is the serial loop's, in its order. ``wtot``, ``wgap``:
+    where the fused wall heat of these rows adds up (the walls' own totals, or a block's part).
+
+    Returns (max overlap ratio, i, j (-1-wall), 2 x contacts, direct, indirect and wall heat
+    rates exchanged (W, fused mode; the caller adds them to the totals))."""
     x, v, w, r, m, mat, f, tq = (P.position, P.velocity, P.angular_velocity, P.radius, P.mass, P.material,
                                  P.force, P.torque)
     fext, wnb, wnn, whist, wrhist = P.external_force, P.wnb, P.wnn, P.whist, P.wrhist
@@ -193,7 +222,6 @@ def compute_forces(P, C, W, TB, prm, n, t, hon):
     # scene (dem.thermal.scene refuses mixed factors with conduction)
     cgv = heat_cg(P.cg, thi) if hon is not None else P.cg
     has_cg = cgv.shape[0] > 0
-    wgap = W.wgap
     wth = W.wth
     por = P.por
     qgen = P.qgen
@@ -203,8 +231,6 @@ def compute_forces(P, C, W, TB, prm, n, t, hon):
     fused = heat and thi[TI.fused] == 1
     T = P.temperature
     Q = P.heat_rate
-    tot = prm.tot
-    wtot = W.wtot
     wtab = W.wtab
     keff = TB.keff
     bo = dmodel == DIRECT_BATCHELOR_OBRIEN
@@ -212,10 +238,10 @@ def compute_forces(P, C, W, TB, prm, n, t, hon):
     e_ind = 0.0
     e_wall = 0.0
     if hon is not None and heat and fric >= 0:
-        for i in range(n):
+        for i in range(i0, i1):
             qgen[i] = 0.0
     if fused:
-        for i in range(n):
+        for i in range(i0, i1):
             Q[i] = 0.0
     dt = fp[FP.dt]
     model = ip[IP.contact]
@@ -235,7 +261,7 @@ def compute_forces(P, C, W, TB, prm, n, t, hon):
     text = P.external_torque
     has_text = text.shape[0] == n
     nown = ip[IP.nown]
-    for i in range(n):
+    for i in range(i0, i1):
         f[i, 0] = m[i] * gx
         f[i, 1] = m[i] * gy
         f[i, 2] = m[i] * gz
@@ -255,7 +281,8 @@ def compute_forces(P, C, W, TB, prm, n, t, hon):
     who_i = -1
     who_j = -1
     ncont = 0
-    for i in range(n):
+    k = k0
+    for i in range(i0, i1):
         xi0 = x[i, 0]
         xi1 = x[i, 1]
         xi2 = x[i, 2]
@@ -264,6 +291,13 @@ def compute_forces(P, C, W, TB, prm, n, t, hon):
         for s in range(nnb[i]):
             j = nb[i, s]
             wgt = 1.0 if j < nown else 0.5
+            loc = j >= i0 and j < i1
+            kx = k
+            if not loc:  # j in another block: its share waits in row kx of xv
+                k += 1
+                xj[kx] = j
+                for q in range(XV_SIZE):
+                    xv[kx, q] = 0.0
             dx = x[j, 0] - xi0
             dy = x[j, 1] - xi1
             dz = x[j, 2] - xi2
@@ -301,7 +335,10 @@ def compute_forces(P, C, W, TB, prm, n, t, hon):
                             if fused:
                                 qq = hind * (T[j] - T[i])
                                 Q[i] += qq
-                                Q[j] -= qq
+                                if loc:
+                                    Q[j] -= qq
+                                else:
+                                    xv[kx, XV.q] = -qq
                                 e_ind += wgt * abs(qq)
                             else:
                                 Hi[i, s] = hind
@@ -380,7 +417,10 @@ def compute_forces(P, C, W, TB, prm, n, t, hon):
                     qd = hdir * dtij
                     qi = hind * dtij
                     Q[i] += qd + qi
-                    Q[j] -= qd + qi
+                    if loc:
+                        Q[j] -= qd + qi
+                    else:
+                        xv[kx, XV.q] = -(qd + qi)
                     e_dir += wgt * abs(qd)
                     e_ind += wgt * abs(qi)
                 else:
@@ -393,16 +433,25 @@ def compute_forces(P, C, W, TB, prm, n, t, hon):
                     qf = _contact_heat(fric, tab[TAB.mu, mi, mj], thf, vtx, vty, vtz, ftx, fty, ftz, fn, vn)
                     psi = partition(pmodel, mi, mj, tmat)
                     qgen[i] += psi * qf
-                    qgen[j] += (1.0 - psi) * qf
+                    if loc:
+                        qgen[j] += (1.0 - psi) * qf
+                    else:
+                        xv[kx, XV.psi] = 1.0 - psi
+                        xv[kx, XV.qf] = qf
             fx = -fn * nx + ftx
             fy = -fn * ny + fty
             fz = -fn * nz + ftz
             f[i, 0] += fx
             f[i, 1] += fy
             f[i, 2] += fz
-            f[j, 0] -= fx
-            f[j, 1] -= fy
-            f[j, 2] -= fz
+            if loc:
+                f[j, 0] -= fx
+                f[j, 1] -= fy
+                f[j, 2] -= fz
+            else:
+                xv[kx, XV.fx] = fx
+                xv[kx, XV.fy] = fy
+                xv[kx, XV.fz] = fz
             # torques: (r n) x Ft on both particles
             cx = ny * ftz - nz * fty
             cy = nz * ftx - nx * ftz
@@ -410,9 +459,14 @@ def compute_forces(P, C, W, TB, prm, n, t, hon):
             tq[i, 0] += ri * cx
             tq[i, 1] += ri * cy
             tq[i, 2] += ri * cz
-            tq[j, 0] += rj * cx
-            tq[j, 1] += rj * cy
-            tq[j, 2] += rj * cz
+            if loc:
+                tq[j, 0] += rj * cx
+                tq[j, 1] += rj * cy
+                tq[j, 2] += rj * cz
+            else:
+                xv[kx, XV.cx] = cx
+                xv[kx, XV.cy] = cy
+                xv[kx, XV.cz] = cz
             if rolling != 0:
                 mur = tab[TAB.mur, mi, mj]
                 wx = w[i, 0] - w[j, 0]
@@ -437,11 +491,16 @@ def compute_forces(P, C, W, TB, prm, n, t, hon):
                 tq[i, 0] += mx
                 tq[i, 1] += my
                 tq[i, 2] += mz
-                tq[j, 0] -= mx
-                tq[j, 1] -= my
-                tq[j, 2] -= mz
+                if loc:
+                    tq[j, 0] -= mx
+                    tq[j, 1] -= my
+                    tq[j, 2] -= mz
+                else:
+                    xv[kx, XV.mx] = mx
+                    xv[kx, XV.my] = my
+                    xv[kx, XV.mz] = mz
     # walls (candidates from the wall list built with the neighbour list)
-    for i in range(n):
+    for i in range(i0, i1):
         ri = r[i]
         mi = mat[i]
         for q in range(wnn[i]):
@@ -580,7 +639,126 @@ def compute_forces(P, C, W, TB, prm, n, t, hon):
                 tq[i, 0] += mx
                 tq[i, 1] += my
                 tq[i, 2] += mz
+    return maxov, who_i, who_j, ncont, e_dir, e_ind, e_wall
+
+
+# fewest owned rows per block: below it a thread's share is too small to pay its start (a few
+# microseconds per parallel loop); the block count is then lowered, which keeps small scenes serial
+MIN_BLOCK_ROWS = 1024
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def blocks(ip):
+    """How many blocks of rows the kernels run at once: the threads asked for (ip[IP.threads]),
+    at most one per MIN_BLOCK_ROWS owned rows. A function of the thread count and the owned
+    rows alone, so that a run is deterministic for a given thread count."""
+    return max(1, min(ip[IP.threads], ip[IP.nown] // MIN_BLOCK_ROWS))
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def block_bounds(nown, n, nblk):
+    """Rows of each block: equal shares of the owned rows (the particles are stored in cell
+    order, dem.neighbors.sort_permutation: a block is a slab of the domain, and most pairs stay
+    inside one); the ghosts [nown, n) join the last block."""
+    bounds = np.empty(nblk + 1, np.int64)
+    for b in range(nblk):
+        bounds[b] = (nown * b) // nblk
+    bounds[nblk] = n
+    return bounds
+
+
+@njit(cache=True, error_model="numpy", parallel=True, no_cpython_wrapper=True, no_cfunc_wrapper=True)
+def interact_blocks(P, C, W, TB, prm, n, t, hon, nblk, fused, fgen):
+    """The interact phase on ``nblk`` threads: the rows cut into blocks (:func:`block_bounds`),
+    each block's pairs and walls by :func:`interact_rows` at once, then, in block order, what
+    the pairs across two blocks give their other particle, and the blocks' wall heat. No two
+    threads write the same row, and every sum runs in an order fixed by the block count: the
+    result depends on the thread count (the order of a row's sum), not on the timing."""
+    bounds = block_bounds(prm.ip[IP.nown], n, nblk)
+    nb, nnb = C.nb, C.nnb
+    cnt = np.zeros(nblk + 1, np.int64)
+    for b in prange(nblk):  # the pairs across blocks, counted: each block's rows of xj / xv
+        i0 = bounds[b]
+        i1 = bounds[b + 1]
+        c = 0
+        for i in range(i0, i1):
+            for s in range(nnb[i]):
+                j = nb[i, s]
+                if j < i0 or j >= i1:
+                    c += 1
+        cnt[b + 1] = c
+    for b in range(nblk):
+        cnt[b + 1] += cnt[b]
+    xj = np.empty(cnt[nblk], np.int64)
+    xv = np.empty((cnt[nblk], XV_SIZE))
+    wt = np.zeros((nblk, W.wtot.shape[0]))
+    wg = np.zeros((nblk, W.wgap.shape[0]))
+    res = np.empty((nblk, 7))
+    for b in prange(nblk):
+        r = interact_rows(P, C, W, TB, prm, n, t, hon, bounds[b], bounds[b + 1], xj, xv, cnt[b], wt[b], wg[b])
+        res[b, 0] = r[0]
+        res[b, 1] = r[1]
+        res[b, 2] = r[2]
+        res[b, 3] = r[3]
+        res[b, 4] = r[4]
+        res[b, 5] = r[5]
+        res[b, 6] = r[6]
+    f, tq, Q, qgen, r = P.force, P.torque, P.heat_rate, P.qgen, P.radius
+    for k in range(cnt[nblk]):
+        j = xj[k]
+        f[j, 0] -= xv[k, XV.fx]
+        f[j, 1] -= xv[k, XV.fy]
+        f[j, 2] -= xv[k, XV.fz]
+        rj = r[j]
+        tq[j, 0] += rj * xv[k, XV.cx] - xv[k, XV.mx]
+        tq[j, 1] += rj * xv[k, XV.cy] - xv[k, XV.my]
+        tq[j, 2] += rj * xv[k, XV.cz] - xv[k, XV.mz]
+        if fused:
+            Q[j] += xv[k, XV.q]
+        if fgen:
+            qgen[j] += xv[k, XV.psi] * xv[k, XV.qf]
+    for b in range(nblk):
+        for q in range(wt.shape[1]):
+            W.wtot[q] += wt[b, q]
+        for q in range(wg.shape[1]):
+            W.wgap[q] += wg[b, q]
+    maxov = 0.0
+    who_i = -1
+    who_j = -1
+    ncont = 0
+    e_dir = 0.0
+    e_ind = 0.0
+    e_wall = 0.0
+    for b in range(nblk):
+        if res[b, 0] > maxov:
+            maxov = res[b, 0]
+            who_i = int(res[b, 1])
+            who_j = int(res[b, 2])
+        ncont += int(res[b, 3])
+        e_dir += res[b, 4]
+        e_ind += res[b, 5]
+        e_wall += res[b, 6]
+    return maxov, who_i, who_j, ncont, e_dir, e_ind, e_wall
+
+
+@njit(cache=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
+def compute_forces(P, C, W, TB, prm, n, t, hon):
+    """The interact phase (:func:`interact_rows`) of every row, on one thread (one block, the
+    serial order) or on ip[IP.threads] blocks at once (:func:`interact_blocks`); adds the fused
+    heat exchanged to the totals. Returns (max overlap ratio, i, j (-1-wall), 2 x contacts)."""
+    thi = prm.thi
+    fused = hon is not None and thi[TI.heat] != 0 and thi[TI.fused] == 1
+    fgen = hon is not None and thi[TI.heat] != 0 and thi[TI.fric] >= 0
+    nblk = blocks(prm.ip)
+    if nblk == 1:
+        maxov, who_i, who_j, ncont, e_dir, e_ind, e_wall = interact_rows(
+            P, C, W, TB, prm, n, t, hon, 0, n, np.empty(0, np.int64), np.empty((0, XV_SIZE)), 0, W.wtot, W.wgap)
+    else:
+        maxov, who_i, who_j, ncont, e_dir, e_ind, e_wall = interact_blocks(P, C, W, TB, prm, n, t, hon, nblk,
+                                                                           fused, fgen)
     if fused:
+        dt = prm.fp[FP.dt]
+        tot = prm.tot
         tot[TOT.direct] += e_dir * dt
         tot[TOT.indirect] += e_ind * dt
         tot[TOT.wall] += e_wall * dt
@@ -641,8 +819,8 @@ def half_kick_angular_implicit(w, tq, inv_i, kr, i, h):
 
 
 @njit(cache=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
-def kick_drift(P, prm, n, dt):
-    """First half of velocity Verlet for rows [0, n) of the particles ``P`` (dem.schema
+def kick_drift_rows(P, prm, i0, i1, dt):
+    """First half of velocity Verlet for rows [i0, i1) of the particles ``P`` (dem.schema
     Particles) in the domain of ``prm``: half kick, drift, periodic wrap.
     Returns the largest squared displacement since the last neighbour build (P.x_build).
     ``P.drag_beta`` (a coupled run; else empty): drag coefficients taken implicitly (:func:`half_kick`);
@@ -658,10 +836,11 @@ def kick_drift(P, prm, n, dt):
     L1 = hi[1] - lo[1]
     L2 = hi[2] - lo[2]
     maxd2 = 0.0
+    n = i1  # (the per-row arrays of a coupled run have every owned row)
     drag = beta.shape[0] >= n
     rdrag = kr.shape[0] >= n
     im = inv_me if inv_me.shape[0] >= n else inv_m
-    for i in range(n):
+    for i in range(i0, i1):
         if drag:
             half_kick_implicit(v, f, im, beta, i, half)
         else:
@@ -696,15 +875,16 @@ def kick_drift(P, prm, n, dt):
 
 
 @njit(cache=True, error_model="numpy")
-def kick(n, v, w, f, tq, inv_m, inv_i, beta, dt, kr, inv_me):
-    """Second half kick for rows [0, n); returns a row with a non-finite velocity, or -1.
+def kick_rows(i0, i1, v, w, f, tq, inv_m, inv_i, beta, dt, kr, inv_me):
+    """Second half kick for rows [i0, i1); returns the last row with a non-finite velocity, or -1.
     ``beta``, ``kr``, ``inv_me`` (a coupled run; else empty): as in :func:`kick_drift`."""
     half = 0.5 * dt
     bad = -1
+    n = i1
     drag = beta.shape[0] >= n
     rdrag = kr.shape[0] >= n
     im = inv_me if inv_me.shape[0] >= n else inv_m
-    for i in range(n):
+    for i in range(i0, i1):
         if drag:
             half_kick_implicit(v, f, im, beta, i, half)
         else:
@@ -719,6 +899,43 @@ def kick(n, v, w, f, tq, inv_m, inv_i, beta, dt, kr, inv_me):
                 and math.isfinite(w[i, 0] + w[i, 1] + w[i, 2])):
             bad = i
     return bad
+
+
+@njit(cache=True, error_model="numpy", parallel=True)
+def _kick_drift_blocks(P, prm, n, dt, nblk):
+    bounds = block_bounds(n, n, nblk)
+    part = np.zeros(nblk)
+    for b in prange(nblk):
+        part[b] = kick_drift_rows(P, prm, bounds[b], bounds[b + 1], dt)
+    return part.max()
+
+
+@njit(cache=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
+def kick_drift(P, prm, n, dt):
+    """:func:`kick_drift_rows` of rows [0, n), on ip[IP.threads] blocks of rows at once (the
+    same arithmetic for each row: the result does not depend on the thread count)."""
+    nblk = blocks(prm.ip)
+    if nblk == 1:
+        return kick_drift_rows(P, prm, 0, n, dt)
+    return _kick_drift_blocks(P, prm, n, dt, nblk)
+
+
+@njit(cache=True, error_model="numpy", parallel=True)
+def _kick_blocks(n, v, w, f, tq, inv_m, inv_i, beta, dt, kr, inv_me, nblk):
+    bounds = block_bounds(n, n, nblk)
+    part = np.empty(nblk, np.int64)
+    for b in prange(nblk):
+        part[b] = kick_rows(bounds[b], bounds[b + 1], v, w, f, tq, inv_m, inv_i, beta, dt, kr, inv_me)
+    return part.max()
+
+
+@njit(cache=True, error_model="numpy")
+def kick(n, v, w, f, tq, inv_m, inv_i, beta, dt, kr, inv_me, nblk):
+    """:func:`kick_rows` of rows [0, n) on ``nblk`` blocks of rows at once (:func:`blocks`; the
+    same arithmetic for each row, whatever the thread count)."""
+    if nblk == 1:
+        return kick_rows(0, n, v, w, f, tq, inv_m, inv_i, beta, dt, kr, inv_me)
+    return _kick_blocks(n, v, w, f, tq, inv_m, inv_i, beta, dt, kr, inv_me, nblk)
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -808,7 +1025,7 @@ def kick_guard(P, prm, nown, maxov, who_i, who_j):
     (status, particle, other, value): NONFINITE (a non-finite velocity), OVERLAP (the largest
     overlap ratio of the force evaluation above simulation.max_overlap_ratio) or OK."""
     bad = kick(nown, P.velocity, P.angular_velocity, P.force, P.torque, P.inv_mass, P.inv_inertia,
-               P.drag_beta, prm.fp[FP.dt], P.rot_drag, P.inv_mass_eff)
+               P.drag_beta, prm.fp[FP.dt], P.rot_drag, P.inv_mass_eff, blocks(prm.ip))
     if bad >= 0:
         return NONFINITE, bad, -1, 0.0
     if maxov > prm.fp[FP.maxov]:

@@ -80,6 +80,7 @@ class World:
         ip[K.IP.nwalls] = self.nwalls
         ip[K.IP.mech] = 1 if sc.simulation["mechanics"] else 0
         ip[K.IP.nown] = self.state.n_owned
+        ip[K.IP.threads] = 1
         fp = np.zeros(K.FP.SIZE)
         fp[K.FP.dt] = self.dt
         fp[K.FP.gx:K.FP.gz + 1] = sc.simulation["gravity"]
