@@ -10,21 +10,21 @@ particles). Method:
 * whole step: ``Simulation.step`` over ``--steps`` steps (the production path: one compiled
   call), the best of ``--repeats`` runs from the same state (every array of dem.schema is
   copied before and put back between repeats, so each repeat does the same work);
-* phases: the same steps with each phase its own compiled call (dem.step.advance with one
-  phase bit: drift, drift + neighbour rebuild (the steps whose drift rebuilt the lists),
-  interact (pair loop + walls: dem.step.compute_forces), kick + guards, heat step), less the
-  cost of an empty call (measured); "per-step Python" is the production path's time over
-  its steps minus the sum of the phases' (negative values mean the phases' calls cost more
-  than they save, i.e. zero within noise);
+* phases: the compiled step alone (dem.step.advance, every phase, one call: the difference to
+  the whole step is per-step Python), then each phase alone in one compiled call of the same
+  steps (dem.step.advance with one phase bit: drift (until a rebuild falls due), interact
+  (pair loop + walls: dem.step.compute_forces), kick + guards, heat step), and the neighbour
+  rebuild timed alone (dem.step's build_half_list + after_build, as an MPI rebuild calls
+  them) times the rebuilds the compiled step made;
 * pair loop: the interact phase timed on the same positions with neighbour lists built with
   1x, 2x and 3x the scene's skin: more candidates, the same contacts, so the slope of time
   against candidates is the cost of a candidate that does not touch (a distance test), and
   what remains at the scene's skin, over the contacts, is the cost of a contact (the law,
   history, heat; walls and per-row work included, so an upper bound);
-* the floor: the floating-point operations of one Hertz-Mindlin contact with tangential
-  history and (heat) fused conduction, counted from dem.step.interact_rows (FLOPS_* below),
-  at the 2 scalar double-precision operations per cycle of an AVX2/FMA core without
-  vectorisation, and the clock read from /proc/cpuinfo.
+* the floor: the arithmetic of one Hertz-Mindlin contact with tangential history and (heat)
+  fused conduction, counted from dem.step.interact_rows (OPS_* below), at 4 scalar operations
+  per cycle or 5 cycles per division or root, whichever is longer (floor_cycles), with the
+  clock read from /proc/cpuinfo.
 """
 import argparse
 import os
@@ -40,16 +40,30 @@ from dem import Simulation  # noqa: E402
 from dem import schema as S  # noqa: E402
 from dem import step as K  # noqa: E402
 
-# Floating-point operations of one contact in dem.step.interact_rows, counted by hand
-# (+, -, *, fused multiply-add as 2; sqrt and division as 1 each, although they cost 4-20 cycles):
-# branch distance and normal 23 (dx 3, r^2 5, sqrt, 1/r, normal 3, overlap 2, ...), relative
-# velocity at the contact 27, Hertz normal force + Tsuji damping 24 (sqrt(R* delta), kn, gamma),
-# tangential spring: rotation of the history 20, increment 9, Coulomb cap 14, damping 9,
-# force and torque sums on both particles 36, overlap ratio 4.
-FLOPS_MECH = 166
-# fused conduction (Batchelor-O'Brien: contact radius from the Hertz overlap, H = 2 k a, rate
-# H (Tj - Ti) into both particles): 12
-FLOPS_HEAT = 12
+# The arithmetic of one sticking Hertz-Mindlin contact with tangential history in
+# dem.step.interact_rows, counted by hand from the code (dem.step, dem.contact.hertz_mindlin):
+# distance test 10, root and normal 6, overlap ratio 2, contact-point velocity 24, normal and
+# tangential parts 11, spring rotation (_rotate_history) 26, R* and m* 6, Hertz-Mindlin with
+# Tsuji damping and Coulomb test 41, force sums on both rows 12, torque sums 21: 159 operations,
+# of which 6 divisions and 4 square roots. Fused conduction (Batchelor-O'Brien on the Hertz
+# contact radius, H = 2 k a, rate into both rows, energy tally): 14 more, one root.
+OPS_MECH, DIVSQRT_MECH = 159, 10
+OPS_HEAT, DIVSQRT_HEAT = 14, 1
+# The floor in cycles: 4 scalar floating-point operations per cycle (2 FMA/multiply + 2 add
+# pipes of an AMD Zen core, counting each operation as one), or the divider: about 5 cycles
+# per double-precision division or square root (reciprocal throughput, Agner Fog's tables for
+# AMD Zen 3/4), whichever is longer. Memory traffic is not in the floor.
+OPS_PER_CYCLE, DIVSQRT_CYCLES = 4.0, 5.0
+
+
+def floor_cycles(heat):
+    ops = OPS_MECH + (OPS_HEAT if heat else 0)
+    ds = DIVSQRT_MECH + (DIVSQRT_HEAT if heat else 0)
+    return ops, ds, max(ops / OPS_PER_CYCLE, ds * DIVSQRT_CYCLES)
+
+
+# The distance test of a candidate that does not touch: 10 operations, no division: 2.5 cycles.
+OPS_TEST = 10
 
 
 def cpu_ghz():
@@ -82,50 +96,41 @@ def timed(fn):
     return time.perf_counter() - t0, r
 
 
-def whole_steps(sim, snap, steps, repeats):
-    best = float("inf")
+def best_of(sim, snap, repeats, fn):
+    """The least seconds of ``fn()`` over ``repeats`` runs, each from the snapshot; fn's last result."""
+    best, res = float("inf"), None
     for _ in range(repeats):
         restore(sim, snap)
         s0 = sim.step_count
-        dt, _ = timed(lambda: sim.step(steps))
+        dt, res = timed(fn)
         best = min(best, dt)
         sim.world.set_step(s0)
-    return best
+    restore(sim, snap)
+    return best, res
 
 
 def phase_steps(sim, snap, steps, repeats, heat):
-    """Seconds per phase over ``steps`` steps, each phase its own compiled call (best repeat)."""
+    """Seconds over ``steps`` steps of: the whole step through Simulation.step (production path),
+    the compiled step alone (every phase, one call), and each phase alone in one compiled call
+    of ``steps`` repetitions (drift: until a rebuild is due); the rebuilds of the whole step
+    and the cost of one rebuild (dem.step.rebuild's functions, called as an MPI rebuild does)."""
     stp = sim.stepper
-    best = None
-    for _ in range(repeats):
-        restore(sim, snap)
-        s = sim.step_count
-        acc = dict(drift=0.0, rebuild=0.0, forces=0.0, kick=0.0, heat=0.0, calls=0)
-        nreb = 0
-        for k in range(steps):
-            s0 = s + k
-            dt, res = timed(lambda: stp.phases(K.PH_DRIFT | K.PH_REBUILD, s0=s0))
-            stp.set_pairs(res[-1])
-            if res[6]:
-                acc["rebuild"] += dt
-                nreb += 1
-            else:
-                acc["drift"] += dt
-            dt, res = timed(lambda: stp.phases(K.PH_FORCES, s0=s0))
-            acc["forces"] += dt
-            dt, _ = timed(lambda: stp.phases(K.PH_KICK, s0=s0))
-            acc["kick"] += dt
-            calls = 3
-            if heat:
-                dt, _ = timed(lambda: stp.phases(K.PH_HEAT, s0=s0))
-                acc["heat"] += dt
-                calls += 1
-            acc["calls"] += calls
-        acc["nreb"] = nreb
-        if best is None or sum(acc[p] for p in ("drift", "rebuild", "forces", "kick", "heat")) < \
-                sum(best[p] for p in ("drift", "rebuild", "forces", "kick", "heat")):
-            best = acc
-    return best
+    s = sim.step_count
+    r = {}
+    r["api"], _ = best_of(sim, snap, repeats, lambda: sim.step(steps))
+    r["step"], res = best_of(sim, snap, repeats, lambda: stp.phases(K.PH_STEP, nsteps=steps, s0=s))
+    r["nreb"] = int(res[6])
+    r["drift"], res = best_of(sim, snap, repeats, lambda: stp.phases(K.PH_DRIFT, nsteps=steps, s0=s))
+    r["drift_steps"] = max(int(res[0]), 1)
+    r["forces"], _ = best_of(sim, snap, repeats, lambda: stp.phases(K.PH_FORCES, nsteps=steps, s0=s))
+    r["kick"], _ = best_of(sim, snap, repeats, lambda: stp.phases(K.PH_KICK, nsteps=steps, s0=s))
+    r["heat"] = 0.0
+    if heat:
+        r["heat"], _ = best_of(sim, snap, repeats, lambda: stp.phases(K.PH_HEAT, nsteps=steps, s0=s))
+    st = sim.state
+    r["rebuild"], _ = best_of(sim, snap, repeats, lambda: stp.rebuild(s, st.lo, st.hi, st.periodic))
+    restore(sim, snap)
+    return r
 
 
 def empty_call(sim, reps=2000):
@@ -138,8 +143,21 @@ def empty_call(sim, reps=2000):
     return (time.perf_counter() - t0) / reps
 
 
-def pair_loop(sim, snap, repeats, calls=20):
-    """(candidates, contacts, seconds of one interact phase) at 1x, 2x and 3x the skin."""
+def one_interact(sim, snap, reps):
+    """Seconds of one interact phase (pair loop + walls) from the snapshot, best of ``reps``,
+    and the contacts it counted."""
+    best, nc = float("inf"), 0
+    for _ in range(reps):
+        restore(sim, snap)
+        dt, res = timed(lambda: sim.stepper.phases(K.PH_FORCES))
+        best, nc = min(best, dt), int(res[5]) // 2
+    restore(sim, snap)
+    return best, nc
+
+
+def pair_loop(sim, snap, reps):
+    """(skin multiple, candidates, contacts, seconds of one interact phase) on lists built with
+    1x, 2x and 3x the scene's skin at the snapshot's positions (history starting empty)."""
     st = sim.state
     stp = sim.stepper
     skin0 = float(st.fp[K.FP.skin])
@@ -149,16 +167,9 @@ def pair_loop(sim, snap, repeats, calls=20):
         st.fp[K.FP.skin] = skin0 * mult
         stp.rebuild(sim.step_count, st.lo, st.hi, st.periodic, initial=True)
         cand = int(st.nnb[:st.n_owned].sum())
-        best = float("inf")
-        for _ in range(repeats):
-            t0 = time.perf_counter()
-            for _ in range(calls):
-                res = stp.phases(K.PH_FORCES)
-            best = min(best, (time.perf_counter() - t0) / calls)
-        rows.append((mult, cand, int(res[5]) // 2, best))
+        sec, nc = one_interact(sim, snapshot(st), reps)
+        rows.append((mult, cand, nc, sec))
     st.fp[K.FP.skin] = skin0
-    restore(sim, snap)
-    stp.rebuild(sim.step_count, st.lo, st.hi, st.periodic, initial=True)
     restore(sim, snap)
     return rows
 
@@ -175,48 +186,50 @@ def profile(bed, heat, steps, repeats, threads):
     snap = snapshot(sim.state)
     n = sim.state.n_owned
     ps = 1e9 / (n * steps)
-    whole = whole_steps(sim, snap, steps, repeats)
     ph = phase_steps(sim, snap, steps, repeats, heat)
     e = empty_call(sim)
-    corr = e  # each phase call's fixed cost
-    drift = max(ph["drift"] - corr * (steps - ph["nreb"]), 0.0)
-    rebuild = max(ph["rebuild"] - corr * ph["nreb"], 0.0)
-    forces = max(ph["forces"] - corr * steps, 0.0)
-    kick = max(ph["kick"] - corr * steps, 0.0)
-    heatt = max(ph["heat"] - corr * steps, 0.0) if heat else 0.0
+    drift = ph["drift"] / ph["drift_steps"] * steps
+    rebuild = ph["rebuild"] * ph["nreb"]
+    one, contacts = one_interact(sim, snap, 5 * repeats)
+    one = max(one - e, 0.0)
+    forces, kick, heatt = one * steps, ph["kick"], ph["heat"]
     phases_sum = drift + rebuild + forces + kick + heatt
-    rows = pair_loop(sim, snap, repeats)
+    whole = ph["api"]
+    rows = pair_loop(sim, snap, 5 * repeats)
     (m1, c1, k1, t1), (m2, c2, k2, t2), (m3, c3, k3, t3) = rows
     slope = np.polyfit([c1, c2, c3], [t1, t2, t3], 1)[0]  # s per candidate
-    contacts = k1
     nontouch = c1 - contacts
-    per_contact = (t1 - slope * nontouch) / max(contacts, 1)
+    per_contact = (one - slope * nontouch) / max(contacts, 1)
     ghz = cpu_ghz()
-    flops = FLOPS_MECH + (FLOPS_HEAT if heat else 0)
-    floor_cycles = flops / 2.0
+    ops, ds, floor = floor_cycles(heat)
     label = f"{bed} bed, heat {'on' if heat else 'off'}, {sim.threads} thread(s), {n} particles, {steps} steps"
     print(f"\n== {label} (kernels compile/load {compile_s:.1f} s)")
-    print(f"whole step (production path)      {whole * ps:8.1f} ns/particle-step   "
+    print(f"whole step (Simulation.step)       {whole * ps:8.1f} ns/particle-step   "
           f"{n * steps / whole:.3g} particle-steps/s")
-    for what, sec in (("drift", drift), (f"drift + rebuild ({ph['nreb']} of {steps} steps)", rebuild),
+    print(f"  compiled step (dem.step.advance)  {ph['step'] * ps:8.1f}")
+    for what, sec in (("drift", drift), (f"neighbour rebuild ({ph['nreb']} in {steps} steps)", rebuild),
                       ("interact (pair loop + walls)", forces), ("kick + guards", kick),
                       ("heat step", heatt)):
         if what == "heat step" and not heat:
             continue
-        print(f"  {what:32s} {sec * ps:8.1f} ns/particle-step  {100 * sec / max(phases_sum, 1e-30):5.1f} %")
-    print(f"  {'per-step Python and calls':32s} {(whole - phases_sum) * ps:8.1f} ns/particle-step "
-          f"(empty compiled call {e * 1e6:.1f} us)")
+        print(f"    {what:32s} {sec * ps:8.1f}  {100 * sec / max(phases_sum, 1e-30):5.1f} % of the phases")
+    print(f"    {'(one rebuild alone)':32s} {ph['rebuild'] / n * 1e9:8.1f}   ns per particle: "
+          f"{ph['rebuild'] / max(ph['step'] / steps, 1e-30):.1f} steps' worth")
+    print(f"    {'phases together, less their sum':32s} {(ph['step'] - phases_sum) * ps:8.1f}")
+    print(f"  per-step Python (Simulation.step)  {(whole - ph['step']) * ps:8.1f}   "
+          f"(an empty compiled call: {e * 1e6:.1f} us)")
     print(f"pair loop: {c1 / n:.2f} candidates and {contacts / n:.2f} contacts per particle (half list); "
           f"skin x1/x2/x3: {c1}/{c2}/{c3} candidates, {t1 * 1e3:.3f}/{t2 * 1e3:.3f}/{t3 * 1e3:.3f} ms")
-    print(f"  a candidate that does not touch  {slope * 1e9:6.1f} ns  ({slope * 1e9 * ghz:5.1f} cycles at {ghz:.2f} GHz)")
+    print(f"  a candidate that does not touch  {slope * 1e9:6.1f} ns  ({slope * 1e9 * ghz:5.1f} cycles at {ghz:.2f} GHz; "
+          f"arithmetic {OPS_TEST / OPS_PER_CYCLE:.1f} cycles: the rest is fetching j's position and the slot)")
     print(f"  a contact (law, history{', heat' if heat else ''}) {per_contact * 1e9:6.1f} ns  "
-          f"({per_contact * 1e9 * ghz:5.1f} cycles; floor {flops} flops = {floor_cycles:.0f} cycles: "
-          f"{per_contact * 1e9 * ghz / floor_cycles:.1f}x the floor)")
+          f"({per_contact * 1e9 * ghz:5.1f} cycles; floor {floor:.0f} cycles: {ops} operations, {ds} divisions "
+          f"or roots: {per_contact * 1e9 * ghz / floor:.1f}x the floor)")
     print(f"  pair loop split at the scene's skin: non-touching {slope * nontouch * 1e3:.3f} ms "
-          f"({100 * slope * nontouch / t1:.0f} %), contacts {per_contact * contacts * 1e3:.3f} ms "
-          f"({100 * per_contact * contacts / t1:.0f} %)")
+          f"({100 * slope * nontouch / one:.0f} %), contacts {per_contact * contacts * 1e3:.3f} ms "
+          f"({100 * per_contact * contacts / one:.0f} %)")
     return dict(bed=bed, heat=heat, whole=whole * ps, drift=drift * ps, rebuild=rebuild * ps, forces=forces * ps,
-                kick=kick * ps, heatstep=heatt * ps, python=(whole - phases_sum) * ps, cand=slope * 1e9,
+                kick=kick * ps, heatstep=heatt * ps, python=(whole - ph["step"]) * ps, cand=slope * 1e9,
                 contact=per_contact * 1e9)
 
 

@@ -382,7 +382,7 @@ def timings(timer, t_wall0, sim, n_steps, k):
     loop = sum(v for p, v in timer.total.items())
     d = {"wall_total": wall, "loop": loop, "phases": dict(timer.total),
          "coupling_steps": n_steps, "dem_steps": n_steps * k, "particles": sim.n_particles,
-         "dem_ranks": 1 if sim.par is None else sim.par.size}
+         "dem_ranks": 1 if sim.par is None else sim.par.size, "dem_threads": getattr(sim, "threads", 1)}
     d["particle_steps_per_s"] = sim.n_particles * n_steps * k / loop if loop > 0 else 0.0
     return d
 
@@ -390,7 +390,9 @@ def timings(timer, t_wall0, sim, n_steps, k):
 def format_timings(s):
     lines = [f"done: {s['coupling_steps']} coupling steps ({s['dem_steps']} DEM steps, "
              f"{s['particles']} particles) to t = {s['time']:.6g} s in {s['wall_total']:.1f} s "
-             f"(loop {s['loop']:.1f} s, {s['particle_steps_per_s']:.3g} particle-steps/s)"]
+             f"(loop {s['loop']:.1f} s, {s['particle_steps_per_s']:.3g} particle-steps/s, "
+             f"{s.get('dem_threads', 1)} DEM thread{'s' if s.get('dem_threads', 1) > 1 else ''}"
+             f"{' per rank' if s.get('dem_ranks', 1) > 1 else ''})"]
     for p, v in s["phases"].items():
         lines.append(f"  {p:15s} {v:9.3f} s  {100 * v / max(s['loop'], 1e-12):5.1f} %")
     lines.append(f"output in {s['out']}" + (f" (plot {s['png']})" if s.get("png") else ""))

@@ -98,7 +98,10 @@ def run_case(case_dir, out=None, *, transport=None, end_time=None, restart=False
     if transport is not None:
         cfg.transport = transport
     sim = case.sim
-    sim.set_threads(threads)   # the DEM's threads in each DEM rank ('auto': dem.threads)
+    # the DEM's threads in each DEM rank; 'auto' leaves each DEM rank's share of the gas solver's
+    # processes their cores (the gas solves while the DEM steps: docs/architecture.md)
+    ranks = sim.par.comm.Get_size() if sim.par is not None else 1
+    sim.set_threads(threads, reserve=0 if external_solver else -(-cfg.gas_processes // ranks))
     R = Ranks(sim)
     if R.size > 1 and cfg.transport != "socket":
         raise CouplingRunError(f"{case.config_file}: transport = \"{cfg.transport}\" runs with one DEM rank; with "

@@ -115,12 +115,12 @@ class Simulation:
         return reports.time_scales(self.world, self.par)
 
     # ------------------------------------------------------------------ stepping
-    def set_threads(self, k):
+    def set_threads(self, k, reserve=0):
         """Run this process's kernels on ``k`` threads from now on (blocks of rows at once,
         dem.step.interact_blocks; deterministic for a given k). Applies to calls made from the
         calling thread (Numba's setting is per thread)."""
         from . import threads
-        k = threads.resolve(k, self.par.comm if self.par is not None else None)
+        k = threads.resolve(k, self.par.comm if self.par is not None else None, reserve=reserve)
         threads.apply(k)
         self.threads = k
         self.state.ip[K.IP.threads] = k

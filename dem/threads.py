@@ -41,9 +41,11 @@ def local_ranks(comm):
         node.Free()
 
 
-def auto(comm=None):
-    """``auto``: this process's cores, shared among the ranks of its node, at least 1."""
-    return max(1, min(limit(), cores_available() // local_ranks(comm)))
+def auto(comm=None, reserve=0):
+    """``auto``: this process's cores, shared among the ranks of its node, less ``reserve``
+    cores kept for other processes that compute at the same time (a coupled run's gas solver
+    processes: their share per DEM rank), at least 1."""
+    return max(1, min(limit(), cores_available() // local_ranks(comm) - int(reserve)))
 
 
 def parse(text, option="--threads"):
@@ -59,12 +61,12 @@ def parse(text, option="--threads"):
     return k
 
 
-def resolve(value, comm=None, option="--threads"):
+def resolve(value, comm=None, option="--threads", reserve=0):
     """The thread count of ``value`` ('auto', None or a count), checked against what Numba can
-    start here."""
+    start here; ``reserve``: see :func:`auto`."""
     value = parse(value, option) if not isinstance(value, int) else value
     if value == "auto":
-        return auto(comm)
+        return auto(comm, reserve)
     if value < 1:
         raise ThreadsError(f"{option} {value}: allowed are 'auto' or a whole number >= 1")
     if value > limit():
