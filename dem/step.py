@@ -85,6 +85,9 @@ XV = slots("XV", (
 # the block test would be computed once before it, and j's own sum would lose its fused
 # multiply-add: one block would then no longer be the serial loop bit for bit)
 XV_SIZE = XV.SIZE
+# one block of rows for interact_rows: rows [i0, i1), the cross-block buffer (xj, xv) and its
+# first row k0, and where the block's fused wall heat adds up (wtot, wgap)
+Block = namedtuple("Block", "i0 i1 k0 xj xv wtot wgap")
 # status
 OK, OVERLAP, NONFINITE, LEFT_DOMAIN, BAD_TEMPERATURE, REBUILD_DUE = 0, 1, 2, 3, 4, 5
 # phases of one step (advance's ``phases`` bits): a serial run asks for all of them, an MPI run
@@ -174,8 +177,8 @@ def _rotate_history(h, i, s, nx, ny, nz):
 
 @njit(cache=True, error_model="numpy", fastmath={"nsz", "arcp", "contract", "afn", "reassoc"},
       no_cpython_wrapper=True, no_cfunc_wrapper=True)
-def interact_rows(P, C, W, TB, prm, n, t, hon, i0, i1, xj, xv, k0, wtot, wgap):
-    """The interact phase of rows [i0, i1): body forces, the pairs of the half list that start
+def interact_rows(P, C, W, TB, prm, n, t, hon, blk):
+    """The interact phase of the rows [i0, i1) of ``blk`` (:data:`Block`): body forces, the pairs of the half list that start
     at those rows, and their walls; with heat, the conductances of every neighbour slot and wall
     candidate for the heat step (Hd, Hi, Hw, the radiation neighbour flags) and the friction
     heat. ``hon``: True with heat, None without (a type, so that the mechanics-only
@@ -192,6 +195,7 @@ def interact_rows(P, C, W, TB, prm, n, t, hon, i0, i1, xj, xv, k0, wtot, wgap):
 
     Returns (max overlap ratio, i, j (-1-wall), 2 x contacts, direct, indirect and wall heat
     rates exchanged (W, fused mode; the caller adds them to the totals))."""
+    i0, i1, k0, xj, xv, wtot, wgap = blk.i0, blk.i1, blk.k0, blk.xj, blk.xv, blk.wtot, blk.wgap
     x, v, w, r, m, mat, f, tq = (P.position, P.velocity, P.angular_velocity, P.radius, P.mass, P.material,
                                  P.force, P.torque)
     fext, wnb, wnn, whist, wrhist = P.external_force, P.wnb, P.wnn, P.whist, P.wrhist
@@ -695,7 +699,8 @@ def interact_blocks(P, C, W, TB, prm, n, t, hon, nblk, fused, fgen):
     wg = np.zeros((nblk, W.wgap.shape[0]))
     res = np.empty((nblk, 7))
     for b in prange(nblk):
-        r = interact_rows(P, C, W, TB, prm, n, t, hon, bounds[b], bounds[b + 1], xj, xv, cnt[b], wt[b], wg[b])
+        r = interact_rows(P, C, W, TB, prm, n, t, hon,
+                          Block(bounds[b], bounds[b + 1], cnt[b], xj, xv, wt[b], wg[b]))
         res[b, 0] = r[0]
         res[b, 1] = r[1]
         res[b, 2] = r[2]
@@ -752,7 +757,8 @@ def compute_forces(P, C, W, TB, prm, n, t, hon):
     nblk = blocks(prm.ip)
     if nblk == 1:
         maxov, who_i, who_j, ncont, e_dir, e_ind, e_wall = interact_rows(
-            P, C, W, TB, prm, n, t, hon, 0, n, np.empty(0, np.int64), np.empty((0, XV_SIZE)), 0, W.wtot, W.wgap)
+            P, C, W, TB, prm, n, t, hon,
+            Block(np.int64(0), n, np.int64(0), np.empty(0, np.int64), np.empty((0, XV_SIZE)), W.wtot, W.wgap))
     else:
         maxov, who_i, who_j, ncont, e_dir, e_ind, e_wall = interact_blocks(P, C, W, TB, prm, n, t, hon, nblk,
                                                                            fused, fgen)

@@ -114,3 +114,18 @@ def test_bad_thread_count_refused_before_anything_is_written(tmp_path, bad, says
     assert "--threads" in p.stderr and says in p.stderr
     assert "Traceback" not in p.stderr
     assert not out.exists()
+
+
+def test_coupled_auto_leaves_the_gas_solver_its_core(tmp_path, solver):
+    """The gas solver solves while the DEM steps (docs/architecture.md, "One coupled step"):
+    `coupling run --threads auto` gives the DEM the cores this process may use less the gas
+    solver's process (at least 1), and says so in its done line; an explicit count is taken."""
+    from dem import threads
+    case = os.path.join(ROOT, "openfoam_cases", "single_particle_heating")
+    want = max(1, min(threads.limit(), threads.cores_available()) - 1)
+    for arg, k in (("auto", want), ("1", 1)):
+        p = subprocess.run([sys.executable, "-m", "coupling.run", "run", case, "--out", str(tmp_path / arg),
+                            "--end-time", "0.003", "--threads", arg], cwd=ROOT, capture_output=True, text=True,
+                           timeout=600)
+        assert p.returncode == 0, p.stderr
+        assert f"{k} DEM thread{'s' if k > 1 else ''})" in p.stdout, p.stdout[-2000:]
