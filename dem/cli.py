@@ -2,7 +2,6 @@
 import argparse
 import os
 import sys
-import tempfile
 import time
 
 # dt / t_H below which a Hertz impact's restitution and contact time are within 1 % with
@@ -185,37 +184,10 @@ def stop_message(args, sim, stop, out):
 
 
 def cmd_compile(args):
-    """Fill Numba's cache with the step kernel (one kernel serves every scene)."""
-    from .simulation import Simulation
-    t0 = time.perf_counter()
-    mat = dict(name="m", density=2500.0, youngs_modulus=1e7, poisson_ratio=0.3, restitution=0.5,
-               friction=0.3, thermal_conductivity=1.0, heat_capacity=840.0)
-    base = {"simulation": {"time_step": 1e-5, "end_time": 1e-4},
-            "domain": {"min": [-0.01] * 3, "max": [0.01] * 3}, "materials": [mat],
-            "particles": [{"material": "m", "positions": [[0, 0, 0], [0.00199, 0, 0]], "radius": 1e-3}],
-            "walls": [{"type": "plane", "point": [0, 0, -0.001], "normal": [0, 0, 1], "material": "m"}]}
-    Simulation.from_dict(base).run(progress=False)
-    thermal = dict(base, thermal={"direct": "batchelor_obrien", "initial_temperature": 300.0})
-    with tempfile.TemporaryDirectory(prefix="dem_compile_") as tmp:  # the output kernels too
-        Simulation.from_dict(thermal).run(progress=False, out_dir=os.path.join(tmp, "out"))
-    frozen = dict(thermal, simulation={"time_step": 1e-5, "end_time": 2.0, "mechanics": False},
-                  thermal={"direct": "batchelor_obrien", "initial_temperature": 300.0, "time_step": 1.0})
-    Simulation.from_dict(frozen).run(progress=False)
-    _compile_parallel_entry_points(Simulation.from_dict(thermal))
-    print(f"kernels compiled and cached in {time.perf_counter() - t0:.1f} s")
-    return 0
-
-
-def _compile_parallel_entry_points(sim):
-    """What an MPI run calls besides dem.step.advance (whose phases it calls one group at a
-    time, the same compiled form as a serial run's), on a throwaway simulation: it must be in
-    the cache before the ranks start."""
-    from . import step as K
-    from .thermal.heat import cross_rates
-    st = sim.state
-    sim.warmup()
-    K.outside(st.position, sim.state.lo, sim.state.hi, sim.state.periodic, st.n_owned)
-    cross_rates(st.n_owned, st.inv_heat_capacity, st.nb, st.nnb, st.Hd, st.Hi, st.work)
+    """Fill Numba's cache with the kernels (one kernel serves every scene): the warm-up jobs of
+    dem.compile in parallel worker processes."""
+    from . import compile as C
+    return C.main_compile(C.DEM_JOBS, args.jobs)
 
 
 def cmd_gather(args):
@@ -258,7 +230,10 @@ def _main(argv=None):
     r.add_argument("--quiet", action="store_true", help="no progress display")
     c = sub.add_parser("check", help="validate a scene and print derived quantities")
     c.add_argument("scene")
-    sub.add_parser("compile", help="compile and cache the kernels (done by scripts/setup.sh)")
+    k = sub.add_parser("compile", help="compile and cache the kernels (done by scripts/setup.sh)")
+    from .compile import jobs_argument
+    k.add_argument("--jobs", "-j", type=jobs_argument, default=None,
+                   help="worker processes compiling in parallel (default: the usable cores)")
     d = sub.add_parser("render", help="render the last output of a run to PNG")
     d.add_argument("out_dir")
     d.add_argument("--png", default=None, help="PNG to write (default OUT_DIR/render.png); never replaces a "
