@@ -315,36 +315,77 @@ def cmd_check(args) -> int:
     return 0 if (not rep["problems"] or case.config.force) else EXIT_CHECK
 
 
-def cmd_compile(args) -> int:
-    """Fill Numba's cache with the coupling kernels (done by scripts/setup.sh): for each case
-    shipped in openfoam_cases/ (or the cases named), mesh a temporary copy, then one exchange
-    (locate, void fraction, interpolation, drag, heat terms) and one DEM step with the fluid
-    data, as the first coupling step of a run does. No gas solver runs and nothing is written
-    outside the temporary folders. Every case shares the kernels, so a case of the user's
-    then starts its first step in seconds."""
-    t0 = time.perf_counter()
-    root = Path(__file__).resolve().parent.parent / "openfoam_cases"
-    cases = [Path(c) for c in args.case] or sorted(p.parent for p in root.glob("*/coupling.toml"))
-    for case_dir in cases:
-        with _case_on_temporary_mesh(case_dir) as (case, mesh, iface, _eps0, _rep):
-            nc = mesh.n_cells
-            st = case.sim.state
-            t_gas = float(st.temperature[:st.n_owned].mean()) if case.sim.thermal is not None and st.n_owned else 300.0
-            fluid = {"U": np.zeros((nc, 3)), "gradp": np.zeros((nc, 3)), "T": np.full(nc, t_gas)}
-            case.sim.warmup()
+def compile_case(case_dir, void_methods=False) -> None:
+    """A warm-up job of ``coupling compile`` (dem.compile): mesh a temporary copy of the case,
+    then two exchanges (locate, void fraction, interpolation, drag, heat terms; the second
+    one also gathers the particle velocity the gas responded to) each followed by one DEM step
+    with the fluid data, as the first coupling steps of a run do. No gas solver runs and
+    nothing is written outside the temporary folders. ``void_methods``: also the particle
+    void fraction of every method (coupling.particle_void), whatever the case chose."""
+    with _case_on_temporary_mesh(Path(case_dir)) as (case, mesh, iface, _eps0, _rep):
+        nc = mesh.n_cells
+        st = case.sim.state
+        t_gas = float(st.temperature[:st.n_owned].mean()) if case.sim.thermal is not None and st.n_owned else 300.0
+        fluid = {"U": np.zeros((nc, 3)), "gradp": np.zeros((nc, 3)), "T": np.full(nc, t_gas)}
+        case.sim.warmup()
+        for _ in range(2):
             iface.prepare(fluid, case.dt_cfd)
             iface.advance_dem(1)
             iface.map_particles()
-            if case_dir == cases[0]:
-                # the particle void fraction of every method (coupling.particle_void), whatever
-                # the case chose: a user's case switching it on starts at once too
-                from .particle_void import METHODS, ParticleVoidFraction
-                eps_c = np.full(st.n_owned, 0.5)
-                for method in METHODS[1:]:
-                    ParticleVoidFraction(method, case.sim.world.rmax)(case.sim, eps_c, iface.rmin, 0.3)
-        print(f"  {case.dir.name}: compiled", flush=True)
-    print(f"coupling kernels compiled and cached in {time.perf_counter() - t0:.1f} s")
-    return 0
+        if void_methods:
+            from .particle_void import METHODS, ParticleVoidFraction
+            eps_c = np.full(st.n_owned, 0.5)
+            for method in METHODS[1:]:
+                ParticleVoidFraction(method, case.sim.world.rmax)(case.sim, eps_c, iface.rmin, 0.3)
+
+
+def compile_jobs(cases=(), dem_jobs=True):
+    """The warm-up jobs of ``coupling compile`` (dem.compile.Job): one per case (default: every
+    case of openfoam_cases/), plus the DEM jobs (dem.compile.DEM_JOBS) when ``dem_jobs``. A
+    case's job starts after the DEM job compiling its step (heat or not) and after the first
+    case's (which compiles the coupling kernels every case shares), so that no kernel is
+    compiled twice at the same time."""
+    import tomllib
+    from dem.compile import DEM_JOBS, Job
+    root = Path(__file__).resolve().parent.parent / "openfoam_cases"
+    cases = [Path(c) for c in cases] or sorted(p.parent for p in root.glob("*/coupling.toml"))
+
+    def dem_scene(c):
+        try:
+            with open(c / "dem.toml", "rb") as fh:
+                return tomllib.load(fh)
+        except (OSError, tomllib.TOMLDecodeError):
+            return {}   # the job itself reports what is wrong with the case
+    scenes = [dem_scene(c) for c in cases]
+    # first: a case without heat, so that it can start as soon as the mechanics-only step is in
+    # the cache (the heat step takes longest to compile)
+    order = sorted(range(len(cases)), key=lambda i: "thermal" in scenes[i])
+    first = order[0] if order else None
+    names = {}
+    jobs = list(DEM_JOBS) if dem_jobs else []
+    present = {j.name for j in jobs}
+    for i in order:
+        c, sc = cases[i], scenes[i]
+        name = c.resolve().name
+        names[i] = name = name if name not in names.values() else f"{name}#{i}"
+        after = ["dem.heat" if "thermal" in sc else "dem.mechanics"]
+        if any("count" in g for g in sc.get("particles", []) if isinstance(g, dict)):
+            after.append("dem.insertion")
+        if i != first:
+            after.append(names[first])
+        jobs.append(Job(name, "coupling.run:compile_case", (str(c), i == first),
+                        after=tuple(a for a in after if a in present or a in names.values())))
+    return jobs
+
+
+def cmd_compile(args) -> int:
+    """Fill Numba's cache with the coupling and DEM kernels (done by scripts/setup.sh): the
+    jobs of :func:`compile_jobs` in parallel worker processes (dem.compile). Every case shares
+    the kernels, so a case of the user's then starts its first step in seconds. Cases named on
+    the command line: only theirs."""
+    from dem.compile import main_compile
+    jobs = compile_jobs(args.case, dem_jobs=not args.case)
+    return main_compile(jobs, args.jobs, what="coupling kernels" if args.case else "DEM and coupling kernels")
 
 
 def _threads_arg(text):
@@ -388,7 +429,11 @@ def main(argv=None) -> int:
                    help="do not start thermoDemFoam: print the command to run it by hand in a second "
                         "terminal and wait for it")
     k = sub.add_parser("compile", help="compile and cache the coupling kernels (done by scripts/setup.sh)")
-    k.add_argument("case", nargs="*", help="cases to exercise (default: every case of openfoam_cases/)")
+    k.add_argument("case", nargs="*", help="cases to exercise (default: every case of openfoam_cases/, and the "
+                                           "DEM kernels of `dem compile`)")
+    from dem.compile import jobs_argument
+    k.add_argument("--jobs", "-j", type=jobs_argument, default=None,
+                   help="worker processes compiling in parallel (default: the usable cores)")
     args = ap.parse_args(argv)
 
     from dem.parallel import launched_rank, launched_size
