@@ -1,0 +1,183 @@
+"""``dem compile`` / ``coupling compile`` (dem.compile): the warm-up jobs in parallel worker
+processes, the lock around Numba's cache index, the command's exits. Sized for a 2-core
+machine: at most two compiling processes at once, no timed assertions."""
+import glob
+import os
+import pickle
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+
+import pytest
+
+from dem import compile as C
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def _env(tmp_path, **extra):
+    """The environment of a subprocess with its own, empty, Numba cache (dem._numba_cache_dir
+    keys it on XDG_CACHE_HOME)."""
+    env = {k: v for k, v in os.environ.items() if k not in ("NUMBA_CACHE_DIR", "NUMBA_DEBUG_CACHE")}
+    env.update(XDG_CACHE_HOME=str(tmp_path / "xdg"), PYTHONPATH=ROOT + os.pathsep + env.get("PYTHONPATH", ""))
+    env.update(extra)
+    return env
+
+
+def _cache_files(tmp_path):
+    files = glob.glob(str(tmp_path / "xdg" / "**" / "*.nb[ic]"), recursive=True)
+    return sorted(os.path.relpath(f, tmp_path) for f in files)
+
+
+# --------------------------------------------------------------------------- the command line
+
+@pytest.mark.parametrize("cmd", [["dem.cli", "compile"], ["coupling.run", "compile"]])
+@pytest.mark.parametrize("value", ["0", "-2", "two", "1.5"])
+def test_bad_jobs_value_exits_2_without_traceback(tmp_path, cmd, value):
+    p = subprocess.run([sys.executable, "-m", *cmd, "--jobs", value], capture_output=True, text=True,
+                       env=_env(tmp_path), cwd=ROOT, timeout=120)
+    assert p.returncode == 2, p.stderr
+    assert "--jobs" in p.stderr and "positive integer" in p.stderr and repr(value) in p.stderr
+    assert "Traceback" not in p.stderr
+    assert not (tmp_path / "xdg").exists() or _cache_files(tmp_path) == []
+
+
+# --------------------------------------------------------------------------- the runner
+
+def test_jobs_start_after_their_dependencies():
+    jobs = [C.Job("a", "time:sleep", (0.3,)), C.Job("b", "time:sleep", (0.1,), after=("a",)),
+            C.Job("c", "time:sleep", (0.1,)), C.Job("d", "time:sleep", (0.1,), after=("b", "c"))]
+    lines = []
+    times = C.run(jobs, 2, log=lines.append)
+    assert set(times) == {"a", "b", "c", "d"} and len(lines) == 4
+    assert times["b"][0] >= times["a"][1]
+    assert times["d"][0] >= max(times["b"][1], times["c"][1])
+    assert C.critical_path(jobs, times) == ["a", "b", "d"]
+
+
+def test_declared_jobs_are_consistent():
+    from coupling.run import compile_jobs
+    C._check(list(C.DEM_JOBS))
+    jobs = compile_jobs()
+    C._check(jobs)
+    names = [j.name for j in jobs]
+    assert {j.name for j in C.DEM_JOBS} <= set(names) and len(names) > len(C.DEM_JOBS)
+    # a case named alone: its job only, no DEM job, no dependency left dangling
+    one = compile_jobs([os.path.join(ROOT, "openfoam_cases", "single_particle_heating")], dem_jobs=False)
+    assert [(j.name, j.after) for j in one] == [("single_particle_heating", ())]
+    with pytest.raises(ValueError, match="wait on each other"):
+        C._check([C.Job("x", "time:sleep", after=("y",)), C.Job("y", "time:sleep", after=("x",))])
+
+
+def test_a_failing_job_and_a_dying_worker_raise_compile_error():
+    with pytest.raises(C.CompileError, match=r"compile job bad failed:(.|\n)*ValueError"):
+        C.run([C.Job("bad", "math:sqrt", (-1.0,)), C.Job("ok", "time:sleep", (0.01,))], 2, log=lambda s: None)
+    with pytest.raises(C.CompileError, match=r"compile job dies: its worker process died \(exit code 3\)"):
+        C.run([C.Job("dies", "os:_exit", (3,))], 1, log=lambda s: None)
+
+
+# --------------------------------------------------------------------------- the lock
+
+TOY = '''
+import numba
+
+
+@numba.njit(cache=True)
+def length(t):
+    return len(t)
+'''
+
+WORKER = '''
+import os, sys, time
+sys.path.insert(0, {tmp!r})
+import dem   # the cache folder (XDG_CACHE_HOME)
+from dem.compile import install_index_lock
+if sys.argv[3] == "lock":
+    install_index_lock()
+import toy
+start, count = int(sys.argv[1]), int(sys.argv[2])
+while not os.path.exists({go!r}):   # every process ready before any compiles
+    time.sleep(0.01)
+for k in range(start, start + count):
+    assert toy.length((1,) * k) == k   # a signature of its own: UniTuple(int64, k)
+'''
+
+
+def _compile_concurrently(tmp_path, procs, per, lock):
+    (tmp_path / "toy.py").write_text(TOY)
+    go = tmp_path / "go"
+    script = tmp_path / "worker.py"
+    script.write_text(textwrap.dedent(WORKER.format(tmp=str(tmp_path), go=str(go))))
+    env = _env(tmp_path)
+    ps = [subprocess.Popen([sys.executable, str(script), str(1 + i * per), str(per), lock], env=env, cwd=ROOT,
+                           stderr=subprocess.PIPE, text=True) for i in range(procs)]
+    time.sleep(0.5)
+    go.write_text("")
+    for p in ps:
+        _, err = p.communicate(timeout=600)
+        assert p.returncode == 0, err[-3000:]
+    (index,) = glob.glob(str(tmp_path / "xdg" / "**" / "toy.length-*.nbi"), recursive=True)
+    with open(index, "rb") as fh:
+        pickle.load(fh)   # numba's version
+        _stamp, overloads = pickle.loads(fh.read())
+    return index, overloads
+
+
+def test_index_lock_keeps_every_entry_of_concurrent_saves(tmp_path):
+    """Two processes compile distinct signatures of one cached function at the same time:
+    with the lock (what the compile workers install) the index keeps every entry, each with a
+    data file of its own, and a third process loads them all without compiling any."""
+    procs, per = 2, 40
+    index, overloads = _compile_concurrently(tmp_path, procs, per, "lock")
+    assert len(overloads) == procs * per
+    names = set(overloads.values())
+    assert len(names) == procs * per
+    assert all(os.path.isfile(os.path.join(os.path.dirname(index), n)) for n in names)
+    check = tmp_path / "check.py"
+    check.write_text(textwrap.dedent(f'''
+        import sys
+        sys.path.insert(0, {str(tmp_path)!r})
+        import dem, toy
+        for k in range(1, {procs * per + 1}):
+            assert toy.length((1,) * k) == k
+        assert len(toy.length.stats.cache_hits) == {procs * per}, toy.length.stats
+        assert sum(toy.length.stats.cache_misses.values()) == 0, toy.length.stats
+    '''))
+    p = subprocess.run([sys.executable, str(check)], capture_output=True, text=True, env=_env(tmp_path), cwd=ROOT,
+                       timeout=600)
+    assert p.returncode == 0, p.stderr[-3000:]
+
+
+# --------------------------------------------------------------------------- the whole compile
+
+def test_compile_fills_the_cache_and_the_examples_then_compile_nothing(tmp_path):
+    """An interrupted `dem compile` (SIGINT) exits 130 with one line and no traceback; then
+    `dem compile --jobs 2` into the same cache fills it, and a first `dem run` of each example
+    loads every kernel from it (no cache file added, no kernel saved)."""
+    env = _env(tmp_path)
+    p = subprocess.Popen([sys.executable, "-m", "dem.cli", "compile", "--jobs", "2"], env=env, cwd=ROOT,
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    time.sleep(8.0)   # compiling (imports done)
+    p.send_signal(signal.SIGINT)
+    out, err = p.communicate(timeout=120)
+    assert p.returncode == 130, out + err
+    assert "Traceback" not in err and err.strip().count("\n") == 0 and "interrupted" in err, err
+
+    p = subprocess.run([sys.executable, "-m", "dem.cli", "compile", "--jobs", "2"], capture_output=True, text=True,
+                       env=env, cwd=ROOT, timeout=1800)
+    assert p.returncode == 0, p.stdout[-2000:] + p.stderr[-3000:]
+    assert "kernels compiled and cached in" in p.stdout and "(2 processes)" in p.stdout
+    for job in C.DEM_JOBS:
+        assert f"  {job.name}: compiled in " in p.stdout
+    before = _cache_files(tmp_path)
+    assert len(before) > 100
+    for scene, end in (("settle_box", "0.002"), ("rotating_drum", "0.002"), ("packed_bed_heating", "2")):
+        r = subprocess.run([sys.executable, "-m", "dem.cli", "run", os.path.join("examples", f"{scene}.toml"),
+                            "--end-time", end, "--out", str(tmp_path / "out" / scene), "--quiet"],
+                           capture_output=True, text=True, env=dict(env, NUMBA_DEBUG_CACHE="1"), cwd=ROOT,
+                           timeout=600)
+        assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-3000:]
+        assert "data saved" not in r.stdout, (scene, [ln for ln in r.stdout.splitlines() if "data saved" in ln])
+        assert _cache_files(tmp_path) == before, scene
