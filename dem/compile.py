@@ -281,6 +281,38 @@ def _thermal():
     return dict(_base(), thermal={"direct": "batchelor_obrien", "initial_temperature": 300.0})
 
 
+def _state(hon):
+    """The declared state of a throwaway scene (with heat or not), no kernel run yet: the
+    bundles every kernel takes have the types of every scene's (dem.schema)."""
+    from . import scene
+    from .world import World
+    return World(scene.parse(_thermal() if hon else _base(), "<compile>")).state
+
+
+def _compile(kernel, args):
+    """Compile ``kernel`` for the types of ``args`` (and save it in the cache) without running
+    it: a kernel with no Python entry (no_cpython_wrapper) that dem.step.advance calls, so
+    that advance, compiled later in another job, loads it instead of compiling it."""
+    kernel.compile(tuple(kernel.typeof_pyval(a) for a in args))
+
+
+def forces(hon):
+    """dem.step.compute_forces of one heat switch (the largest part of the step: contact and
+    wall laws, the pair loop serial and on blocks of rows, and with heat the conductance laws),
+    with the argument types dem.step.advance calls it with (n int64, t float64, hon)."""
+    from . import step as K
+    st = _state(hon)
+    _compile(K.compute_forces, (*st.bundles(), st.n, 0.0, True if hon else None))
+
+
+def heat_step():
+    """dem.thermal.heat.heat_step (every integrator, convection, radiation, the guards), with
+    the argument types of dem.step.heat_phase's call."""
+    from .thermal.heat import heat_step as kernel
+    st = _state(True)
+    _compile(kernel, (*st.bundles(), st.n, st.n_owned, 1e-5, 0.0))
+
+
 def mechanics():
     """The step without heat (the ``hon`` = None specialisation of dem.step.advance)."""
     from .simulation import Simulation
@@ -326,10 +358,16 @@ def insertion():
     scene.parse(data, "<compile>")
 
 
+# compute_forces and heat_step are compiled on their own first (by signature, in parallel),
+# then the step of each heat switch (dem.step.advance and the rest) loads them; the heat step
+# after the mechanics-only one, whose neighbour, kick and rebuild kernels it shares
 DEM_JOBS = (
-    Job("dem.mechanics", "dem.compile:mechanics"),
-    Job("dem.heat", "dem.compile:heat"),
+    Job("dem.forces", "dem.compile:forces", (False,)),
+    Job("dem.forces_heat", "dem.compile:forces", (True,)),
+    Job("dem.mechanics", "dem.compile:mechanics", after=("dem.forces",)),
+    Job("dem.heat_step", "dem.compile:heat_step"),
+    Job("dem.insertion", "dem.compile:insertion"),
+    Job("dem.heat", "dem.compile:heat", after=("dem.forces_heat", "dem.heat_step", "dem.mechanics")),
     Job("dem.frozen", "dem.compile:frozen", after=("dem.heat",)),
     Job("dem.mpi", "dem.compile:mpi_entry_points", after=("dem.heat",)),
-    Job("dem.insertion", "dem.compile:insertion"),
 )

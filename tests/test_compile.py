@@ -173,6 +173,15 @@ def test_compile_fills_the_cache_and_the_examples_then_compile_nothing(tmp_path)
         assert f"  {job.name}: compiled in " in p.stdout
     before = _cache_files(tmp_path)
     assert len(before) > 100
+    # compute_forces and heat_step, compiled alone by signature (dem.compile.forces, heat_step),
+    # have the types dem.step.advance calls them with: one entry per heat switch, none added by
+    # advance's compile
+    for kernel, entries in (("step.compute_forces", 2), ("heat.heat_step", 1)):
+        (index,) = glob.glob(str(tmp_path / "xdg" / "**" / f"{kernel}-*.nbi"), recursive=True)
+        with open(index, "rb") as fh:
+            pickle.load(fh)
+            _stamp, overloads = pickle.loads(fh.read())
+        assert len(overloads) == entries, (kernel, list(overloads))
     for scene, end in (("settle_box", "0.002"), ("rotating_drum", "0.002"), ("packed_bed_heating", "2")):
         r = subprocess.run([sys.executable, "-m", "dem.cli", "run", os.path.join("examples", f"{scene}.toml"),
                             "--end-time", end, "--out", str(tmp_path / "out" / scene), "--quiet"],
