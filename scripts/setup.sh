@@ -34,12 +34,12 @@ if [ "${THERMODEM_NO_OPENFOAM:-0}" != 1 ]; then
 fi
 # one compile step, its warm-up jobs in parallel worker processes (one per usable core,
 # dem/compile.py): with OpenFOAM `coupling compile` (the coupling and the DEM kernels), else
-# `dem compile`. About 45 s the first time on a 2-core machine, then a few seconds.
+# `dem compile`. About 1 to 1.5 minutes the first time on a 2-core machine (load-dependent), then about 8 s.
 if [ "${THERMODEM_NO_OPENFOAM:-0}" != 1 ]; then
-    log "compiling the DEM and coupling kernels into Numba's cache, in parallel (about 45 s on 2 cores the first time, then a few seconds)"
+    log "compiling the DEM and coupling kernels into Numba's cache, in parallel (1 to 1.5 minutes on 2 cores the first time, then seconds)"
     "$PY" -m coupling.run compile >&2
 else
-    log "compiling the DEM kernels into Numba's cache, in parallel (about 40 s on 2 cores the first time, then a few seconds)"
+    log "compiling the DEM kernels into Numba's cache, in parallel (under a minute on 2 cores the first time, then seconds)"
     "$PY" -m dem.cli compile >&2
 fi
 log "ready"
