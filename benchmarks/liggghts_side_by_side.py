@@ -6,8 +6,8 @@ hot and cold halves after the thermal run, with our relative difference.
 
 * one core: ours in this process pinned to core 0, LIGGGHTS pinned to core 1 at the same time
   (`taskset`), so both see the same machine state;
-* two processes: ours on 2 MPI ranks, then LIGGGHTS on 2 MPI processes (one after the other;
-  each uses both cores);
+* two processes: ours on 2 MPI ranks, then LIGGGHTS on 2 MPI processes, then ours as one
+  process on 2 threads (`--threads 2`; one after the other, each uses both cores);
 * temperatures: after the thermal run (LIGGGHTS `fix heat/gran/conduction contact_area overlap`,
   ours `batchelor_obrien` with the geometric contact radius and direct_factor = sqrt(pi), the
   same conductance), read from LIGGGHTS's last thermo line (c_Thot, c_Tcold) and from ours.
@@ -90,15 +90,18 @@ def measure(size, steps, log=print):
         l1 = liggghts_result(p)
         # two processes, one after the other
         o2 = ours_mpi(size, heat, steps, 2)
+        o2t = ours_mpi(size, heat, steps, 1, threads=2)
         l2 = liggghts_result(liggghts_run(size, heat, steps, 2))
         n = N[size] * steps
         r = dict(size=size, heat=heat, steps=steps, ours1=o1["pps"], lig1=n / l1["loop"], ours2=o2["pps"],
+                 ours2t=o2t["pps"],
                  lig2=n / l2["loop"], mem=o1["mem"])
         if heat:
             r.update(T_hot=o1["T_hot"], T_cold=o1["T_cold"], L_hot=l1.get("T_hot"), L_cold=l1.get("T_cold"))
         log(f"{size} heat {'on ' if heat else 'off'}: 1 core ours {r['ours1']:.3g} LIGGGHTS {r['lig1']:.3g} "
             f"({r['ours1'] / r['lig1']:.2f}); 2 processes ours {r['ours2']:.3g} LIGGGHTS {r['lig2']:.3g} "
-            f"({r['ours2'] / r['lig2']:.2f})"
+            f"({r['ours2'] / r['lig2']:.2f}); ours 1 process x 2 threads {r['ours2t']:.3g} "
+            f"({r['ours2t'] / r['ours2']:.2f} of 2 ranks, {r['ours2t'] / r['ours1']:.2f} of 1 thread)"
             + (f"; T_hot {r['T_hot']:.10f}/{r['L_hot']} T_cold {r['T_cold']:.10f}/{r['L_cold']}" if heat else ""))
         out.append(r)
     return out
@@ -109,14 +112,16 @@ def markdown(rows, cmd, total):
          f"Measured {time.strftime('%Y-%m-%d')} on {platform.machine()} ({os.cpu_count()} cores, a shared "
          f"virtual machine), {total:.0f} s in all. Loop time only on both sides (particle-steps per second). "
          f"One core: ours pinned to core 0 and LIGGGHTS to core 1, running at the same time. Two processes: "
-         f"our 2 MPI ranks, then LIGGGHTS on 2 MPI processes. Ratios > 1: ours faster.\n",
+         f"our 2 MPI ranks of 1 thread, then LIGGGHTS on 2 MPI processes, then ours as one process "
+         f"on 2 threads (`--threads 2`). Ratios > 1: ours faster.\n",
          "| N | steps | heat | ours, 1 core | LIGGGHTS, 1 core | ratio | ours, 2 ranks | LIGGGHTS, 2 processes "
-         "| ratio | ours 2/1 | LIGGGHTS 2/1 |",
-         "|---|---|---|---|---|---|---|---|---|---|---|"]
+         "| ratio | ours 2/1 | LIGGGHTS 2/1 | ours, 1 process x 2 threads | threads / ranks | threads 2/1 |",
+         "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         L.append(f"| {r['size']} | {r['steps']} | {'on' if r['heat'] else 'off'} | {r['ours1']:.3g} | "
                  f"{r['lig1']:.3g} | **{r['ours1'] / r['lig1']:.2f}** | {r['ours2']:.3g} | {r['lig2']:.3g} | "
-                 f"**{r['ours2'] / r['lig2']:.2f}** | {r['ours2'] / r['ours1']:.2f} | {r['lig2'] / r['lig1']:.2f} |")
+                 f"**{r['ours2'] / r['lig2']:.2f}** | {r['ours2'] / r['ours1']:.2f} | {r['lig2'] / r['lig1']:.2f} | "
+                 f"{r['ours2t']:.3g} | **{r['ours2t'] / r['ours2']:.2f}** | **{r['ours2t'] / r['ours1']:.2f}** |")
     L.append("")
     L.append("Temperatures after the thermal run (mean of the initially hot and cold halves; the heat moved "
              "is 400 K - T_hot):\n")

@@ -22,12 +22,15 @@ ENV = dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIR
            OMPI_MCA_rmaps_base_oversubscribe="1")
 
 
-def ours(size, heat, steps, ranks):
+def ours(size, heat, steps, ranks, threads=1):
+    """Our run of the shared bed on ``ranks`` MPI ranks of ``threads`` threads each (one process
+    without mpirun when ranks == 1 and threads > 1)."""
     scene = os.path.join(HERE, f"shared_bed{'_heat' if heat else ''}_{size}.toml")
     with tempfile.TemporaryDirectory(prefix=f"scaling_{size}_{heat}_{ranks}_") as tmp:  # ours alone
         out = os.path.join(tmp, "out")
-        cmd = ["mpirun", "-np", str(ranks), sys.executable, "-m", "dem", "run", scene, "--end-time",
-               repr(steps * 1e-5), "--out", out, "--quiet"]
+        launch = [] if ranks == 1 and threads > 1 else ["mpirun", "-np", str(ranks)]
+        cmd = launch + [sys.executable, "-m", "dem", "run", scene, "--end-time",
+                        repr(steps * 1e-5), "--out", out, "--quiet", "--threads", str(threads)]
         p = subprocess.run(cmd, capture_output=True, text=True, env=ENV)
     if p.returncode:
         raise SystemExit(p.stdout + p.stderr)
