@@ -45,6 +45,23 @@ def _numba_cache_dir():
 _numba_cache_dir()
 
 
+def _threading_layer():
+    """Numba's threads (``--threads N``): OpenMP first, then TBB, then its own work queue, unless
+    the user chose (NUMBA_THREADING_LAYER or NUMBA_THREADING_LAYER_PRIORITY). Numba's default
+    order puts TBB first, and a library loaded beside ours can bring libtbb along: on the shared
+    10k bed TBB ran 2 threads at 0.5x of 1 (its start of each parallel loop costs about as much
+    as a small block's work), GNU OpenMP at 1.8x (docs/benchmarks.md, "Threads inside a process")."""
+    import os
+    import numba
+    if os.environ.get("NUMBA_THREADING_LAYER") or os.environ.get("NUMBA_THREADING_LAYER_PRIORITY"):
+        return
+    os.environ["NUMBA_THREADING_LAYER_PRIORITY"] = "omp tbb workqueue"  # (Numba re-reads its settings)
+    numba.config.THREADING_LAYER_PRIORITY = ["omp", "tbb", "workqueue"]
+
+
+_threading_layer()
+
+
 def __getattr__(name):  # lazy: importing dem.thermal must not pull in the solver
     if name in ("Simulation",):
         from .simulation import Simulation
