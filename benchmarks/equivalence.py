@@ -165,29 +165,22 @@ def collect(quick=False, only=None):
     return res
 
 
-def _rel(a, b):
+def _rel(a, b, scaled=False):
+    """Largest relative difference, element by element; ``scaled``: the largest difference over
+    the arrays' largest magnitude (round-off of the sums that make them; an element near zero,
+    e.g. a gas velocity component at a wall, does not inflate it)."""
     a = np.asarray(a, float)
     b = np.asarray(b, float)
     if a.shape != b.shape:
         return np.inf
     if a.size == 0:
         return 0.0
+    if scaled:
+        top = max(float(np.max(np.abs(a))), float(np.max(np.abs(b))))
+        return float(np.max(np.abs(a - b))) / top if top > 0 else 0.0
     scale = np.maximum(np.abs(a), np.abs(b))
     scale = np.where(scale > 0, scale, 1.0)
     return float(np.max(np.abs(a - b) / np.maximum(scale, np.max(np.abs(a)) * 1e-300 + 1e-300)))
-
-
-def _scaled(a, b):
-    """Largest difference over the array's largest magnitude (round-off of the sums that make it;
-    an element near zero, e.g. a gas velocity component at a wall, does not inflate it)."""
-    a = np.asarray(a, float)
-    b = np.asarray(b, float)
-    if a.shape != b.shape:
-        return np.inf
-    if a.size == 0:
-        return 0.0
-    scale = max(float(np.max(np.abs(a))), float(np.max(np.abs(b))))
-    return float(np.max(np.abs(a - b))) / scale if scale > 0 else 0.0
 
 
 def compare(ref, new, rtol, only=None):
@@ -209,8 +202,8 @@ def compare(ref, new, rtol, only=None):
         df = max((_rel(r["final"][k], n["final"].get(k, [])) for k in r["final"]), default=0.0)
         cols = [list(c) for c in zip(*r["history"])] if r["history"] and len(r["history"]) == len(n["history"]) else []
         ncols = [list(c) for c in zip(*n["history"])] if cols else []
-        sh = max((_scaled(a, b) for a, b in zip(cols, ncols)), default=0.0 if cols or not r["history"] else np.inf)
-        sf = max((_scaled(r["final"][k], n["final"].get(k, [])) for k in r["final"]), default=0.0)
+        sh = max((_rel(a, b, scaled=True) for a, b in zip(cols, ncols)), default=0.0 if cols or not r["history"] else np.inf)
+        sf = max((_rel(r["final"][k], n["final"].get(k, []), scaled=True) for k in r["final"]), default=0.0)
         d = max(sh, sf)
         worst = max(worst, d)
         flag = "ok" if d <= rtol else "DIFFERS"

@@ -49,8 +49,8 @@ def _threading_layer():
     """Numba's threads (``--threads N``): OpenMP first, then TBB, then its own work queue, unless
     the user chose (NUMBA_THREADING_LAYER or NUMBA_THREADING_LAYER_PRIORITY). Numba's default
     order puts TBB first, and a library loaded beside ours can bring libtbb along: on the shared
-    10k bed TBB ran 2 threads at 0.5x of 1 (its start of each parallel loop costs about as much
-    as a small block's work), GNU OpenMP at 1.8x (docs/benchmarks.md, "Threads inside a process")."""
+    10k bed TBB ran 2 threads at 0.84x of 1 thread, GNU OpenMP at 1.8x (docs/benchmarks.md,
+    "Threads inside a process")."""
     import os
     import numba
     if os.environ.get("NUMBA_THREADING_LAYER") or os.environ.get("NUMBA_THREADING_LAYER_PRIORITY"):
