@@ -33,6 +33,7 @@ def prepare_output(case, out: Path, *, restart: bool, overwrite: bool = False) -
         if not (out / "system" / "controlDict").exists():
             raise CouplingRunError(f"{out}: nothing to restart (no system/controlDict)")
     outdir.claim_folder(out, command="coupling run", **rule)
+    write_opener(case, out)
     if restart:
         return
     for sub in ("0", "constant", "system"):
@@ -44,6 +45,19 @@ def prepare_output(case, out: Path, *, restart: bool, overwrite: bool = False) -
     if not (out / "constant" / "polyMesh" / "owner").exists():
         outdir.claim(out / "log.blockMesh")
         fc.block_mesh(out)
+
+
+def write_opener(case, out: Path) -> Path:
+    """``<case>.foam`` in --out: the empty file by which ParaView (and pyvista's OpenFOAM reader)
+    opens the gas case, reconstructed or decomposed (`processor*`), beside the particles'
+    ``particles.pvd``. Written once (also into an earlier output continued with --restart that
+    lacks it), recorded in the output's manifest."""
+    from dem import outdir
+    opener = out / f"{case.dir.name}.foam"
+    if not opener.exists():
+        outdir.claim(opener)
+        opener.touch()
+    return opener
 
 
 def prepare_gas(out: Path, cfg, n_cells: int, split, eps0, end: float, *, restart: bool, solver=None, m2m=False,

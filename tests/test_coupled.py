@@ -545,3 +545,31 @@ def test_compile_command_fills_the_cache_and_touches_nothing(tmp_path, solver):
     after = {q.relative_to(case): q.read_bytes() for q in case.rglob("*") if q.is_file()}
     assert after == before
     assert list(tmp.iterdir()) == []
+
+
+def test_output_opens_in_paraview_as_gas_and_particles(tmp_path, solver):
+    """A coupled output folder holds `<case>.foam` (the gas, for ParaView and pyvista's
+    OpenFOAM reader) beside `particles.pvd`: the reader finds the gas's time folders and the
+    void fraction, velocity, temperature and pressure on every cell, and the wall heat flux on
+    the wall patches; the opener is the tool's (in the manifest: --overwrite replaces the run)."""
+    pv = pytest.importorskip("pyvista")
+    out = tmp_path / "out"
+    for extra in ([], ["--overwrite"]):
+        p = subprocess.run([sys.executable, "-m", "coupling.run", "run", str(CASES / "fluidized_bed_heating"),
+                            "--out", str(out), "--end-time", "0.004", "--quiet", *extra],
+                           cwd=ROOT, capture_output=True, text=True, timeout=600)
+        assert p.returncode == 0, p.stderr
+    opener = out / "fluidized_bed_heating.foam"
+    assert opener.is_file() and opener.stat().st_size == 0
+    assert (out / "particles.pvd").is_file()
+    r = pv.OpenFOAMReader(str(opener))
+    assert r.time_values[0] == 0.0 and abs(r.time_values[-1] - 0.004) < 1e-12
+    r.set_active_time_value(r.time_values[-1])
+    m = r.read()
+    cells = m["internalMesh"]
+    for name in ("eps", "U", "T", "p"):
+        assert name in cells.cell_data, name
+    eps = np.asarray(cells.cell_data["eps"])
+    assert eps.size == cells.n_cells and 0.3 < eps.min() < 0.95 and eps.max() <= 1.0  # a bed in a gas
+    walls = m["boundary"]
+    assert any("wallHeatFluxTotal" in walls[k].cell_data for k in walls.keys())
