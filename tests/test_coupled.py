@@ -573,3 +573,18 @@ def test_output_opens_in_paraview_as_gas_and_particles(tmp_path, solver):
     assert eps.size == cells.n_cells and 0.3 < eps.min() < 0.95 and eps.max() <= 1.0  # a bed in a gas
     walls = m["boundary"]
     assert any("wallHeatFluxTotal" in walls[k].cell_data for k in walls.keys())
+    # decomposed gas (gas_processes = 2): the same opener, read as a decomposed case
+    case = copy_case("fluidized_bed_heating", tmp_path / "dcase")
+    set_toml(case / "coupling.toml", gas_processes=2)
+    out2 = tmp_path / "out2"
+    p = subprocess.run([sys.executable, "-m", "coupling.run", "run", str(case), "--out", str(out2), "--end-time",
+                        "0.004", "--quiet"], cwd=ROOT, capture_output=True, text=True, timeout=600,
+                       env=dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1",
+                                OMPI_MCA_rmaps_base_oversubscribe="1"))
+    assert p.returncode == 0, p.stderr
+    assert (out2 / "processor1").is_dir()
+    r = pv.POpenFOAMReader(str(out2 / "dcase.foam"))
+    r.case_type = "decomposed"
+    r.set_active_time_value(r.time_values[-1])
+    cells2 = r.read()["internalMesh"]
+    assert cells2.n_cells == cells.n_cells and "eps" in cells2.cell_data
