@@ -10,6 +10,18 @@ from .outdir import PNG_SOFTWARE, OutputFolderError, claim_file
 from .output import atomic_write
 
 
+def headless():
+    """Without a display (no DISPLAY: a server, CI, ssh), draw through EGL (Mesa's libEGL,
+    installed by scripts/setup.sh) instead of VTK's default X window, which prints "bad X
+    server connection" before it falls back; a user's VTK_DEFAULT_OPENGL_WINDOW is kept. Must
+    run before VTK is imported."""
+    import ctypes.util
+    if os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY") or "VTK_DEFAULT_OPENGL_WINDOW" in os.environ:
+        return
+    if ctypes.util.find_library("EGL"):
+        os.environ["VTK_DEFAULT_OPENGL_WINDOW"] = "vtkEGLRenderWindow"
+
+
 def render(out_dir, png=None, color=None):
     what = "--png" if png else "the PNG"
     png = png or os.path.join(out_dir, "render.png")
@@ -20,6 +32,7 @@ def render(out_dir, png=None, color=None):
         raise OutputFolderError(f"{out_dir}: no vtk/*.vtu output to render (a `dem run` with [output] vtk = true "
                                 f"writes them)")
     claim_file(png, what)   # refused before anything is drawn; recorded in an output folder's manifest
+    headless()
     import pyvista as pv
     pv.OFF_SCREEN = True
     mesh = pv.read(files[-1])

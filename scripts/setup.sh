@@ -11,7 +11,7 @@ log() { echo "[setup] $*" >&2; }
 SUDO=""
 [ "$(id -u)" = 0 ] || SUDO="sudo"
 need=()
-for p in openmpi-bin libopenmpi-dev g++ make python3-venv; do
+for p in openmpi-bin libopenmpi-dev g++ make python3-venv libegl1 libegl-mesa0; do
     dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || need+=("$p")
 done
 if [ ${#need[@]} -gt 0 ]; then

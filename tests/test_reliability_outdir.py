@@ -226,6 +226,9 @@ def test_render_never_overwrites_a_users_png(scene, tmp_path):
     pytest.importorskip("pyvista")
     r = dem("render", out)
     assert r.returncode == 0, r.stderr
+    if not os.environ.get("DISPLAY") and not os.environ.get("VTK_DEFAULT_OPENGL_WINDOW"):
+        # no display: drawn through EGL, without VTK's "bad X server connection" warning
+        assert "bad X server" not in r.stderr and "WARN" not in r.stderr, r.stderr
     assert (out / "render.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert "render.png" in listed(out)        # so that --overwrite may remove it, and a re-render replace it
     from dem.outdir import png_is_ours
