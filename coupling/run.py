@@ -396,6 +396,12 @@ def _threads_arg(text):
         raise argparse.ArgumentTypeError(str(exc).split(": ", 1)[1]) from None
 
 
+def cmd_render(args) -> int:
+    from .render import render
+    print(f"wrote {render(args.out_dir, args.png, field=args.field, time=args.time)}")
+    return 0
+
+
 def cmd_run(args) -> int:
     # SIGINT/SIGTERM from here on (also during meshing and compiling) only set a flag: the
     # coupled loop ends its current coupling step, writes a restart point and stops
@@ -428,6 +434,15 @@ def main(argv=None) -> int:
     r.add_argument("--external-solver", action="store_true",
                    help="do not start thermoDemFoam: print the command to run it by hand in a second "
                         "terminal and wait for it")
+    g = sub.add_parser("render", help="one picture of both phases: a mid-plane slice of a gas field with the "
+                                      "particles near the plane (off-screen PNG)")
+    g.add_argument("out_dir", help="the --out folder of a coupling run")
+    g.add_argument("--field", default="eps", help="gas field on the slice: eps (alias alpha, the default), U "
+                                                  "(speed), T or p")
+    g.add_argument("--time", type=float, default=None, help="the written gas time nearest this (s; default "
+                                                           "the last)")
+    g.add_argument("--png", default=None, help="where (default OUT/gas_render.png; never a file the tool did "
+                                               "not write)")
     k = sub.add_parser("compile", help="compile and cache the coupling kernels (done by scripts/setup.sh)")
     k.add_argument("case", nargs="*", help="cases to exercise (default: every case of openfoam_cases/, and the "
                                            "DEM kernels of `dem compile`)")
@@ -452,7 +467,7 @@ def main(argv=None) -> int:
     from dem.simulation import SimulationError
     from dem.threads import ThreadsError
     try:
-        return {"check": cmd_check, "compile": cmd_compile, "run": cmd_run}[args.cmd](args)
+        return {"check": cmd_check, "compile": cmd_compile, "run": cmd_run, "render": cmd_render}[args.cmd](args)
     except CouplingError as e:
         print(f"coupling: error: coupling failed: {e}", file=sys.stderr)
         return EXIT_COUPLING

@@ -54,7 +54,7 @@ def render(out_dir, png=None, color=None):
     pl.view_isometric()
     img = pl.screenshot(return_img=True)
     pl.close()
-    _write_png(png, img)
+    write_png(png, img)
     return png
 
 
@@ -71,11 +71,11 @@ def _frames(out_dir):
     return sorted(glob.glob(os.path.join(out_dir, "vtk", "*.vtu")))
 
 
-def _write_png(path, img):
+def write_png(path, img, command="dem render"):
     """The image as a PNG tagged as ours (tEXt Software), written atomically (and recorded
     in the manifest when ``path`` is inside an output folder)."""
     from PIL import Image
     from PIL.PngImagePlugin import PngInfo
     info = PngInfo()
-    info.add_text("Software", f"{PNG_SOFTWARE} dem render")
+    info.add_text("Software", f"{PNG_SOFTWARE} {command}")
     atomic_write(path, lambda tmp: Image.fromarray(img).save(tmp, format="PNG", pnginfo=info))

@@ -11,7 +11,8 @@ OUT="${OUT:-out/main}"
 if [ -f openfoam_cases/fluidized_bed_heating/coupling.toml ] && [ "${MAIN_JOB:-coupled}" = coupled ]; then
     "$PY" -m coupling.run run openfoam_cases/fluidized_bed_heating --out "$OUT/fluidized_bed" --end-time "${MAIN_END_TIME:-0.2}" --overwrite
     "$PY" -m dem.cli render "$OUT/fluidized_bed" --png "$OUT/fluidized_bed/render.png" || echo "(render skipped)"
-    echo "main job done: $OUT/fluidized_bed (coupling.png, render.png, particles.pvd, OpenFOAM time folders)"
+    "$PY" -m coupling.run render "$OUT/fluidized_bed" || echo "(gas render skipped)"
+    echo "main job done: $OUT/fluidized_bed (coupling.png, render.png, gas_render.png, fluidized_bed_heating.foam + particles.pvd for ParaView, OpenFOAM time folders)"
 else
     "$PY" -m dem.cli check examples/settle_box.toml
     "$PY" -m dem.cli run examples/settle_box.toml --out "$OUT/settle_box" --overwrite

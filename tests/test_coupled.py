@@ -547,7 +547,7 @@ def test_compile_command_fills_the_cache_and_touches_nothing(tmp_path, solver):
     assert list(tmp.iterdir()) == []
 
 
-def test_output_opens_in_paraview_as_gas_and_particles(tmp_path, solver):
+def test_output_opens_in_paraview_and_renders_both_phases(tmp_path, solver):
     """A coupled output folder holds `<case>.foam` (the gas, for ParaView and pyvista's
     OpenFOAM reader) beside `particles.pvd`: the reader finds the gas's time folders and the
     void fraction, velocity, temperature and pressure on every cell, and the wall heat flux on
@@ -573,6 +573,22 @@ def test_output_opens_in_paraview_as_gas_and_particles(tmp_path, solver):
     assert eps.size == cells.n_cells and 0.3 < eps.min() < 0.95 and eps.max() <= 1.0  # a bed in a gas
     walls = m["boundary"]
     assert any("wallHeatFluxTotal" in walls[k].cell_data for k in walls.keys())
+    # the picture of both phases: the void-fraction slice (yellow freeboard, eps = 1, above the
+    # bed) with the particles near the plane on it, drawn without a display and without warnings
+    p = subprocess.run([sys.executable, "-m", "coupling.run", "render", str(out)], cwd=ROOT, capture_output=True,
+                       text=True, timeout=300)
+    assert p.returncode == 0, p.stderr
+    if not os.environ.get("DISPLAY"):
+        assert "WARN" not in p.stderr, p.stderr
+    from PIL import Image
+    img = np.asarray(Image.open(out / "gas_render.png").convert("RGB")).astype(int)
+    freeboard = ((img[..., 0] > 150) & (img[..., 1] > 140) & (img[..., 2] < 80)).mean()
+    particles = (img.max(axis=2) < 40).mean()            # the coldest particles (inferno's dark end)
+    assert freeboard > 0.03 and particles > 0.005, (freeboard, particles)
+    assert len(np.unique(img.reshape(-1, 3), axis=0)) > 500    # shaded spheres on a coloured slice
+    r = subprocess.run([sys.executable, "-m", "coupling.run", "render", str(out), "--field", "speed"], cwd=ROOT,
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 2 and "--field speed: allowed are" in r.stderr and "Traceback" not in r.stderr
     # decomposed gas (gas_processes = 2): the same opener, read as a decomposed case
     case = copy_case("fluidized_bed_heating", tmp_path / "dcase")
     set_toml(case / "coupling.toml", gas_processes=2)
@@ -588,3 +604,6 @@ def test_output_opens_in_paraview_as_gas_and_particles(tmp_path, solver):
     r.set_active_time_value(r.time_values[-1])
     cells2 = r.read()["internalMesh"]
     assert cells2.n_cells == cells.n_cells and "eps" in cells2.cell_data
+    p = subprocess.run([sys.executable, "-m", "coupling.run", "render", str(out2), "--field", "T"], cwd=ROOT,
+                       capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0 and (out2 / "gas_render.png").is_file(), p.stderr
