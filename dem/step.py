@@ -1081,7 +1081,8 @@ def advance(nsteps, s0, n, nown, P, C, W, TB, prm, hon, phases):
         t = (s0 + step + 1) * prm.fp[FP.dt]
         if phases & PH_AFTER_BUILD:  # the lists of C were just built from Python (a first build, or
             # after an exchange with other ranks): the rest of the rebuild, history starting empty
-            C = after_build(P, C, W, prm, n, nown, t, False)
+            C = after_build(P, C, W, prm, n, nown, t, nsteps < 0)  # False, as a run-time bool: a
+            # literal False is typed Literal[bool] or bool depending on what compiled first
         if phases & PH_DRIFT:
             if drift(P, prm, nown, t):
                 if not phases & PH_REBUILD:
