@@ -27,10 +27,9 @@ def _opener(out):
     return found[0]
 
 
-def _gas(out, time):
+def _gas(out, opener, time):
     """(time, cell mesh) of the gas at the written time nearest ``time`` (None: the last)."""
     import pyvista as pv
-    opener = _opener(out)
     decomposed = bool(glob.glob(os.path.join(out, "processor*"))) and not _reconstructed_times(out)
     r = pv.POpenFOAMReader(opener)
     if decomposed:
@@ -74,12 +73,12 @@ def render(out, png=None, field="eps", time=None, window=(900, 1000)):
         raise OutputFolderError(f"--field {field}: allowed are {', '.join(FIELDS)}")
     name = FIELDS[field]
     png = png or os.path.join(out, "gas_render.png")
-    _opener(out)
+    opener = _opener(out)
     claim_file(png, "--png")   # refused before anything is drawn
     headless()
     import pyvista as pv
     pv.OFF_SCREEN = True
-    t, cells = _gas(out, time)
+    t, cells = _gas(out, opener, time)
     if name not in cells.cell_data:
         raise OutputFolderError(f"--field {field}: no gas field {name!r} at t = {t:g} s; fields: "
                                 f"{', '.join(sorted(cells.cell_data.keys()))}")

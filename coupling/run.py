@@ -388,14 +388,6 @@ def cmd_compile(args) -> int:
     return main_compile(jobs, args.jobs, what="coupling kernels" if args.case else "DEM and coupling kernels")
 
 
-def _threads_arg(text):
-    from dem.threads import parse, ThreadsError
-    try:
-        return parse(text)
-    except ThreadsError as exc:
-        raise argparse.ArgumentTypeError(str(exc).split(": ", 1)[1]) from None
-
-
 def cmd_render(args) -> int:
     from .render import render
     print(f"wrote {render(args.out_dir, args.png, field=args.field, time=args.time)}")
@@ -414,6 +406,7 @@ def cmd_run(args) -> int:
 
 def main(argv=None) -> int:
     from dem.args import end_time
+    from dem.threads import argument as threads_argument
     ap = argparse.ArgumentParser(prog="coupling", description="CFD-DEM coupling (thermodem + thermoDemFoam)")
     sub = ap.add_subparsers(dest="cmd", required=True)
     c = sub.add_parser("check", help="validate a coupled case and print the coupling checks")
@@ -428,7 +421,7 @@ def main(argv=None) -> int:
                    help="replace an earlier output in --out: removes only what the tool wrote there "
                         "(listed in its .thermodem-manifest.json) and refuses if anything else is there")
     r.add_argument("--quiet", action="store_true")
-    r.add_argument("--threads", type=_threads_arg, default="auto",
+    r.add_argument("--threads", type=threads_argument, default="auto",
                    help="threads of each DEM rank (default auto: the cores of this process, shared among the DEM "
                         "ranks of its node); the gas runs between the DEM intervals")
     r.add_argument("--external-solver", action="store_true",

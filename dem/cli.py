@@ -76,14 +76,6 @@ def cmd_check(args):
     return 0
 
 
-def _threads_arg(text):
-    from .threads import parse, ThreadsError
-    try:
-        return parse(text)
-    except ThreadsError as exc:
-        raise argparse.ArgumentTypeError(str(exc).split(": ", 1)[1]) from None
-
-
 def cmd_run(args):
     from .interrupt import StopRequested, StopSignals
     from .output import OutputError
@@ -95,7 +87,7 @@ def cmd_run(args):
     outdir.check(out, **rule)          # a user's folder is refused before the scene is even read
     with StopSignals():  # a signal during loading or compiling stops at the first chunk boundary
         sim = _load(args.scene)
-        sim.set_threads(threads.resolve(args.threads, sim.par.comm if sim.par is not None else None))
+        sim.set_threads(args.threads)   # ('auto': this process's share of its node's cores)
         if args.restart is not None:
             sim.prepare_restart(args.restart)  # a bad checkpoint or a refused scene edit: exit 2 now
         rep = sim.check()
@@ -214,13 +206,14 @@ def main(argv=None):
 
 def _main(argv=None):
     from .args import end_time
+    from .threads import argument as threads_argument
     ap = argparse.ArgumentParser(prog="dem", description="Thermal DEM solver")
     sub = ap.add_subparsers(dest="cmd", required=True)
     r = sub.add_parser("run", help="run a scene")
     r.add_argument("scene")
     r.add_argument("--out", help="output folder (default out/<scene name>)")
     r.add_argument("--restart", help="checkpoint to continue from (--out may then be the earlier output)")
-    r.add_argument("--threads", type=_threads_arg, default="auto",
+    r.add_argument("--threads", type=threads_argument, default="auto",
                    help="threads of each process (default auto: the cores this process may use, shared among "
                         "the MPI ranks of its node); results are deterministic for a given count")
     r.add_argument("--overwrite", action="store_true",

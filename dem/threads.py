@@ -61,6 +61,15 @@ def parse(text, option="--threads"):
     return k
 
 
+def argument(text):
+    """argparse ``type`` of ``--threads`` (dem run, coupling run): 'auto' or a count >= 1."""
+    import argparse
+    try:
+        return parse(text)
+    except ThreadsError as exc:
+        raise argparse.ArgumentTypeError(str(exc).split(": ", 1)[1]) from None
+
+
 def resolve(value, comm=None, option="--threads", reserve=0):
     """The thread count of ``value`` ('auto', None or a count), checked against what Numba can
     start here; ``reserve``: see :func:`auto`."""
