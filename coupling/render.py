@@ -67,13 +67,27 @@ def _opener(out):
 
 
 def _reader(out, opener):
-    """(pyvista's OpenFOAM reader of the gas, its written times)."""
+    """(pyvista's OpenFOAM reader of the gas, its written times: those with a time folder, in
+    OUT or, decomposed, in processor0; the reader lists t = 0 even when no folder holds it)."""
     import pyvista as pv
     decomposed = bool(glob.glob(os.path.join(out, "processor*"))) and not _reconstructed_times(out)
     r = pv.POpenFOAMReader(opener)
     if decomposed:
         r.case_type = "decomposed"
-    return r, list(r.time_values)
+    where = os.path.join(out, "processor0") if decomposed else out
+    folders = [float(d) for d in _time_names(where)]
+    written = [t for t in r.time_values if any(abs(t - f) <= 1e-9 * max(abs(f), 1e-6) for f in folders)]
+    return r, written
+
+
+def _time_names(folder):
+    """The names of ``folder``'s time folders (numbers >= 0)."""
+    def is_time(name):
+        try:
+            return float(name) >= 0.0 and os.path.isdir(os.path.join(folder, name))
+        except ValueError:
+            return False
+    return [d for d in os.listdir(folder) if is_time(d)] if os.path.isdir(folder) else []
 
 
 def _read(r, t):
@@ -93,12 +107,7 @@ def _gas(out, opener, time):
 
 
 def _reconstructed_times(out):
-    def is_time(name):
-        try:
-            return float(name) > 0.0
-        except ValueError:
-            return False
-    return [d for d in os.listdir(out) if is_time(d) and os.path.isdir(os.path.join(out, d))]
+    return [d for d in _time_names(out) if float(d) > 0.0]
 
 
 def _particles(out, t, entries=None):

@@ -726,6 +726,13 @@ def test_render_animates_the_bubbling_bed(tmp_path, bed_output):
         assert phrase in r.stderr.strip().splitlines()[-1] and "Traceback" not in r.stderr, (args, r.stderr)
     r = render_cmd(out, "--times", "0:0.01")
     assert r.returncode == 2 and "--times is an option of --animate" in r.stderr, r.stderr
+    bare = tmp_path / "bare"      # the case and its opener, no time folder (the reader still lists t = 0)
+    for name in ("constant", "system"):
+        shutil.copytree(out / name, bare / name)
+    (bare / "fluidized_bed_heating.foam").touch()
+    r = render_cmd(bare, "--animate")
+    assert r.returncode == 2 and "--animate: the gas wrote no time folder yet" in r.stderr, r.stderr
+    assert sorted(q.name for q in bare.iterdir()) == ["constant", "fluidized_bed_heating.foam", "system"]
     assert {q.name: q.read_bytes() for q in folder.iterdir()} == before
     assert (tmp_path / "mine" / "notes.txt").read_text() == "a user's file"
     assert sorted(q.name for q in (tmp_path / "mine").iterdir()) == ["notes.txt"]
