@@ -16,16 +16,18 @@ from .errors import GasFieldError
 
 
 class Diagnostics:
-    """coupling.csv rows: energies, heat rate, pressure drop, bed height, timings."""
+    """coupling.csv rows: energies, heat rate, pressure drop and the bed's weight over the
+    bottom area (its reference), bed height, timings. ``area``: :meth:`bottom_area`."""
 
     COLUMNS = ["time", "step", "T_particles", "T_gas", "E_particles", "E_gas", "Q_to_gas",
-               "E_conv_particles", "dp", "bed_height", "v_max", "n_outside", "eps_raw_min",
+               "E_conv_particles", "dp", "weight_per_area", "bed_height", "v_max", "n_outside", "eps_raw_min",
                "eps_clipped_cells", "wall"]
 
-    def __init__(self, path, keep_until=None, ledger=None):
+    def __init__(self, path, keep_until=None, ledger=None, area=float("nan")):
         from dem.output import History
         from .energy import BALANCE_COLUMNS
         self.ledger = ledger
+        self.area = area
         self.hist = History(str(path), self.COLUMNS + (BALANCE_COLUMNS if ledger is not None else []), keep_until)
 
     @staticmethod
@@ -53,6 +55,7 @@ class Diagnostics:
         n = st.n_owned
         loc = np.zeros(7)
         if n:
+            loc[2] = float(st.mass[:n].sum())
             loc[3] = float(st.position[:n, 2].sum())
             loc[5] = float(np.sqrt((st.velocity[:n] ** 2).sum(1)).max())
         loc[4] = n
@@ -82,6 +85,30 @@ class Diagnostics:
         return np.flatnonzero((z == lo) & own), np.flatnonzero((z == hi) & own)
 
     @staticmethod
+    def bottom_area(iface):
+        """The area (m^2) of the gas domain's bottom: its boundary faces (of any patch but a
+        processor patch) whose outward normal points down (within 2.6 degrees of -z) at the
+        mesh's lowest z; for a column, the cross-section the pressure drop acts on (collective:
+        each rank its owned cells' faces, summed over the ranks)."""
+        mesh, cs = iface.mesh, iface.cells
+        z0 = float(cs.allmin(float(mesh.points[:, 2].min(initial=np.inf))))
+        z1 = float(cs.allmax(float(mesh.points[:, 2].max(initial=-np.inf))))
+        tol = 1e-6 * max(z1 - z0, 1e-300)
+        own = cs.owned_mask
+        area = 0.0
+        for p in mesh.boundary:
+            if p.get("type") == "processor":
+                continue
+            f = np.arange(int(p["startFace"]), int(p["startFace"]) + int(p["nFaces"]))
+            f = f[mesh.owner[f] < own.size]      # (not a local mesh's phantom cell)
+            f = f[own[mesh.owner[f]]]
+            a = mesh.face_areas[f]
+            mag = np.linalg.norm(a, axis=1)
+            down = (a[:, 2] < -0.999 * mag) & (np.abs(mesh.face_centres[f, 2] - z0) <= tol)
+            area += float(mag[down].sum())
+        return float(cs.allsum(area))
+
+    @staticmethod
     def gas_sums(iface, fluid, frame, ends):
         """[E_gas, sum rho cp eps V, Q_to_gas, sum p bottom, n bottom, sum p top, n top] over the
         cells this rank owns (coupling.cells; serial: every cell); ``ends``: owned_ends."""
@@ -97,7 +124,7 @@ class Diagnostics:
                          float(p[bot].sum()), float(bot.size), float(p[top].sum()), float(top.size)])
 
     def row(self, t, step, sim, iface, fluid, frame, wall, sums, precs, gas):
-        """One coupling.csv row: ``sums`` = [-, sum C, -, sum z, n, max |v|, n lost] over the
+        """One coupling.csv row: ``sums`` = [-, sum C, sum m, sum z, n, max |v|, n lost] over the
         ranks, ``precs`` = particle_records, ``gas`` = gas_sums over the ranks."""
         if sim.thermal is not None:
             Ep = float(precs[0])
@@ -110,8 +137,9 @@ class Diagnostics:
         q = float(gas[2])
         dp = float(gas[3] / gas[4] - gas[5] / gas[6])
         zb = float(sums[3] / sums[4]) if sums[4] else 0.0
+        w = float(sums[2] * np.linalg.norm(iface.gravity) / self.area) if self.area > 0 else float("nan")
         row = dict(time=t, step=step, T_particles=Tp, T_gas=Tg, E_particles=Ep, E_gas=Eg,
-                   Q_to_gas=q, E_conv_particles=Ec, dp=dp, bed_height=zb, v_max=float(sums[5]),
+                   Q_to_gas=q, E_conv_particles=Ec, dp=dp, weight_per_area=w, bed_height=zb, v_max=float(sums[5]),
                    n_outside=int(sums[6]), eps_raw_min=iface.clip["eps_raw_min"],
                    eps_clipped_cells=iface.clip["cells"], wall=wall)
         if self.ledger is not None:
@@ -119,8 +147,25 @@ class Diagnostics:
         self.hist.add(row)
 
 
+def heat_moved(d):
+    """The scale of coupling.csv's heat balance, per row (J): the heat that moved since the
+    run's start, through the boundaries (|E_walls_particles| + |E_walls_gas| + |E_open| +
+    |E_sources_particles|) and between the phases (|E_conv_particles|, the particles'
+    convective heat). coupling.png draws the balance's error and residual over it."""
+    return (np.abs(d["E_walls_particles"]) + np.abs(d["E_walls_gas"]) + np.abs(d["E_open"])
+            + np.abs(d["E_sources_particles"]) + np.abs(d["E_conv_particles"]))
+
+
+BALANCE_TITLE = ("Heat balance of both phases: |error| relative to the heat moved since the start\n"
+                 "(through the walls, inlet and outlet, and between the phases: coupling.diagnostics.heat_moved)")
+
+
 def plot(out: Path, title: str) -> Path | None:
-    """coupling.png: particle/gas temperature, heat rate, pressure drop, bed height."""
+    """coupling.png from coupling.csv, a panel for each: the mean temperatures of the
+    particles and the gas; the heat from the particles to the gas; the pressure drop with the
+    bed's weight over the bottom area (the drop a fluidized bed carries); the mean height of
+    the particle centres; the heat balance's error and residual relative to the heat moved
+    (:func:`heat_moved`). Each panel's title says what its traces are."""
     try:
         import matplotlib
         matplotlib.use("Agg")
@@ -133,27 +178,69 @@ def plot(out: Path, title: str) -> Path | None:
     d = np.atleast_1d(np.genfromtxt(f, delimiter=",", names=True))
     if d.size < 2:
         return None
-    fig, ax = plt.subplots(2, 2, figsize=(10, 7))
+    names = d.dtype.names
+    fig = plt.figure(figsize=(11, 11), layout="constrained")
+    grid = fig.add_gridspec(3, 2)
+    ax = [fig.add_subplot(grid[0, 0]), fig.add_subplot(grid[0, 1]), fig.add_subplot(grid[1, 0]),
+          fig.add_subplot(grid[1, 1]), fig.add_subplot(grid[2, :])]
     t = d["time"]
-    ax[0, 0].plot(t, d["T_particles"], label="particles (mass-weighted)")
-    ax[0, 0].plot(t, d["T_gas"], label="gas (eps rho cp V weighted)")
-    ax[0, 0].set_ylabel("T [K]")
-    ax[0, 0].legend()
-    ax[0, 1].plot(t, d["Q_to_gas"])
-    ax[0, 1].set_ylabel("heat to the gas [W]")
-    ax[1, 0].plot(t, d["dp"])
-    ax[1, 0].set_ylabel("p(bottom cells) - p(top cells) [Pa]")
-    ax[1, 1].plot(t, d["bed_height"])
-    ax[1, 1].set_ylabel("mean particle height [m]")
-    for a in ax.ravel():
+    small = dict(fontsize=9, loc="left")
+    a = ax[0]
+    a.plot(t, d["T_particles"], label="particles: sum(C T) / sum(C), C = m c_p")
+    a.plot(t, d["T_gas"], label="gas: sum(rho c_p eps V T) / sum(rho c_p eps V)")
+    a.set_ylabel("T [K]")
+    a.set_title("Mean temperature of each phase (K)", **small)
+    a.legend(fontsize=8)
+    a = ax[1]
+    a.plot(t, d["Q_to_gas"])
+    a.axhline(0.0, color="0.5", lw=0.8)
+    a.set_ylabel("heat to the gas [W]")
+    a.set_title("Heat from the particles to the gas (W): sum of (Sexp - Simp T) V\n"
+                "over the cells; negative: the gas heats the particles", **small)
+    a = ax[2]
+    a.plot(t, d["dp"], label="p(bottom cell layer) - p(top cell layer)")
+    if "weight_per_area" in names and np.isfinite(d["weight_per_area"]).any():
+        a.plot(t, d["weight_per_area"], "--", color="C3", label="bed weight / bottom area, sum(m) g / A")
+    a.set_ylabel("pressure drop [Pa]")
+    a.set_title("Pressure drop across the bed (Pa), layer means of p, vs bed weight / area\n"
+                "(a fluidized bed carries its weight; the drop also holds the gas's own head)", **small)
+    a.legend(fontsize=8)
+    a = ax[3]
+    a.plot(t, 1e3 * d["bed_height"])
+    a.set_ylabel("mean particle height [mm]")
+    a.set_title("Bed height: mean height z of the particle centres (mm)\n"
+                "(about half the height of a uniform bed)", **small)
+    a = ax[4]
+    a.set_title(BALANCE_TITLE, **small)
+    a.set_ylabel("|error| / heat moved")
+    drawn = False
+    if "balance_residual" in names:
+        with np.errstate(invalid="ignore", divide="ignore"):
+            scale = heat_moved(d)
+            for col, label in (("balance_error", "balance_error: change of both phases' energy - heat in "
+                                                 "(the explicit exchange's mismatch + continuity + residual)"),
+                               ("balance_residual", "balance_residual: what the bookkeeping does not explain "
+                                                    "(round-off)")):
+                r = np.abs(d[col]) / scale
+                r[~(np.isfinite(r) & (r > 0))] = np.nan
+                if np.isfinite(r).any():
+                    a.plot(t, r, label=label)
+                    drawn = True
+    if drawn:
+        a.set_yscale("log")
+        a.legend(fontsize=8)
+    else:
+        a.text(0.5, 0.5, "no heat balance: no heat exchanged in this run (coupling.toml heat = false, "
+                         "or no heat yet)", transform=a.transAxes, ha="center", va="center")
+    for a in ax:
         a.set_xlabel("t [s]")
+        a.set_xlim(t[0], t[-1])
         a.grid(alpha=0.3)
     fig.suptitle(title)
-    fig.tight_layout()
     p = out / "coupling.png"
     from dem.output import atomic_write
     try:
-        atomic_write(str(p), lambda tmp: fig.savefig(tmp, dpi=110, format="png"))
+        atomic_write(str(p), lambda tmp: fig.savefig(tmp, dpi=100, format="png"))
     finally:
         plt.close(fig)
     return p
@@ -173,6 +260,7 @@ class Outputs:
         self.sim, self.iface, self.ledger, self.t_wall0 = sim, iface, ledger, t_wall0
         self.hist = self.vtk = self.diag = self.walls = self.walls_by_angle = None
         self.ends = Diagnostics.owned_ends(iface)   # every rank: its cells of the pressure drop's ends
+        area = Diagnostics.bottom_area(iface)       # collective: the bed weight's area
         self._plans = iface.cells.plans
         if sim.scene.output["vtk"]:   # every rank: under MPI each writes its own piece (collective)
             self.vtk = sim.vtk_series(str(out))
@@ -184,7 +272,7 @@ class Outputs:
             self.walls = WallHeatFile(str(out / "wall_heat.csv"), sim.scene, keep)
             if WallAngleFile.wanted(sim.scene):
                 self.walls_by_angle = WallAngleFile(str(out / "wall_heat_angle.csv"), sim.scene, keep)
-        self.diag = Diagnostics(out / "coupling.csv", keep, ledger)
+        self.diag = Diagnostics(out / "coupling.csv", keep, ledger, area)
 
     def __call__(self, fluid, frame, t, step):
         """One output step (collective): the sums over the ranks first, then rank 0's files; a

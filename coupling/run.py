@@ -389,8 +389,21 @@ def cmd_compile(args) -> int:
 
 
 def cmd_render(args) -> int:
-    from .render import render
-    print(f"wrote {render(args.out_dir, args.png, field=args.field, time=args.time)}")
+    from dem.outdir import OutputFolderError
+    from .render import animate, render
+    if not args.animate:
+        for given, opt in ((args.times, "--times"), (args.frames, "--frames")):
+            if given is not None:
+                raise OutputFolderError(f"{opt} is an option of --animate (add --animate; for one picture give "
+                                        f"--time T and --png P)")
+        print(f"wrote {render(args.out_dir, args.png, field=args.field, time=args.time)}")
+        return 0
+    for given, opt in ((args.time, "--time"), (args.png, "--png")):
+        if given is not None:
+            raise OutputFolderError(f"{opt} is for one picture; --animate draws every written gas time (choose them "
+                                    f"with --times START:END) into --frames DIR")
+    folder, frames, gif = animate(args.out_dir, field=args.field, times=args.times, frames=args.frames)
+    print(f"wrote {len(frames)} frames {os.path.join(folder, 'frame_0000.png')} ... and {gif}")
     return 0
 
 
@@ -428,7 +441,7 @@ def main(argv=None) -> int:
                    help="do not start thermoDemFoam: print the command to run it by hand in a second "
                         "terminal and wait for it")
     g = sub.add_parser("render", help="one picture of both phases: a mid-plane slice of a gas field with the "
-                                      "particles near the plane (off-screen PNG)")
+                                      "particles near the plane (off-screen PNG); --animate: one per written gas time")
     g.add_argument("out_dir", help="the --out folder of a coupling run")
     g.add_argument("--field", default="eps", help="gas field on the slice: eps (alias alpha, the default), U "
                                                   "(speed), T or p")
@@ -436,6 +449,16 @@ def main(argv=None) -> int:
                                                            "the last)")
     g.add_argument("--png", default=None, help="where (default OUT/gas_render.png; never a file the tool did "
                                                "not write)")
+    from .render import times_argument
+    g.add_argument("--animate", action="store_true",
+                   help="a short animation: one frame per written gas time (t = 0 included) into a folder of its "
+                        "own, frame_0000.png ... and animation.gif, with the colour ranges of all the frames")
+    g.add_argument("--times", type=times_argument, default=None, metavar="START:END",
+                   help="with --animate: the written gas times from START to END (s; either end may be left out; "
+                        "default all)")
+    g.add_argument("--frames", default=None, metavar="DIR",
+                   help="with --animate: the folder of the frames (default OUT/gas_animation_<field>; new, empty "
+                        "or an earlier animation: never a folder holding files the tool did not write)")
     k = sub.add_parser("compile", help="compile and cache the coupling kernels (done by scripts/setup.sh)")
     k.add_argument("case", nargs="*", help="cases to exercise (default: every case of openfoam_cases/, and the "
                                            "DEM kernels of `dem compile`)")

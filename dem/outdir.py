@@ -281,17 +281,19 @@ def release(out):
 
 def claim(path):
     """Record the top-level entry of ``path`` (about to be created) in the manifest of the
-    claimed output folder that holds it; no-op when no claimed folder holds it."""
+    claimed output folder that holds it (the innermost one, when a claimed folder lies in
+    another: an animation's folder in a coupled output); no-op when no claimed folder holds it."""
     if not _claimed:
         return
     p = os.path.join(_real(os.path.dirname(os.path.abspath(os.fspath(path)))),
                      os.path.basename(os.path.abspath(os.fspath(path))))
-    for root, folder in _claimed.items():
-        if p.startswith(root + os.sep):
-            top = p[len(root) + 1:].split(os.sep)[0]
-            if top not in folder.entries:
-                folder.add(top)
-            return
+    roots = [root for root in _claimed if p.startswith(root + os.sep)]
+    if roots:
+        root = max(roots, key=len)
+        folder = _claimed[root]
+        top = p[len(root) + 1:].split(os.sep)[0]
+        if top not in folder.entries:
+            folder.add(top)
 
 
 def is_solver_entry(name):

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The main job: install what is missing, then run a small case and render a picture.
+# The main job: install what is missing, then run a small case, render pictures and a short animation.
 # A second run replaces the earlier output (--overwrite: only what the tool wrote there).
 #   bash scripts/main.sh            -> out/main/...
 set -euo pipefail
@@ -12,7 +12,8 @@ if [ -f openfoam_cases/fluidized_bed_heating/coupling.toml ] && [ "${MAIN_JOB:-c
     "$PY" -m coupling.run run openfoam_cases/fluidized_bed_heating --out "$OUT/fluidized_bed" --end-time "${MAIN_END_TIME:-0.2}" --overwrite
     "$PY" -m dem.cli render "$OUT/fluidized_bed" --png "$OUT/fluidized_bed/render.png" || echo "(render skipped)"
     "$PY" -m coupling.run render "$OUT/fluidized_bed" || echo "(gas render skipped)"
-    echo "main job done: $OUT/fluidized_bed (coupling.png, render.png, gas_render.png, fluidized_bed_heating.foam + particles.pvd for ParaView, OpenFOAM time folders)"
+    "$PY" -m coupling.run render "$OUT/fluidized_bed" --animate || echo "(animation skipped)"
+    echo "main job done: $OUT/fluidized_bed (coupling.png, render.png, gas_render.png, gas_animation_eps/ with frame_*.png and animation.gif, fluidized_bed_heating.foam + particles.pvd for ParaView, OpenFOAM time folders)"
 else
     "$PY" -m dem.cli check examples/settle_box.toml
     "$PY" -m dem.cli run examples/settle_box.toml --out "$OUT/settle_box" --overwrite

@@ -547,23 +547,52 @@ def test_compile_command_fills_the_cache_and_touches_nothing(tmp_path, solver):
     assert list(tmp.iterdir()) == []
 
 
-def test_output_opens_in_paraview_and_renders_both_phases(tmp_path, solver):
+BED_END, BED_WRITE = 0.02, 10    # the bed's run: 40 coupling steps, a gas time every 10 (5 ms), t = 0 included
+PY_WARNING = re.compile(r"\w+Warning:|WARN|warning:", re.I)   # Python's, VTK's, a tool's warning line
+
+
+@pytest.fixture(scope="module")
+def bed_output(tmp_path_factory, solver):
+    """The heated bubbling bed's coupled output (openfoam_cases/fluidized_bed_heating, a gas
+    time and a particle frame every 5 ms to 20 ms) run twice into the same --out, the second time with
+    --overwrite; (output folder, the runs' stderr). Shared by the ParaView/render, animation
+    and coupling.png tests."""
+    base = tmp_path_factory.mktemp("bed")
+    case = copy_case("fluidized_bed_heating", base / "fluidized_bed_heating")
+    fc.set_entries(case / "system" / "controlDict", {"writeInterval": str(BED_WRITE)})
+    set_toml(case / "coupling.toml", output_interval=BED_WRITE * 5e-4)   # a particle frame at each gas time
+    out = base / "out"
+    errs = []
+    for extra in ([], ["--overwrite"]):
+        p = subprocess.run([sys.executable, "-m", "coupling.run", "run", str(case), "--out", str(out),
+                            "--end-time", str(BED_END), "--quiet", *extra],
+                           cwd=ROOT, capture_output=True, text=True, timeout=600)
+        assert p.returncode == 0, p.stderr
+        errs.append(p.stderr)
+    return out, errs
+
+
+def render_cmd(*args, timeout=300):
+    """`coupling render ...` in a fresh process (as a user runs it): the CompletedProcess."""
+    return subprocess.run([sys.executable, "-m", "coupling.run", "render", *map(str, args)], cwd=ROOT,
+                          capture_output=True, text=True, timeout=timeout)
+
+
+def test_output_opens_in_paraview_and_renders_both_phases(tmp_path, solver, bed_output):
     """A coupled output folder holds `<case>.foam` (the gas, for ParaView and pyvista's
     OpenFOAM reader) beside `particles.pvd`: the reader finds the gas's time folders and the
     void fraction, velocity, temperature and pressure on every cell, and the wall heat flux on
-    the wall patches; the opener is the tool's (in the manifest: --overwrite replaces the run)."""
+    the wall patches; the opener is the tool's (in the manifest: --overwrite replaces the run).
+    Neither the runs (coupling.png included) nor the renders print a warning on stderr."""
     pv = pytest.importorskip("pyvista")
-    out = tmp_path / "out"
-    for extra in ([], ["--overwrite"]):
-        p = subprocess.run([sys.executable, "-m", "coupling.run", "run", str(CASES / "fluidized_bed_heating"),
-                            "--out", str(out), "--end-time", "0.004", "--quiet", *extra],
-                           cwd=ROOT, capture_output=True, text=True, timeout=600)
-        assert p.returncode == 0, p.stderr
+    out, run_errs = bed_output
+    for err in run_errs:
+        assert not PY_WARNING.search(err), err
     opener = out / "fluidized_bed_heating.foam"
     assert opener.is_file() and opener.stat().st_size == 0
     assert (out / "particles.pvd").is_file()
     r = pv.OpenFOAMReader(str(opener))
-    assert r.time_values[0] == 0.0 and abs(r.time_values[-1] - 0.004) < 1e-12
+    assert r.time_values[0] == 0.0 and abs(r.time_values[-1] - BED_END) < 1e-12
     r.set_active_time_value(r.time_values[-1])
     m = r.read()
     cells = m["internalMesh"]
@@ -575,19 +604,23 @@ def test_output_opens_in_paraview_and_renders_both_phases(tmp_path, solver):
     assert any("wallHeatFluxTotal" in walls[k].cell_data for k in walls.keys())
     # the picture of both phases: the void-fraction slice (yellow freeboard, eps = 1, above the
     # bed) with the particles near the plane on it, drawn without a display and without warnings
-    p = subprocess.run([sys.executable, "-m", "coupling.run", "render", str(out)], cwd=ROOT, capture_output=True,
-                       text=True, timeout=300)
+    p = render_cmd(out)
     assert p.returncode == 0, p.stderr
     if not os.environ.get("DISPLAY"):
-        assert "WARN" not in p.stderr, p.stderr
+        assert not PY_WARNING.search(p.stderr) and "Traceback" not in p.stderr, p.stderr
     from PIL import Image
     img = np.asarray(Image.open(out / "gas_render.png").convert("RGB")).astype(int)
     freeboard = ((img[..., 0] > 150) & (img[..., 1] > 140) & (img[..., 2] < 80)).mean()
     particles = (img.max(axis=2) < 40).mean()            # the coldest particles (inferno's dark end)
     assert freeboard > 0.03 and particles > 0.005, (freeboard, particles)
     assert len(np.unique(img.reshape(-1, 3), axis=0)) > 500    # shaded spheres on a coloured slice
-    r = subprocess.run([sys.executable, "-m", "coupling.run", "render", str(out), "--field", "speed"], cwd=ROOT,
-                       capture_output=True, text=True, timeout=300)
+    # the particles' picture of the same folder (the main job's second render), without warnings
+    d = subprocess.run([sys.executable, "-m", "dem.cli", "render", str(out), "--png", str(tmp_path / "dem.png")],
+                       cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert d.returncode == 0 and (tmp_path / "dem.png").is_file(), d.stderr
+    if not os.environ.get("DISPLAY"):
+        assert not PY_WARNING.search(d.stderr) and "Traceback" not in d.stderr, d.stderr
+    r = render_cmd(out, "--field", "speed")
     assert r.returncode == 2 and "--field speed: allowed are" in r.stderr and "Traceback" not in r.stderr
     # decomposed gas (gas_processes = 2): the same opener, read as a decomposed case
     case = copy_case("fluidized_bed_heating", tmp_path / "dcase")
@@ -607,3 +640,143 @@ def test_output_opens_in_paraview_and_renders_both_phases(tmp_path, solver):
     p = subprocess.run([sys.executable, "-m", "coupling.run", "render", str(out2), "--field", "T"], cwd=ROOT,
                        capture_output=True, text=True, timeout=300)
     assert p.returncode == 0 and (out2 / "gas_render.png").is_file(), p.stderr
+    # an animation of the decomposed gas: one frame per written time (0 and the end)
+    p = render_cmd(out2, "--animate", "--field", "T")
+    assert p.returncode == 0, p.stderr
+    assert sorted(q.name for q in (out2 / "gas_animation_T").glob("frame_*.png")) == ["frame_0000.png",
+                                                                                     "frame_0001.png"]
+
+
+# --------------------------------------------------------------------------- animation, coupling.png
+
+def _png(path):
+    from PIL import Image
+    with open(path, "rb") as fh:
+        assert fh.read(8) == b"\x89PNG\r\n\x1a\n", path
+    im = Image.open(path)
+    return np.asarray(im.convert("RGB")).astype(int), im.info
+
+
+def test_render_animates_the_bubbling_bed(tmp_path, bed_output):
+    """`coupling render OUT --animate`: one frame per written gas time (t = 0 included) into a
+    folder of the tool's own, PNGs of one size, with the colour ranges of all the frames (the
+    colour bars of the first and the last frame are the same pixels), showing the bed move
+    (the frames differ where the bed is), and a GIF of them; --times picks a range; bad input
+    and a folder holding a user's file are refused (exit 2, one line, nothing touched)."""
+    pytest.importorskip("pyvista")
+    from PIL import Image
+    from dem import outdir
+    out, _ = bed_output
+    written = [k * BED_WRITE * 5e-4 for k in range(5)]          # 0, 5, 10, 15, 20 ms
+    assert sorted(float(d.name) for d in out.iterdir() if re.fullmatch(r"[0-9.e-]+", d.name)) == \
+        pytest.approx(written, abs=1e-12)
+    p = render_cmd(out, "--animate")
+    assert p.returncode == 0, p.stderr
+    if not os.environ.get("DISPLAY"):
+        assert not PY_WARNING.search(p.stderr) and "Traceback" not in p.stderr, p.stderr
+    folder = out / "gas_animation_eps"
+    names = sorted(q.name for q in folder.iterdir())
+    assert names == [".thermodem-manifest.json", "animation.gif"] + [f"frame_{k:04d}.png" for k in range(5)], names
+    frames = [_png(folder / f"frame_{k:04d}.png") for k in range(5)]
+    assert {f[0].shape for f in frames} == {(1000, 900, 3)}
+    assert all(f[1].get("Software") == "thermodem coupling render --animate" for f in frames)
+    # the colour bars (particle T left, void fraction right; below the time label) are the same
+    # pixels in the first and the last frame: one colour range for all; and they are bars (many
+    # colours), not blank margins
+    first, last = frames[0][0], frames[-1][0]
+    for bar in (np.s_[60:, :220], np.s_[60:, 700:]):
+        assert np.array_equal(first[bar], last[bar])
+        assert len(np.unique(first[bar].reshape(-1, 3), axis=0)) > 50
+    # the bed moves: the collapse of the loose packing (the particles fall about g t^2 / 2 = 2 mm
+    # in 20 ms, 9 pixels) and its heating change the picture where the bed is, from each frame to
+    # the next (measured: 2.4, 7.1, 10.4 and 13.1 % of the domain's pixels change by more than 30
+    # of 255 in a channel)
+    dom = np.s_[60:900, 300:600]
+    changed = [(np.abs(frames[k + 1][0][dom] - frames[k][0][dom]).max(axis=2) > 30).mean() for k in range(4)]
+    assert min(changed) > 0.005, changed
+    # the GIF: every frame, the same size, one palette for all
+    gif = Image.open(folder / "animation.gif")
+    assert gif.n_frames == 5 and gif.size == (900, 1000) and gif.info["duration"] == 250
+    # the folder is the tool's: listed in the output's manifest (its --overwrite removes it)
+    assert "gas_animation_eps" in outdir.read_manifest(str(out))
+    assert outdir.check(str(out), overwrite=True) == "output"
+    # --times: the written times in the range; another folder (--frames) outside OUT
+    p = render_cmd(out, "--animate", "--times", "0.01:0.02", "--field", "U", "--frames", tmp_path / "anim")
+    assert p.returncode == 0, p.stderr
+    assert sorted(q.name for q in (tmp_path / "anim").glob("frame_*.png")) == [f"frame_{k:04d}.png" for k in range(3)]
+    # a second animation into the same folder replaces what the first wrote (no stale frame)
+    p = render_cmd(out, "--animate", "--times", "0.015:", "--field", "U", "--frames", tmp_path / "anim")
+    assert p.returncode == 0, p.stderr
+    assert sorted(q.name for q in (tmp_path / "anim").glob("frame_*.png")) == ["frame_0000.png", "frame_0001.png"]
+    # refused, exit 2, one line naming the option and what is allowed, nothing written
+    before = {q.name: q.read_bytes() for q in folder.iterdir()}
+    (tmp_path / "mine").mkdir()
+    (tmp_path / "mine" / "notes.txt").write_text("a user's file")
+    for args, phrase in (
+            (["--times", "0.3"], "--times: must be START:END in seconds"),
+            (["--times", "0.02:0.01"], "--times: START must not be after END"),
+            (["--times", "0.1:0.2"], "--times 0.1:0.2: no written gas time in that range; the gas wrote 5 time(s) "
+                                     "from 0 to 0.02 s"),
+            (["--time", "0.01"], "--time is for one picture"),
+            (["--frames", out], "is (or holds) the output folder"),
+            (["--frames", tmp_path / "mine"], "holds files this tool did not write (notes.txt)"),
+            (["--frames", out / "gas_animation_eps" / "x", "--field", "speed"], "--field speed: allowed are")):
+        r = render_cmd(out, "--animate", *args)
+        assert r.returncode == 2, (args, r.stderr)
+        assert phrase in r.stderr.strip().splitlines()[-1] and "Traceback" not in r.stderr, (args, r.stderr)
+    r = render_cmd(out, "--times", "0:0.01")
+    assert r.returncode == 2 and "--times is an option of --animate" in r.stderr, r.stderr
+    bare = tmp_path / "bare"      # the case and its opener, no time folder (the reader still lists t = 0)
+    for name in ("constant", "system"):
+        shutil.copytree(out / name, bare / name)
+    (bare / "fluidized_bed_heating.foam").touch()
+    r = render_cmd(bare, "--animate")
+    assert r.returncode == 2 and "--animate: the gas wrote no time folder yet" in r.stderr, r.stderr
+    assert sorted(q.name for q in bare.iterdir()) == ["constant", "fluidized_bed_heating.foam", "system"]
+    assert {q.name: q.read_bytes() for q in folder.iterdir()} == before
+    assert (tmp_path / "mine" / "notes.txt").read_text() == "a user's file"
+    assert sorted(q.name for q in (tmp_path / "mine").iterdir()) == ["notes.txt"]
+
+
+def test_coupling_png_says_what_it_shows_and_plots_the_recorded_balance(bed_output, monkeypatch):
+    """coupling.png (coupling.diagnostics.plot) of the finished bed: each panel's title says
+    what its traces are; the pressure-drop panel carries the bed's weight over the bottom area,
+    which is sum(m) g / A of the particles (final.npz) and the column (60 x 12 mm); the heat
+    balance panel draws coupling.csv's balance_residual over the heat moved (the boundaries'
+    and the exchange's heat, read from the same file)."""
+    import matplotlib.pyplot as plt
+    from coupling.diagnostics import plot
+    out, _ = bed_output
+    shown = {}
+    monkeypatch.setattr(plt, "close", lambda fig: shown.setdefault("fig", fig))
+    png = plot(out, "bed")
+    assert png == out / "coupling.png" and png.stat().st_size > 0
+    axes = shown["fig"].axes
+    titles = [a.get_title(loc="left") for a in axes]
+    assert titles[0].startswith("Mean temperature of each phase (K)")
+    assert titles[1].startswith("Heat from the particles to the gas (W)")
+    assert titles[2].startswith("Pressure drop across the bed (Pa)") and "bed weight / area" in titles[2]
+    assert titles[3].startswith("Bed height: mean height z of the particle centres")
+    assert titles[4].startswith("Heat balance of both phases: |error| relative to the heat moved")
+    d = read_csv(out / "coupling.csv")
+    fin = read_final(out / "final.npz")
+    weight = float((2500.0 * 4.0 / 3.0 * math.pi * fin["radius"] ** 3).sum()) * 9.81 / (0.06 * 0.012)
+    assert weight == pytest.approx(428.0, rel=0.05)           # 3,000 beads of 2 mm on 7.2 cm^2
+    assert d["weight_per_area"] == pytest.approx(np.full(d.size, weight), rel=1e-9)
+    dp_lines = {ln.get_label(): ln for ln in axes[2].get_lines()}
+    ref = dp_lines["bed weight / bottom area, sum(m) g / A"]
+    assert np.array_equal(ref.get_ydata(), d["weight_per_area"])
+    assert np.array_equal(dp_lines["p(bottom cell layer) - p(top cell layer)"].get_ydata(), d["dp"])
+    moved = (np.abs(d["E_walls_particles"]) + np.abs(d["E_walls_gas"]) + np.abs(d["E_open"])
+             + np.abs(d["E_sources_particles"]) + np.abs(d["E_conv_particles"]))
+    assert moved[-1] > 1.0                                      # joules through the bed's inlet and outlet
+    lines = {ln.get_label().split(":")[0]: np.asarray(ln.get_ydata(), float) for ln in axes[4].get_lines()}
+    for col in ("balance_residual", "balance_error"):
+        drawn = lines[col]
+        ok = np.isfinite(drawn)
+        assert ok.sum() >= d.size - 1                           # every row but the start (nothing moved yet)
+        assert drawn[ok] * moved[ok] == pytest.approx(np.abs(d[col][ok]), rel=1e-12)
+    assert axes[4].get_yscale() == "log"
+    # the balance closes: the residual is round-off, the error the explicit exchange's (< 5 %)
+    assert np.nanmax(lines["balance_residual"]) < 1e-9
+    assert np.nanmax(lines["balance_error"][1:]) < 0.05
