@@ -25,7 +25,7 @@ from .contact.rolling import constant_torque, epsd
 from .contact.walls import wall_distance, wall_velocity, WI
 from .neighbors import build_half_list, Box
 from .schema import Pairs, slots
-from .thermal.contact_radius import (contact_radius_pw, hertz_force, geometric_pp_inv,
+from .thermal.contact_radius import (contact_radius_pw, hertz_force, hertz_overlap, geometric_pp_inv,
                                      apply_correction, HERTZ_FORCE, HERTZ_OVERLAP)
 from .thermal.direct import direct_pp, direct_pw, direct_cg_pp, direct_cg_pw, batchelor_obrien_keff
 from .thermal.registry import DIRECT_BATCHELOR_OBRIEN
@@ -133,13 +133,6 @@ LB = slots("LB", (
     ("fty", "y of the tangential force on i (out)"),
     ("ftz", "z of the tangential force on i (out)"),
     ("kn", "the law's normal stiffness (N/m, out)"),
-    ("ahz", "Hertz contact radius sqrt(R* delta) (m, out; the root the Hertz law takes too)"),
-    ("fx", "x of the contact force on i, -F_n n + F_t (N, out)"),
-    ("fy", "y of the contact force on i (out)"),
-    ("fz", "z of the contact force on i (out)"),
-    ("cx", "x of n x F_t (N, out; i's torque is r_i times it, j's r_j times it)"),
-    ("cy", "y of n x F_t (out)"),
-    ("cz", "z of n x F_t (out)"),
 ))
 LB_SIZE = LB.SIZE
 # one block of rows for interact_rows: rows [i0, i1), the cross-block buffer (xj, xv) and its
@@ -305,7 +298,6 @@ def _batch_result(b, c, geo, res):
     b[LB.vty * L + c] = vty
     b[LB.vtz * L + c] = vtz
     b[LB.rstar * L + c] = rstar
-    b[LB.ahz * L + c] = math.sqrt(rstar * delta)
     b[LB.fn * L + c] = fn
     b[LB.ftx * L + c] = ftx
     b[LB.fty * L + c] = fty
@@ -314,12 +306,6 @@ def _batch_result(b, c, geo, res):
     b[LB.hx * L + c] = hx
     b[LB.hy * L + c] = hy
     b[LB.hz * L + c] = hz
-    b[LB.fx * L + c] = -fn * nx + ftx
-    b[LB.fy * L + c] = -fn * ny + fty
-    b[LB.fz * L + c] = -fn * nz + ftz
-    b[LB.cx * L + c] = ny * ftz - nz * fty
-    b[LB.cy * L + c] = nz * ftx - nx * ftz
-    b[LB.cz * L + c] = nx * fty - ny * ftx
 
 
 @njit(cache=True, error_model="numpy", fastmath={"nsz", "arcp", "contract", "afn", "reassoc"},
@@ -350,27 +336,20 @@ def contact_batch(b, nc, model, dt, lin_kn, vchar, kt_ratio):
 
 
 @njit(cache=True, error_model="numpy", fastmath={"nsz", "arcp", "contract", "afn", "reassoc"},
-      inline="always")
+      no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def apply_contacts(P, C, TB, prm, n, hon, blk, lb, lq, nq, acc):
     """The ``nq`` contacts queued by :func:`interact_rows` (their inputs in the batch ``lb``,
     fields :data:`LB`; row i, slot s and cross-block row kx in ``lq``): the law of all of them at
     once (:func:`contact_batch`), then, one contact after the other in queue order, the spring
-    stored, the overlap record, the heat (contact age, contact radius, conductances, fused rates,
-    friction heat), the forces and torques on i and j (or j's share in the cross-block buffer) and
-    the rolling torque. Inlined into :func:`interact_rows` (one call site): as a separate function,
-    called with every array of the bundles, the heat bed ran 1.5x slower per contact.
+    stored, the overlap record, the heat (conductances, fused rates, friction heat), the forces
+    and torques on i and j (or j's share in the cross-block buffer) and the rolling torque.
     ``acc``: (largest overlap ratio, its i, its j, direct and indirect heat rates exchanged),
     returned updated."""
     maxov, who_i, who_j, e_dir, e_ind = acc
     i0, i1, xv = blk.i0, blk.i1, blk.xv
     w, r, m, mat, f, tq = P.angular_velocity, P.radius, P.mass, P.material, P.force, P.torque
-    nb, hist, rhist = C.nb, C.hist, C.rhist
+    nb, hist, rhist, age, Hd, Hi, rnear = C.nb, C.hist, C.rhist, C.age, C.Hd, C.Hi, C.rnear
     tab, ip, fp = TB.tab, prm.ip, prm.fp
-    dt = fp[FP.dt]
-    rolling = ip[IP.rolling]
-    law = contact_law(ip, fp)
-    etar = fp[FP.etar]
-    age, Hd, Hi, rnear = C.age, C.Hd, C.Hi, C.rnear
     thi = prm.thi
     heat = hon is not None and thi[TI.heat] != 0
     dmodel = thi[TI.direct]
@@ -395,7 +374,11 @@ def apply_contacts(P, C, TB, prm, n, hon, blk, lb, lq, nq, acc):
     Q = P.heat_rate
     keff = TB.keff
     bo = dmodel == DIRECT_BATCHELOR_OBRIEN
+    dt = fp[FP.dt]
     model = ip[IP.contact]
+    rolling = ip[IP.rolling]
+    law = contact_law(ip, fp)
+    etar = fp[FP.etar]
     nown = ip[IP.nown]
     L = LAW_BATCH
     contact_batch(lb, nq, law.model, law.dt, law.lin_kn, law.vchar, law.kt_ratio)
@@ -404,39 +387,45 @@ def apply_contacts(P, C, TB, prm, n, hon, blk, lb, lq, nq, acc):
         s = lq[cq, 1]
         kx = lq[cq, 2]
         j = nb[i, s]
+        wgt = 1.0 if j < nown else 0.5
         loc = j >= i0 and j < i1
         ri = r[i]
         rj = r[j]
         mi = mat[i]
         mj = mat[j]
+        d = lb[LB.d * L + cq]
+        invd = lb[LB.invd * L + cq]
+        delta = lb[LB.delta * L + cq]
+        nx = lb[LB.nx * L + cq]
+        ny = lb[LB.ny * L + cq]
+        nz = lb[LB.nz * L + cq]
         ov = lb[LB.ov * L + cq]
         if ov > maxov:
             maxov = ov
             who_i = i
             who_j = j
-        hist[i, s, 0] = lb[LB.hx * L + cq]
-        hist[i, s, 1] = lb[LB.hy * L + cq]
-        hist[i, s, 2] = lb[LB.hz * L + cq]
+        vn = lb[LB.vn * L + cq]
+        vtx = lb[LB.vtx * L + cq]
+        vty = lb[LB.vty * L + cq]
+        vtz = lb[LB.vtz * L + cq]
+        rstar = lb[LB.rstar * L + cq]
+        fn = lb[LB.fn * L + cq]
+        ftx = lb[LB.ftx * L + cq]
+        fty = lb[LB.fty * L + cq]
+        ftz = lb[LB.ftz * L + cq]
+        kn = lb[LB.kn * L + cq]
+        hx = lb[LB.hx * L + cq]
+        hy = lb[LB.hy * L + cq]
+        hz = lb[LB.hz * L + cq]
+        hist[i, s, 0] = hx
+        hist[i, s, 1] = hy
+        hist[i, s, 2] = hz
         if hon is not None and heat:
-            wgt = 1.0 if j < nown else 0.5
-            d = lb[LB.d * L + cq]
-            invd = lb[LB.invd * L + cq]
-            delta = lb[LB.delta * L + cq]
-            vn = lb[LB.vn * L + cq]
-            vtx = lb[LB.vtx * L + cq]
-            vty = lb[LB.vty * L + cq]
-            vtz = lb[LB.vtz * L + cq]
-            rstar = lb[LB.rstar * L + cq]
-            fn = lb[LB.fn * L + cq]
-            ftx = lb[LB.ftx * L + cq]
-            fty = lb[LB.fty * L + cq]
-            ftz = lb[LB.ftz * L + cq]
-            kn = lb[LB.kn * L + cq]
             tc, vimp = _contact_age(age, i, s, vn, dt) if use_age else (0.0, 0.0)
             fel = (2.0 / 3.0) * kn * delta if model == 0 else kn * delta
             # contact radius (the dispatcher of dem.thermal.contact_radius, with R* at hand)
-            if crm == HERTZ_OVERLAP:   # hertz_overlap(rstar, delta): the batch has the root
-                rc = lb[LB.ahz * L + cq]
+            if crm == HERTZ_OVERLAP:
+                rc = hertz_overlap(rstar, delta)
             elif crm == HERTZ_FORCE:
                 rc = hertz_force(fel, rstar, tab[TAB.estar, mi, mj])
             else:
@@ -489,9 +478,9 @@ def apply_contacts(P, C, TB, prm, n, hon, blk, lb, lq, nq, acc):
                 else:
                     xv[kx, XV.psi] = 1.0 - psi
                     xv[kx, XV.qf] = qf
-        fx = lb[LB.fx * L + cq]
-        fy = lb[LB.fy * L + cq]
-        fz = lb[LB.fz * L + cq]
+        fx = -fn * nx + ftx
+        fy = -fn * ny + fty
+        fz = -fn * nz + ftz
         f[i, 0] += fx
         f[i, 1] += fy
         f[i, 2] += fz
@@ -504,9 +493,9 @@ def apply_contacts(P, C, TB, prm, n, hon, blk, lb, lq, nq, acc):
             xv[kx, XV.fy] = fy
             xv[kx, XV.fz] = fz
         # torques: (r n) x Ft on both particles
-        cx = lb[LB.cx * L + cq]
-        cy = lb[LB.cy * L + cq]
-        cz = lb[LB.cz * L + cq]
+        cx = ny * ftz - nz * fty
+        cy = nz * ftx - nx * ftz
+        cz = nx * fty - ny * ftx
         tq[i, 0] += ri * cx
         tq[i, 1] += ri * cy
         tq[i, 2] += ri * cz
@@ -519,12 +508,6 @@ def apply_contacts(P, C, TB, prm, n, hon, blk, lb, lq, nq, acc):
             xv[kx, XV.cy] = cy
             xv[kx, XV.cz] = cz
         if rolling != 0:
-            nx = lb[LB.nx * L + cq]
-            ny = lb[LB.ny * L + cq]
-            nz = lb[LB.nz * L + cq]
-            rstar = lb[LB.rstar * L + cq]
-            fn = lb[LB.fn * L + cq]
-            kn = lb[LB.kn * L + cq]
             mur = tab[TAB.mur, mi, mj]
             wx = w[i, 0] - w[j, 0]
             wy = w[i, 1] - w[j, 1]
@@ -674,117 +657,104 @@ def interact_rows(P, C, W, TB, prm, n, t, hon, blk):
     L = LAW_BATCH
     lb = np.empty(LB_SIZE * L)
     lq = np.empty((L, 3), np.int64)
-    mono = tab.shape[1] == 1   # one material: its pair constants fill the batch once
-    if mono:
-        for q in range(L):
-            lb[LB.estar * L + q] = tab[TAB.estar, 0, 0]
-            lb[LB.gstar * L + q] = tab[TAB.gstar, 0, 0]
-            lb[LB.damp * L + q] = tab[TAB.damp, 0, 0]
-            lb[LB.mu * L + q] = tab[TAB.mu, 0, 0]
     nq = 0
     acc = (maxov, who_i, who_j, 0.0, 0.0)   # the contacts' heat rates add up apart
-    # one call of apply_contacts (inlined: its body once in this function), reached when the
-    # queue is full and once more after the last row (row i1, no candidate of its own)
-    for i in range(i0, i1 + 1):
-        end = i == i1
-        if not end:
-            xi0 = x[i, 0]
-            xi1 = x[i, 1]
-            xi2 = x[i, 2]
-            ri = r[i]
-            mi = mat[i]
-        for s in range(1 if end else nnb[i]):
-            if not end:
-                j = nb[i, s]
-                wgt = 1.0 if j < nown else 0.5
-                loc = j >= i0 and j < i1
-                kx = k
-                if not loc:  # j in another block: its share waits in row kx of xv
-                    k += 1
-                    xj[kx] = j
-                    for q in range(XV_SIZE):
-                        xv[kx, q] = 0.0
-                dx = x[j, 0] - xi0
-                dy = x[j, 1] - xi1
-                dz = x[j, 2] - xi2
-                if px:
-                    dx -= Lx * math.floor(dx / Lx + 0.5)
-                if py:
-                    dy -= Ly * math.floor(dy / Ly + 0.5)
-                if pz:
-                    dz -= Lz * math.floor(dz / Lz + 0.5)
-                d2 = dx * dx + dy * dy + dz * dz
-                rs = ri + r[j]
-                if d2 >= rs * rs:
-                    hist[i, s, 0] = 0.0
-                    hist[i, s, 1] = 0.0
-                    hist[i, s, 2] = 0.0
-                    if rolling == 2:
-                        rhist[i, s, 0] = 0.0
-                        rhist[i, s, 1] = 0.0
-                        rhist[i, s, 2] = 0.0
-                    if hon is not None and heat:
-                        if not fused:
-                            Hd[i, s] = 0.0
-                        if use_age:
-                            age[i, s, 0] = 0.0
-                        if imodel >= 0 or radon:
-                            d = math.sqrt(d2)
-                            if imodel >= 0:
-                                if has_cg:
-                                    c = cgv[i]
-                                    hind = c * indirect_pp(imodel, ri / c, r[j] / c, d / c, 0.0, mi, mat[j], por[i],
-                                                           por[j], tmat, gas)
+    for i in range(i0, i1):
+        xi0 = x[i, 0]
+        xi1 = x[i, 1]
+        xi2 = x[i, 2]
+        ri = r[i]
+        mi = mat[i]
+        for s in range(nnb[i]):
+            j = nb[i, s]
+            wgt = 1.0 if j < nown else 0.5
+            loc = j >= i0 and j < i1
+            kx = k
+            if not loc:  # j in another block: its share waits in row kx of xv
+                k += 1
+                xj[kx] = j
+                for q in range(XV_SIZE):
+                    xv[kx, q] = 0.0
+            dx = x[j, 0] - xi0
+            dy = x[j, 1] - xi1
+            dz = x[j, 2] - xi2
+            if px:
+                dx -= Lx * math.floor(dx / Lx + 0.5)
+            if py:
+                dy -= Ly * math.floor(dy / Ly + 0.5)
+            if pz:
+                dz -= Lz * math.floor(dz / Lz + 0.5)
+            d2 = dx * dx + dy * dy + dz * dz
+            rs = ri + r[j]
+            if d2 >= rs * rs:
+                hist[i, s, 0] = 0.0
+                hist[i, s, 1] = 0.0
+                hist[i, s, 2] = 0.0
+                if rolling == 2:
+                    rhist[i, s, 0] = 0.0
+                    rhist[i, s, 1] = 0.0
+                    rhist[i, s, 2] = 0.0
+                if hon is not None and heat:
+                    if not fused:
+                        Hd[i, s] = 0.0
+                    if use_age:
+                        age[i, s, 0] = 0.0
+                    if imodel >= 0 or radon:
+                        d = math.sqrt(d2)
+                        if imodel >= 0:
+                            if has_cg:
+                                c = cgv[i]
+                                hind = c * indirect_pp(imodel, ri / c, r[j] / c, d / c, 0.0, mi, mat[j], por[i],
+                                                       por[j], tmat, gas)
+                            else:
+                                hind = indirect_pp(imodel, ri, r[j], d, 0.0, mi, mat[j], por[i], por[j],
+                                                   tmat, gas)
+                            if fused:
+                                qq = hind * (T[j] - T[i])
+                                Q[i] += qq
+                                if loc:
+                                    Q[j] -= qq
                                 else:
-                                    hind = indirect_pp(imodel, ri, r[j], d, 0.0, mi, mat[j], por[i], por[j],
-                                                       tmat, gas)
-                                if fused:
-                                    qq = hind * (T[j] - T[i])
-                                    Q[i] += qq
-                                    if loc:
-                                        Q[j] -= qq
-                                    else:
-                                        xv[kx, XV.q] = -qq
-                                    e_ind += wgt * abs(qq)
-                                else:
-                                    Hi[i, s] = hind
-                            if radon:
-                                rnear[i, s] = 1 if d < radrange * max(ri, r[j]) else 0
-                    continue
-                ncont += 2 if j < nown else 1
-                rj = r[j]
-                mj = mat[j]
-                lb[LB.dx * L + nq] = dx
-                lb[LB.dy * L + nq] = dy
-                lb[LB.dz * L + nq] = dz
-                lb[LB.d2 * L + nq] = d2
-                lb[LB.ri * L + nq] = ri
-                lb[LB.rj * L + nq] = rj
-                # relative velocity of the contact point of i with respect to j: its parts before the normal
-                lb[LB.sx * L + nq] = ri * w[i, 0] + rj * w[j, 0]
-                lb[LB.sy * L + nq] = ri * w[i, 1] + rj * w[j, 1]
-                lb[LB.sz * L + nq] = ri * w[i, 2] + rj * w[j, 2]
-                lb[LB.vx * L + nq] = v[i, 0] - v[j, 0]
-                lb[LB.vy * L + nq] = v[i, 1] - v[j, 1]
-                lb[LB.vz * L + nq] = v[i, 2] - v[j, 2]
-                lb[LB.hx * L + nq] = hist[i, s, 0]
-                lb[LB.hy * L + nq] = hist[i, s, 1]
-                lb[LB.hz * L + nq] = hist[i, s, 2]
-                lb[LB.mi * L + nq] = m[i]
-                lb[LB.mj * L + nq] = m[j]
-                if not mono:
-                    lb[LB.estar * L + nq] = tab[TAB.estar, mi, mj]
-                    lb[LB.gstar * L + nq] = tab[TAB.gstar, mi, mj]
-                    lb[LB.damp * L + nq] = tab[TAB.damp, mi, mj]
-                    lb[LB.mu * L + nq] = tab[TAB.mu, mi, mj]
-                lq[nq, 0] = i
-                lq[nq, 1] = s
-                lq[nq, 2] = kx
-                nq += 1
-                if nq < L:
-                    continue
-            acc = apply_contacts(P, C, TB, prm, n, hon, blk, lb, lq, nq, acc)
-            nq = 0
+                                    xv[kx, XV.q] = -qq
+                                e_ind += wgt * abs(qq)
+                            else:
+                                Hi[i, s] = hind
+                        if radon:
+                            rnear[i, s] = 1 if d < radrange * max(ri, r[j]) else 0
+                continue
+            ncont += 2 if j < nown else 1
+            rj = r[j]
+            mj = mat[j]
+            lb[LB.dx * L + nq] = dx
+            lb[LB.dy * L + nq] = dy
+            lb[LB.dz * L + nq] = dz
+            lb[LB.d2 * L + nq] = d2
+            lb[LB.ri * L + nq] = ri
+            lb[LB.rj * L + nq] = rj
+            # relative velocity of the contact point of i with respect to j: its parts before the normal
+            lb[LB.sx * L + nq] = ri * w[i, 0] + rj * w[j, 0]
+            lb[LB.sy * L + nq] = ri * w[i, 1] + rj * w[j, 1]
+            lb[LB.sz * L + nq] = ri * w[i, 2] + rj * w[j, 2]
+            lb[LB.vx * L + nq] = v[i, 0] - v[j, 0]
+            lb[LB.vy * L + nq] = v[i, 1] - v[j, 1]
+            lb[LB.vz * L + nq] = v[i, 2] - v[j, 2]
+            lb[LB.hx * L + nq] = hist[i, s, 0]
+            lb[LB.hy * L + nq] = hist[i, s, 1]
+            lb[LB.hz * L + nq] = hist[i, s, 2]
+            lb[LB.mi * L + nq] = m[i]
+            lb[LB.mj * L + nq] = m[j]
+            lb[LB.estar * L + nq] = tab[TAB.estar, mi, mj]
+            lb[LB.gstar * L + nq] = tab[TAB.gstar, mi, mj]
+            lb[LB.damp * L + nq] = tab[TAB.damp, mi, mj]
+            lb[LB.mu * L + nq] = tab[TAB.mu, mi, mj]
+            lq[nq, 0] = i
+            lq[nq, 1] = s
+            lq[nq, 2] = kx
+            nq += 1
+            if nq == L:
+                acc = apply_contacts(P, C, TB, prm, n, hon, blk, lb, lq, nq, acc)
+                nq = 0
+    acc = apply_contacts(P, C, TB, prm, n, hon, blk, lb, lq, nq, acc)
     maxov, who_i, who_j, c_dir, c_ind = acc
     e_dir += c_dir
     e_ind += c_ind
