@@ -85,56 +85,6 @@ XV = slots("XV", (
 # the block test would be computed once before it, and j's own sum would lose its fused
 # multiply-add: one block would then no longer be the serial loop bit for bit)
 XV_SIZE = XV.SIZE
-# The contacts of the pair loop are computed in batches (:func:`contact_batch`): the loop over a
-# row's candidates queues each touching pair's inputs, and once LAW_BATCH of them wait the law
-# runs over the batch as one loop the compiler turns into SIMD code (8 contacts per instruction
-# on AVX-512: the divisions and roots of the law, its cost, are shared), then the queued
-# contacts are applied in the order they were queued (the sums of every row run in the order of
-# the serial loop). The batch is one flat array, field k of contact c at k * LAW_BATCH + c: a
-# compile-time distance between fields lets the compiler prove the fields do not overlap (with
-# one array per field it would need a run-time overlap check per pair of arrays, and gives up).
-LAW_BATCH = 64
-LB = slots("LB", (
-    ("dx", "x of the centre distance x_j - x_i (m; minimum image)"),
-    ("dy", "y of the centre distance"),
-    ("dz", "z of the centre distance"),
-    ("d2", "squared centre distance (m^2)"),
-    ("ri", "radius of i (m)"),
-    ("rj", "radius of j (m)"),
-    ("sx", "x of r_i w_i + r_j w_j (m/s)"),
-    ("sy", "y of r_i w_i + r_j w_j"),
-    ("sz", "z of r_i w_i + r_j w_j"),
-    ("vx", "x of v_i - v_j (m/s)"),
-    ("vy", "y of v_i - v_j"),
-    ("vz", "z of v_i - v_j"),
-    ("hx", "x of the tangential spring: stored before, updated after (m)"),
-    ("hy", "y of the tangential spring"),
-    ("hz", "z of the tangential spring"),
-    ("mi", "mass of i (kg)"),
-    ("mj", "mass of j (kg)"),
-    ("estar", "E* of the material pair (Pa)"),
-    ("gstar", "G* of the material pair (Pa)"),
-    ("damp", "damping coefficient of the material pair"),
-    ("mu", "friction coefficient of the material pair"),
-    ("nx", "x of the unit normal from i to j (out)"),
-    ("ny", "y of the unit normal (out)"),
-    ("nz", "z of the unit normal (out)"),
-    ("d", "centre distance (m, out)"),
-    ("invd", "1 / centre distance (1/m, out)"),
-    ("delta", "overlap (m, out)"),
-    ("ov", "overlap ratio delta / min(r_i, r_j) (out)"),
-    ("rstar", "effective radius R* (m, out)"),
-    ("vn", "normal approach speed (m/s, out)"),
-    ("vtx", "x of the tangential velocity of the contact point (m/s, out)"),
-    ("vty", "y of the tangential velocity (out)"),
-    ("vtz", "z of the tangential velocity (out)"),
-    ("fn", "normal force >= 0 (N, out)"),
-    ("ftx", "x of the tangential force on i (N, out)"),
-    ("fty", "y of the tangential force on i (out)"),
-    ("ftz", "z of the tangential force on i (out)"),
-    ("kn", "the law's normal stiffness (N/m, out)"),
-))
-LB_SIZE = LB.SIZE
 # one block of rows for interact_rows: rows [i0, i1), the cross-block buffer (xj, xv) and its
 # first row k0, and where the block's fused wall heat adds up (wtot, wgap)
 Block = namedtuple("Block", "i0 i1 k0 xj xv wtot wgap")
@@ -226,323 +176,6 @@ def _rotate_history(h, i, s, nx, ny, nz):
 
 
 @njit(cache=True, error_model="numpy", fastmath={"nsz", "arcp", "contract", "afn", "reassoc"},
-      inline="always")
-def _turn_spring(hx, hy, hz, nx, ny, nz):
-    """:func:`_rotate_history` on values, without branches around the arithmetic (a batch of
-    contacts runs it as SIMD code): the spring projected onto the tangent plane, its length kept;
-    zero when it was zero or lay along the normal."""
-    old2 = hx * hx + hy * hy + hz * hz
-    hn = hx * nx + hy * ny + hz * nz
-    hx -= hn * nx
-    hy -= hn * ny
-    hz -= hn * nz
-    new2 = hx * hx + hy * hy + hz * hz
-    sc = math.sqrt(old2 / new2) if new2 > 0.0 else 0.0
-    return hx * sc, hy * sc, hz * sc
-
-
-@njit(cache=True, error_model="numpy", fastmath={"nsz", "arcp", "contract", "afn", "reassoc"},
-      inline="always")
-def _batch_geometry(b, c):
-    """Contact c of the batch ``b`` (:func:`contact_batch`) up to its law: unit normal, centre
-    distance and its inverse, overlap, normal and tangential velocity of the contact point, the
-    spring turned onto the tangent plane, R* and m*."""
-    L = LAW_BATCH
-    dx = b[LB.dx * L + c]
-    dy = b[LB.dy * L + c]
-    dz = b[LB.dz * L + c]
-    ri = b[LB.ri * L + c]
-    rj = b[LB.rj * L + c]
-    rs = ri + rj
-    d = math.sqrt(b[LB.d2 * L + c])
-    delta = rs - d
-    invd = 1.0 / d
-    nx = dx * invd
-    ny = dy * invd
-    nz = dz * invd
-    sx = b[LB.sx * L + c]
-    sy = b[LB.sy * L + c]
-    sz = b[LB.sz * L + c]
-    vrx = b[LB.vx * L + c] + sy * nz - sz * ny
-    vry = b[LB.vy * L + c] + sz * nx - sx * nz
-    vrz = b[LB.vz * L + c] + sx * ny - sy * nx
-    vn = vrx * nx + vry * ny + vrz * nz
-    vtx = vrx - vn * nx
-    vty = vry - vn * ny
-    vtz = vrz - vn * nz
-    hx, hy, hz = _turn_spring(b[LB.hx * L + c], b[LB.hy * L + c], b[LB.hz * L + c], nx, ny, nz)
-    mi = b[LB.mi * L + c]
-    mj = b[LB.mj * L + c]
-    return (nx, ny, nz, d, invd, delta, delta / min(ri, rj), vn, vtx, vty, vtz, hx, hy, hz, ri * rj / rs,
-            mi * mj / (mi + mj))
-
-
-@njit(cache=True, error_model="numpy", fastmath={"nsz", "arcp", "contract", "afn", "reassoc"},
-      inline="always")
-def _batch_result(b, c, geo, res):
-    """Contact c of the batch ``b``: its geometry (:func:`_batch_geometry`) and the law's result
-    (F_n, F_t, spring, k_n), stored (every store after every load of the contact: the compiler then
-    sees no dependence between the batch's lanes)."""
-    L = LAW_BATCH
-    nx, ny, nz, d, invd, delta, ov, vn, vtx, vty, vtz, _, _, _, rstar, _ = geo
-    fn, ftx, fty, ftz, hx, hy, hz, kn = res
-    b[LB.nx * L + c] = nx
-    b[LB.ny * L + c] = ny
-    b[LB.nz * L + c] = nz
-    b[LB.d * L + c] = d
-    b[LB.invd * L + c] = invd
-    b[LB.delta * L + c] = delta
-    b[LB.ov * L + c] = ov
-    b[LB.vn * L + c] = vn
-    b[LB.vtx * L + c] = vtx
-    b[LB.vty * L + c] = vty
-    b[LB.vtz * L + c] = vtz
-    b[LB.rstar * L + c] = rstar
-    b[LB.fn * L + c] = fn
-    b[LB.ftx * L + c] = ftx
-    b[LB.fty * L + c] = fty
-    b[LB.ftz * L + c] = ftz
-    b[LB.kn * L + c] = kn
-    b[LB.hx * L + c] = hx
-    b[LB.hy * L + c] = hy
-    b[LB.hz * L + c] = hz
-
-
-@njit(cache=True, error_model="numpy", fastmath={"nsz", "arcp", "contract", "afn", "reassoc"},
-      no_cpython_wrapper=True, no_cfunc_wrapper=True)
-def contact_batch(b, nc, model, dt, lin_kn, vchar, kt_ratio):
-    """The contact law of ``nc`` queued contacts (fields :data:`LB` of the flat batch ``b``):
-    normal, overlap, contact-point velocity, the spring turned onto the tangent plane, R*, m*
-    (:func:`_batch_geometry`), and the law of the run (ip[IP.contact]: Hertz-Mindlin or linear
-    spring-dashpot, as in :func:`_pair_law`), written back into the batch. One loop per law, each
-    with nothing but arithmetic and selects inside, so that the compiler runs it on SIMD lanes
-    (a loop holding both laws computed both on every lane: the linear law's power function made it
-    5x slower; tests/test_architecture.py checks the machine code)."""
-    L = LAW_BATCH
-    if model == 0:
-        for c in range(nc):
-            geo = _batch_geometry(b, c)
-            _, _, _, _, _, delta, _, vn, vtx, vty, vtz, hx, hy, hz, rstar, mstar = geo
-            res = hertz_mindlin(delta, vn, vtx, vty, vtz, hx, hy, hz, rstar, mstar, b[LB.estar * L + c],
-                                b[LB.gstar * L + c], b[LB.damp * L + c], b[LB.mu * L + c], dt)
-            _batch_result(b, c, geo, res)
-    else:
-        for c in range(nc):
-            geo = _batch_geometry(b, c)
-            _, _, _, _, _, delta, _, vn, vtx, vty, vtz, hx, hy, hz, rstar, mstar = geo
-            res = _pair_law(1, delta, vn, vtx, vty, vtz, hx, hy, hz, rstar, mstar, b[LB.estar * L + c],
-                            b[LB.gstar * L + c], b[LB.damp * L + c], b[LB.mu * L + c], dt, lin_kn, vchar, kt_ratio)
-            _batch_result(b, c, geo, res)
-
-
-@njit(cache=True, error_model="numpy", fastmath={"nsz", "arcp", "contract", "afn", "reassoc"},
-      no_cpython_wrapper=True, no_cfunc_wrapper=True)
-def apply_contacts(P, C, TB, prm, n, hon, blk, lb, lq, nq, acc):
-    """The ``nq`` contacts queued by :func:`interact_rows` (their inputs in the batch ``lb``,
-    fields :data:`LB`; row i, slot s and cross-block row kx in ``lq``): the law of all of them at
-    once (:func:`contact_batch`), then, one contact after the other in queue order, the spring
-    stored, the overlap record, the heat (conductances, fused rates, friction heat), the forces
-    and torques on i and j (or j's share in the cross-block buffer) and the rolling torque.
-    ``acc``: (largest overlap ratio, its i, its j, direct and indirect heat rates exchanged),
-    returned updated."""
-    maxov, who_i, who_j, e_dir, e_ind = acc
-    i0, i1, xv = blk.i0, blk.i1, blk.xv
-    w, r, m, mat, f, tq = P.angular_velocity, P.radius, P.mass, P.material, P.force, P.torque
-    nb, hist, rhist, age, Hd, Hi, rnear = C.nb, C.hist, C.rhist, C.age, C.Hd, C.Hi, C.rnear
-    tab, ip, fp = TB.tab, prm.ip, prm.fp
-    thi = prm.thi
-    heat = hon is not None and thi[TI.heat] != 0
-    dmodel = thi[TI.direct]
-    crm = thi[TI.cr]
-    crc = thi[TI.corr]
-    imodel = thi[TI.indirect]
-    radon = thi[TI.rad] >= 0
-    fric = thi[TI.fric]
-    pmodel = thi[TI.part]
-    use_age = thi[TI.age] != 0
-    thf = prm.thf
-    tmat = TB.tmat
-    gas = TB.gas
-    ereal = TB.ereal
-    cgv = heat_cg(P.cg, thi) if hon is not None else P.cg
-    has_cg = cgv.shape[0] > 0
-    por = P.por
-    qgen = P.qgen
-    dfac = thf[TF.dfactor]
-    fused = heat and thi[TI.fused] == 1
-    T = P.temperature
-    Q = P.heat_rate
-    keff = TB.keff
-    bo = dmodel == DIRECT_BATCHELOR_OBRIEN
-    dt = fp[FP.dt]
-    model = ip[IP.contact]
-    rolling = ip[IP.rolling]
-    law = contact_law(ip, fp)
-    etar = fp[FP.etar]
-    nown = ip[IP.nown]
-    L = LAW_BATCH
-    contact_batch(lb, nq, law.model, law.dt, law.lin_kn, law.vchar, law.kt_ratio)
-    for cq in range(nq):
-        i = lq[cq, 0]
-        s = lq[cq, 1]
-        kx = lq[cq, 2]
-        j = nb[i, s]
-        wgt = 1.0 if j < nown else 0.5
-        loc = j >= i0 and j < i1
-        ri = r[i]
-        rj = r[j]
-        mi = mat[i]
-        mj = mat[j]
-        d = lb[LB.d * L + cq]
-        invd = lb[LB.invd * L + cq]
-        delta = lb[LB.delta * L + cq]
-        nx = lb[LB.nx * L + cq]
-        ny = lb[LB.ny * L + cq]
-        nz = lb[LB.nz * L + cq]
-        ov = lb[LB.ov * L + cq]
-        if ov > maxov:
-            maxov = ov
-            who_i = i
-            who_j = j
-        vn = lb[LB.vn * L + cq]
-        vtx = lb[LB.vtx * L + cq]
-        vty = lb[LB.vty * L + cq]
-        vtz = lb[LB.vtz * L + cq]
-        rstar = lb[LB.rstar * L + cq]
-        fn = lb[LB.fn * L + cq]
-        ftx = lb[LB.ftx * L + cq]
-        fty = lb[LB.fty * L + cq]
-        ftz = lb[LB.ftz * L + cq]
-        kn = lb[LB.kn * L + cq]
-        hx = lb[LB.hx * L + cq]
-        hy = lb[LB.hy * L + cq]
-        hz = lb[LB.hz * L + cq]
-        hist[i, s, 0] = hx
-        hist[i, s, 1] = hy
-        hist[i, s, 2] = hz
-        if hon is not None and heat:
-            tc, vimp = _contact_age(age, i, s, vn, dt) if use_age else (0.0, 0.0)
-            fel = (2.0 / 3.0) * kn * delta if model == 0 else kn * delta
-            # contact radius (the dispatcher of dem.thermal.contact_radius, with R* at hand)
-            if crm == HERTZ_OVERLAP:
-                rc = hertz_overlap(rstar, delta)
-            elif crm == HERTZ_FORCE:
-                rc = hertz_force(fel, rstar, tab[TAB.estar, mi, mj])
-            else:
-                rc = geometric_pp_inv(ri, rj, d, invd)
-            if crc != 0:
-                rc = apply_correction(crm, crc, rc, rstar, fel, tab[TAB.estar, mi, mj], ereal[mi, mj])
-            if bo:  # Batchelor & O'Brien with the tabulated series conductivity (linear in
-                # r_c: the same for a parcel as its real law times cg)
-                hdir = dfac * batchelor_obrien_keff(rc, keff[mi, mj])
-            elif dmodel >= 0:
-                if has_cg:   # the real particles' law at the real size and age, scaled
-                    c = cgv[i]
-                    hdir = dfac * direct_cg_pp(dmodel, c, ri / c, rj / c, d / c, rc / c, mi, mj, tmat, gas,
-                                               tc / c, vimp) \
-                        * direct_pp(dmodel, ri / c, rj / c, d / c, rc / c, mi, mj, tmat, gas, tc / c, vimp)
-                else:
-                    hdir = dfac * direct_pp(dmodel, ri, rj, d, rc, mi, mj, tmat, gas, tc, vimp)
-            else:
-                hdir = 0.0
-            if imodel < 0:
-                hind = 0.0
-            elif has_cg:
-                c = cgv[i]
-                hind = c * indirect_pp(imodel, ri / c, rj / c, d / c, rc / c, mi, mj, por[i], por[j], tmat, gas)
-            else:
-                hind = indirect_pp(imodel, ri, rj, d, rc, mi, mj, por[i], por[j], tmat, gas)
-            if fused:
-                dtij = T[j] - T[i]
-                qd = hdir * dtij
-                qi = hind * dtij
-                Q[i] += qd + qi
-                if loc:
-                    Q[j] -= qd + qi
-                else:
-                    xv[kx, XV.q] = -(qd + qi)
-                e_dir += wgt * abs(qd)
-                e_ind += wgt * abs(qi)
-            else:
-                Hd[i, s] = hdir
-                if imodel >= 0:
-                    Hi[i, s] = hind
-            if radon:
-                rnear[i, s] = 1
-            if fric >= 0:
-                qf = _contact_heat(fric, tab[TAB.mu, mi, mj], thf, vtx, vty, vtz, ftx, fty, ftz, fn, vn)
-                psi = partition(pmodel, mi, mj, tmat)
-                qgen[i] += psi * qf
-                if loc:
-                    qgen[j] += (1.0 - psi) * qf
-                else:
-                    xv[kx, XV.psi] = 1.0 - psi
-                    xv[kx, XV.qf] = qf
-        fx = -fn * nx + ftx
-        fy = -fn * ny + fty
-        fz = -fn * nz + ftz
-        f[i, 0] += fx
-        f[i, 1] += fy
-        f[i, 2] += fz
-        if loc:
-            f[j, 0] -= fx
-            f[j, 1] -= fy
-            f[j, 2] -= fz
-        else:
-            xv[kx, XV.fx] = fx
-            xv[kx, XV.fy] = fy
-            xv[kx, XV.fz] = fz
-        # torques: (r n) x Ft on both particles
-        cx = ny * ftz - nz * fty
-        cy = nz * ftx - nx * ftz
-        cz = nx * fty - ny * ftx
-        tq[i, 0] += ri * cx
-        tq[i, 1] += ri * cy
-        tq[i, 2] += ri * cz
-        if loc:
-            tq[j, 0] += rj * cx
-            tq[j, 1] += rj * cy
-            tq[j, 2] += rj * cz
-        else:
-            xv[kx, XV.cx] = cx
-            xv[kx, XV.cy] = cy
-            xv[kx, XV.cz] = cz
-        if rolling != 0:
-            mur = tab[TAB.mur, mi, mj]
-            wx = w[i, 0] - w[j, 0]
-            wy = w[i, 1] - w[j, 1]
-            wz = w[i, 2] - w[j, 2]
-            wn = wx * nx + wy * ny + wz * nz
-            wx -= wn * nx
-            wy -= wn * ny
-            wz -= wn * nz
-            if rolling == 1:
-                mx, my, mz = constant_torque(wx, wy, wz, rstar, fn, mur)
-            else:
-                qx, qy, qz = _rotate_history(rhist, i, s, nx, ny, nz)
-                ii = 1.4 * m[i] * ri * ri
-                ij = 1.4 * m[j] * rj * rj
-                ir = 1.0 / (1.0 / ii + 1.0 / ij)
-                mx, my, mz, qx, qy, qz = epsd(wx, wy, wz, qx, qy, qz, rstar, fn, kn,
-                                              mur, etar, ir, dt)
-                rhist[i, s, 0] = qx
-                rhist[i, s, 1] = qy
-                rhist[i, s, 2] = qz
-            tq[i, 0] += mx
-            tq[i, 1] += my
-            tq[i, 2] += mz
-            if loc:
-                tq[j, 0] -= mx
-                tq[j, 1] -= my
-                tq[j, 2] -= mz
-            else:
-                xv[kx, XV.mx] = mx
-                xv[kx, XV.my] = my
-                xv[kx, XV.mz] = mz
-    return maxov, who_i, who_j, e_dir, e_ind
-
-
-@njit(cache=True, error_model="numpy", fastmath={"nsz", "arcp", "contract", "afn", "reassoc"},
       no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def interact_rows(P, C, W, TB, prm, n, t, hon, blk):
     """The interact phase of the rows [i0, i1) of ``blk`` (:data:`Block`): body forces, the pairs of the half list that start
@@ -603,6 +236,8 @@ def interact_rows(P, C, W, TB, prm, n, t, hon, blk):
     T = P.temperature
     Q = P.heat_rate
     wtab = W.wtab
+    keff = TB.keff
+    bo = dmodel == DIRECT_BATCHELOR_OBRIEN
     e_dir = 0.0
     e_ind = 0.0
     e_wall = 0.0
@@ -651,14 +286,6 @@ def interact_rows(P, C, W, TB, prm, n, t, hon, blk):
     who_j = -1
     ncont = 0
     k = k0
-    # the pairs: candidates in list order; a touching pair is queued (the batch lb, its row, slot
-    # and cross-block row in lq), and a full queue goes to apply_contacts (the law on SIMD lanes,
-    # then forces, torques, heat and rolling in the order the queue was filled)
-    L = LAW_BATCH
-    lb = np.empty(LB_SIZE * L)
-    lq = np.empty((L, 3), np.int64)
-    nq = 0
-    acc = (maxov, who_i, who_j, 0.0, 0.0)   # the contacts' heat rates add up apart
     for i in range(i0, i1):
         xi0 = x[i, 0]
         xi1 = x[i, 1]
@@ -723,42 +350,159 @@ def interact_rows(P, C, W, TB, prm, n, t, hon, blk):
                             rnear[i, s] = 1 if d < radrange * max(ri, r[j]) else 0
                 continue
             ncont += 2 if j < nown else 1
+            d = math.sqrt(d2)
+            delta = rs - d
+            invd = 1.0 / d
+            nx = dx * invd
+            ny = dy * invd
+            nz = dz * invd
             rj = r[j]
             mj = mat[j]
-            lb[LB.dx * L + nq] = dx
-            lb[LB.dy * L + nq] = dy
-            lb[LB.dz * L + nq] = dz
-            lb[LB.d2 * L + nq] = d2
-            lb[LB.ri * L + nq] = ri
-            lb[LB.rj * L + nq] = rj
-            # relative velocity of the contact point of i with respect to j: its parts before the normal
-            lb[LB.sx * L + nq] = ri * w[i, 0] + rj * w[j, 0]
-            lb[LB.sy * L + nq] = ri * w[i, 1] + rj * w[j, 1]
-            lb[LB.sz * L + nq] = ri * w[i, 2] + rj * w[j, 2]
-            lb[LB.vx * L + nq] = v[i, 0] - v[j, 0]
-            lb[LB.vy * L + nq] = v[i, 1] - v[j, 1]
-            lb[LB.vz * L + nq] = v[i, 2] - v[j, 2]
-            lb[LB.hx * L + nq] = hist[i, s, 0]
-            lb[LB.hy * L + nq] = hist[i, s, 1]
-            lb[LB.hz * L + nq] = hist[i, s, 2]
-            lb[LB.mi * L + nq] = m[i]
-            lb[LB.mj * L + nq] = m[j]
-            lb[LB.estar * L + nq] = tab[TAB.estar, mi, mj]
-            lb[LB.gstar * L + nq] = tab[TAB.gstar, mi, mj]
-            lb[LB.damp * L + nq] = tab[TAB.damp, mi, mj]
-            lb[LB.mu * L + nq] = tab[TAB.mu, mi, mj]
-            lq[nq, 0] = i
-            lq[nq, 1] = s
-            lq[nq, 2] = kx
-            nq += 1
-            if nq == L:
-                acc = apply_contacts(P, C, TB, prm, n, hon, blk, lb, lq, nq, acc)
-                nq = 0
-    acc = apply_contacts(P, C, TB, prm, n, hon, blk, lb, lq, nq, acc)
-    maxov, who_i, who_j, c_dir, c_ind = acc
-    e_dir += c_dir
-    e_ind += c_ind
-
+            ov = delta / min(ri, rj)
+            if ov > maxov:
+                maxov = ov
+                who_i = i
+                who_j = j
+            # relative velocity of the contact point of i with respect to j
+            sx = ri * w[i, 0] + rj * w[j, 0]
+            sy = ri * w[i, 1] + rj * w[j, 1]
+            sz = ri * w[i, 2] + rj * w[j, 2]
+            vrx = v[i, 0] - v[j, 0] + sy * nz - sz * ny
+            vry = v[i, 1] - v[j, 1] + sz * nx - sx * nz
+            vrz = v[i, 2] - v[j, 2] + sx * ny - sy * nx
+            vn = vrx * nx + vry * ny + vrz * nz
+            vtx = vrx - vn * nx
+            vty = vry - vn * ny
+            vtz = vrz - vn * nz
+            hx, hy, hz = _rotate_history(hist, i, s, nx, ny, nz)
+            rstar = ri * rj / rs
+            mstar = m[i] * m[j] / (m[i] + m[j])
+            fn, ftx, fty, ftz, hx, hy, hz, kn = _pair_law(
+                law.model, delta, vn, vtx, vty, vtz, hx, hy, hz, rstar, mstar,
+                tab[TAB.estar, mi, mj], tab[TAB.gstar, mi, mj], tab[TAB.damp, mi, mj],
+                tab[TAB.mu, mi, mj], law.dt, law.lin_kn, law.vchar, law.kt_ratio)
+            hist[i, s, 0] = hx
+            hist[i, s, 1] = hy
+            hist[i, s, 2] = hz
+            if hon is not None and heat:
+                tc, vimp = _contact_age(age, i, s, vn, dt) if use_age else (0.0, 0.0)
+                fel = (2.0 / 3.0) * kn * delta if model == 0 else kn * delta
+                # contact radius (the dispatcher of dem.thermal.contact_radius, with R* at hand)
+                if crm == HERTZ_OVERLAP:
+                    rc = hertz_overlap(rstar, delta)
+                elif crm == HERTZ_FORCE:
+                    rc = hertz_force(fel, rstar, tab[TAB.estar, mi, mj])
+                else:
+                    rc = geometric_pp_inv(ri, rj, d, invd)
+                if crc != 0:
+                    rc = apply_correction(crm, crc, rc, rstar, fel, tab[TAB.estar, mi, mj], ereal[mi, mj])
+                if bo:  # Batchelor & O'Brien with the tabulated series conductivity (linear in
+                    # r_c: the same for a parcel as its real law times cg)
+                    hdir = dfac * batchelor_obrien_keff(rc, keff[mi, mj])
+                elif dmodel >= 0:
+                    if has_cg:   # the real particles' law at the real size and age, scaled
+                        c = cgv[i]
+                        hdir = dfac * direct_cg_pp(dmodel, c, ri / c, rj / c, d / c, rc / c, mi, mj, tmat, gas,
+                                                   tc / c, vimp) \
+                            * direct_pp(dmodel, ri / c, rj / c, d / c, rc / c, mi, mj, tmat, gas, tc / c, vimp)
+                    else:
+                        hdir = dfac * direct_pp(dmodel, ri, rj, d, rc, mi, mj, tmat, gas, tc, vimp)
+                else:
+                    hdir = 0.0
+                if imodel < 0:
+                    hind = 0.0
+                elif has_cg:
+                    c = cgv[i]
+                    hind = c * indirect_pp(imodel, ri / c, rj / c, d / c, rc / c, mi, mj, por[i], por[j], tmat, gas)
+                else:
+                    hind = indirect_pp(imodel, ri, rj, d, rc, mi, mj, por[i], por[j], tmat, gas)
+                if fused:
+                    dtij = T[j] - T[i]
+                    qd = hdir * dtij
+                    qi = hind * dtij
+                    Q[i] += qd + qi
+                    if loc:
+                        Q[j] -= qd + qi
+                    else:
+                        xv[kx, XV.q] = -(qd + qi)
+                    e_dir += wgt * abs(qd)
+                    e_ind += wgt * abs(qi)
+                else:
+                    Hd[i, s] = hdir
+                    if imodel >= 0:
+                        Hi[i, s] = hind
+                if radon:
+                    rnear[i, s] = 1
+                if fric >= 0:
+                    qf = _contact_heat(fric, tab[TAB.mu, mi, mj], thf, vtx, vty, vtz, ftx, fty, ftz, fn, vn)
+                    psi = partition(pmodel, mi, mj, tmat)
+                    qgen[i] += psi * qf
+                    if loc:
+                        qgen[j] += (1.0 - psi) * qf
+                    else:
+                        xv[kx, XV.psi] = 1.0 - psi
+                        xv[kx, XV.qf] = qf
+            fx = -fn * nx + ftx
+            fy = -fn * ny + fty
+            fz = -fn * nz + ftz
+            f[i, 0] += fx
+            f[i, 1] += fy
+            f[i, 2] += fz
+            if loc:
+                f[j, 0] -= fx
+                f[j, 1] -= fy
+                f[j, 2] -= fz
+            else:
+                xv[kx, XV.fx] = fx
+                xv[kx, XV.fy] = fy
+                xv[kx, XV.fz] = fz
+            # torques: (r n) x Ft on both particles
+            cx = ny * ftz - nz * fty
+            cy = nz * ftx - nx * ftz
+            cz = nx * fty - ny * ftx
+            tq[i, 0] += ri * cx
+            tq[i, 1] += ri * cy
+            tq[i, 2] += ri * cz
+            if loc:
+                tq[j, 0] += rj * cx
+                tq[j, 1] += rj * cy
+                tq[j, 2] += rj * cz
+            else:
+                xv[kx, XV.cx] = cx
+                xv[kx, XV.cy] = cy
+                xv[kx, XV.cz] = cz
+            if rolling != 0:
+                mur = tab[TAB.mur, mi, mj]
+                wx = w[i, 0] - w[j, 0]
+                wy = w[i, 1] - w[j, 1]
+                wz = w[i, 2] - w[j, 2]
+                wn = wx * nx + wy * ny + wz * nz
+                wx -= wn * nx
+                wy -= wn * ny
+                wz -= wn * nz
+                if rolling == 1:
+                    mx, my, mz = constant_torque(wx, wy, wz, rstar, fn, mur)
+                else:
+                    qx, qy, qz = _rotate_history(rhist, i, s, nx, ny, nz)
+                    ii = 1.4 * m[i] * ri * ri
+                    ij = 1.4 * m[j] * rj * rj
+                    ir = 1.0 / (1.0 / ii + 1.0 / ij)
+                    mx, my, mz, qx, qy, qz = epsd(wx, wy, wz, qx, qy, qz, rstar, fn, kn,
+                                                  mur, etar, ir, dt)
+                    rhist[i, s, 0] = qx
+                    rhist[i, s, 1] = qy
+                    rhist[i, s, 2] = qz
+                tq[i, 0] += mx
+                tq[i, 1] += my
+                tq[i, 2] += mz
+                if loc:
+                    tq[j, 0] -= mx
+                    tq[j, 1] -= my
+                    tq[j, 2] -= mz
+                else:
+                    xv[kx, XV.mx] = mx
+                    xv[kx, XV.my] = my
+                    xv[kx, XV.mz] = mz
     # walls (candidates from the wall list built with the neighbour list)
     for i in range(i0, i1):
         ri = r[i]

@@ -152,22 +152,3 @@ def test_parts_use_each_other_through_public_members():
                     and not (isinstance(node.value, ast.Name) and node.value.id == "self")):
                 reached.append(f"dem/{name}.py:{node.lineno} .{node.attr}")
     assert reached == []
-
-
-def test_contact_batch_runs_on_simd_lanes():
-    """The pair loop's law runs over a batch of contacts as one loop (dem.step.contact_batch) so
-    that the compiler turns it into SIMD code: the divisions and roots of the law, most of its
-    cost, are then shared by 2-8 contacts per instruction. A call, an exception path or a second
-    law inside that loop silently turns it back into scalar code (5x slower per contact when the
-    linear law's power function sat in the Hertz loop): the compiled loop must hold packed
-    square roots and divisions."""
-    import re
-    import numpy as np
-    from numba import njit
-    from dem import step as K
-    fresh = njit(error_model="numpy", fastmath={"nsz", "arcp", "contract", "afn", "reassoc"})(K.contact_batch.py_func)
-    b = np.zeros(K.LB_SIZE * K.LAW_BATCH)
-    fresh(b, 0, 0, 1e-5, 0.0, 1.0, 1.0)
-    asm = fresh.inspect_asm(fresh.signatures[0])
-    assert re.search(r"\bv?sqrtpd\b", asm), "no packed square root in contact_batch"
-    assert re.search(r"\bv?divpd\b", asm), "no packed division in contact_batch"
