@@ -57,6 +57,17 @@ def times_argument(text):
     return tuple(ends)
 
 
+def time_argument(text):
+    """argparse type of ``--time``: a finite time >= 0 in seconds."""
+    try:
+        x = float(text)
+    except ValueError:
+        x = float("nan")
+    if not math.isfinite(x) or x < 0:
+        raise argparse.ArgumentTypeError(f"must be a time in seconds, finite and >= 0 (e.g. 0.1), got {text!r}")
+    return x
+
+
 def _opener(out):
     found = sorted(glob.glob(os.path.join(out, "*.foam")))
     if not found:

@@ -445,11 +445,11 @@ def main(argv=None) -> int:
     g.add_argument("out_dir", help="the --out folder of a coupling run")
     g.add_argument("--field", default="eps", help="gas field on the slice: eps (alias alpha, the default), U "
                                                   "(speed), T or p")
-    g.add_argument("--time", type=float, default=None, help="the written gas time nearest this (s; default "
-                                                           "the last)")
+    from .render import time_argument, times_argument
+    g.add_argument("--time", type=time_argument, default=None, help="the written gas time nearest this (s, >= 0; "
+                                                                    "default the last)")
     g.add_argument("--png", default=None, help="where (default OUT/gas_render.png; never a file the tool did "
                                                "not write)")
-    from .render import times_argument
     g.add_argument("--animate", action="store_true",
                    help="a short animation: one frame per written gas time (t = 0 included) into a folder of its "
                         "own, frame_0000.png ... and animation.gif, with the colour ranges of all the frames")

@@ -622,6 +622,10 @@ def test_output_opens_in_paraview_and_renders_both_phases(tmp_path, solver, bed_
         assert not PY_WARNING.search(d.stderr) and "Traceback" not in d.stderr, d.stderr
     r = render_cmd(out, "--field", "speed")
     assert r.returncode == 2 and "--field speed: allowed are" in r.stderr and "Traceback" not in r.stderr
+    for bad in ("nan", "-0.1", "soon"):   # a time that names no written time: refused, nothing written
+        r = render_cmd(out, "--time", bad, "--png", str(tmp_path / "never.png"))
+        assert r.returncode == 2 and "argument --time: must be a time in seconds" in r.stderr, r.stderr
+        assert "Traceback" not in r.stderr and not (tmp_path / "never.png").exists()
     # decomposed gas (gas_processes = 2): the same opener, read as a decomposed case
     case = copy_case("fluidized_bed_heating", tmp_path / "dcase")
     set_toml(case / "coupling.toml", gas_processes=2)
