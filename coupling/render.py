@@ -293,12 +293,7 @@ def _frames_folder(out, frames):
                                 f"of their own (default {os.path.join(out, 'gas_animation_<field>')})")
     state = outdir.check(frames, overwrite=True, what="--frames")
     if state == "output":
-        import json
-        try:
-            with open(os.path.join(frames, outdir.MANIFEST)) as fh:
-                command = json.load(fh).get("command", "")
-        except (OSError, ValueError, AttributeError):
-            command = ""
+        command = outdir.manifest_command(frames)
         if command != ANIMATION:
             raise OutputFolderError(f"--frames {frames} holds the output of `{command or 'another command'}`, not "
                                     f"an animation; nothing was touched. Give a new folder")
@@ -309,14 +304,7 @@ def _claim_frames_folder(frames):
     holds it (so that its --overwrite removes it), what an earlier animation wrote there
     removed, its own manifest written (every frame is recorded in it before it is written)."""
     from dem import outdir
-    parent = os.path.dirname(os.path.abspath(frames))
-    try:
-        listed = outdir.read_manifest(parent)
-    except outdir.OutputFolderError:
-        listed = None
-    if listed is not None and os.access(parent, os.W_OK):
-        outdir._open_existing(parent, listed)
-        outdir.claim(frames)
+    outdir.join_output(frames)
     outdir.claim_folder(frames, overwrite=True, command=ANIMATION, what="--frames")
 
 

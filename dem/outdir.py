@@ -259,17 +259,41 @@ def claim_collective(out, comm=None, root=True, **kw):
         raise OutputFolderError(err)
 
 
+def manifest_command(folder):
+    """The command recorded in ``folder``'s manifest ('' when there is none or it is unreadable)."""
+    try:
+        with open(os.path.join(folder, MANIFEST)) as fh:
+            return json.load(fh).get("command", "")
+    except (OSError, ValueError, AttributeError):
+        return ""
+
+
 def _open_existing(folder, listed):
     """Take an earlier output folder as claimed by this process, as it is (a single file is
     added to it, e.g. dem render's PNG)."""
     real = _real(folder)
     if real not in _claimed:
-        try:
-            with open(os.path.join(folder, MANIFEST)) as fh:
-                command = json.load(fh).get("command", "")
-        except (OSError, ValueError, AttributeError):
-            command = ""
-        _claimed[real] = _Folder(real, listed, command)
+        _claimed[real] = _Folder(real, listed, manifest_command(folder))
+
+
+def _join(folder, listed, path):
+    """Record ``path`` (about to be created in ``folder``) in ``folder``'s manifest when
+    ``folder`` is an output folder (``listed``: its entries, None when it is not) we may write."""
+    if listed is not None and os.access(folder, os.W_OK):
+        _open_existing(folder, listed)
+        claim(path)
+
+
+def join_output(path):
+    """Record ``path`` (a file or folder about to be created) in the manifest of the output
+    folder that directly holds it, if it is one (an unreadable or foreign manifest: not one);
+    nothing otherwise."""
+    folder = os.path.dirname(os.path.abspath(path))
+    try:
+        listed = read_manifest(folder) if os.path.isdir(folder) else None
+    except OutputFolderError:
+        listed = None
+    _join(folder, listed, path)
 
 
 def release(out):
@@ -372,6 +396,4 @@ def claim_file(path, what="--png"):
     elif not ((listed is not None and os.path.basename(path) in listed) or png_is_ours(path)):
         raise OutputFolderError(f"{what} {path} exists and was not written by this tool; it is left untouched: "
                                 "give a new file name with --png")
-    if listed is not None and os.access(folder, os.W_OK):
-        _open_existing(folder, listed)   # an output folder: the new file joins its manifest
-        claim(path)
+    _join(folder, listed, path)   # an output folder: the new file joins its manifest
