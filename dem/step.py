@@ -117,15 +117,21 @@ def pair_material(tab, mi, mj):
     return PairMaterial(tab[TAB.estar, mi, mj], tab[TAB.gstar, mi, mj], tab[TAB.damp, mi, mj], tab[TAB.mu, mi, mj])
 
 
-@njit(cache=True, error_model="numpy", fastmath={"nsz", "arcp", "contract", "afn", "reassoc"})
+@njit(cache=True, error_model="numpy", fastmath={"nsz", "arcp", "contract", "afn", "reassoc"}, inline="always")
 def _pair_law(model, delta, vn, vtx, vty, vtz, hx, hy, hz, rstar, mstar, estar, gstar,
               damp, mu, dt, lin_kn, vchar, kt_ratio):
     """The contact law of the run (``model``: ip[IP.contact], 0 Hertz-Mindlin, 1 linear spring-
     dashpot) with its scalars: normal and tangential force of one contact. It keeps the laws'
     scalar parameter list (tests/test_architecture.py, SCALAR_LAWS): taking the records
     ContactLaw / PairMaterial and 3-tuples through the call ran the shared 10k heat bed 7-10 %
-    slower (benchmarks/loop_time.py, alternated pairs), and inlining that form into the contact
-    loops changed the rotating drum's bits (fastmath across the former call boundary)."""
+    slower (benchmarks/loop_time.py, alternated pairs).
+
+    Inlined into both contact loops (issue 28): as a called function every contact spilled the
+    loop's live doubles around the call (x86-64 keeps no vector register across a call) and
+    returned its 8 values through memory; inlined, the pair loop of the shared beds runs 5-8 %
+    faster (docs/benchmarks.md, "Where a step goes"). The shared beds stay bitwise; scenes that
+    slide or roll (the rotating drum) change by round-off, as fastmath may now fuse across the
+    former call boundary."""
     if model == 0:
         return hertz_mindlin(delta, vn, vtx, vty, vtz, hx, hy, hz,
                              rstar, mstar, estar, gstar, damp, mu, dt)

@@ -152,3 +152,18 @@ def test_parts_use_each_other_through_public_members():
                     and not (isinstance(node.value, ast.Name) and node.value.id == "self")):
                 reached.append(f"dem/{name}.py:{node.lineno} .{node.attr}")
     assert reached == []
+
+
+def test_contact_law_is_inlined_into_the_contact_loops():
+    """``_pair_law`` is compiled into its two call sites (issue 28): as a called function each
+    contact spilled the pair loop's live doubles around the call and returned 8 values through
+    memory, 5-8 % of the shared beds' pair loop (docs/benchmarks.md, "Where a step goes")."""
+    tree = ast.parse((ROOT / "dem/step.py").read_text())
+    fn = next(n for n in tree.body if isinstance(n, ast.FunctionDef) and n.name == "_pair_law")
+    (dec,) = fn.decorator_list
+    options = {k.arg: k.value.value for k in dec.keywords if isinstance(k.value, ast.Constant)}
+    assert options.get("inline") == "always", options
+    calls = [n for n in ast.walk(tree) if isinstance(n, ast.Call) and getattr(n.func, "id", "") == "_pair_law"]
+    callers = {f.name for f in tree.body if isinstance(f, ast.FunctionDef)
+               for n in ast.walk(f) if n in calls}
+    assert callers == {"interact_rows"} and len(calls) == 2, (callers, len(calls))
