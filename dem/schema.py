@@ -162,6 +162,8 @@ FIELDS = (
     _f("periodic", "param", B1, doc="periodic axes"),
     _f("srcbox", "param", F8, (7,), doc="volumetric heat-source boxes: min, max, W/m^3"),
     _f("tot", "param", F8, checkpoint="th_tot", doc="heat per mechanism since the start (J; slots: dem.thermal.heat TOT)"),
+    _f("xcnt", "param", I8, scratch=True,
+       doc="pairs across blocks of rows, kept between neighbour builds (dem.step.interact_blocks; slots: dem.step XC)"),
 )
 
 BY_NAME = {f.name: f for f in FIELDS}

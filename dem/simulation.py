@@ -124,6 +124,7 @@ class Simulation:
         threads.apply(k)
         self.threads = k
         self.state.ip[K.IP.threads] = k
+        self.state.xcnt = K.cross_count_slots(k)
 
     def warmup(self):
         """Compile (or load from Numba's cache) the kernels; returns seconds spent."""

@@ -42,6 +42,15 @@ IP = slots("IP", (
     ("nown", "owned rows (the rest are ghosts)"),
     ("threads", "threads of this process: blocks of rows the kernels run at once (1: one block, serial order)"),
 ), size=8)
+# the pairs across blocks of rows (Params.xcnt), counted once per neighbour list and block count:
+# the key they were counted for (block count 0: not counted), then each block's first row of
+# interact_blocks' xj / xv; a rebuild (after_build) or a list set from Python (dem.state) clears it
+XC = slots("XC", (
+    ("nblk", "block count of the counts (0: count again)"),
+    ("n", "rows (owned and ghosts) of the counts"),
+    ("nown", "owned rows of the counts"),
+    ("start", "first of the nblk + 1 offsets: block b's pairs across blocks are rows [start + b, start + b + 1)"),
+))
 # float parameters (Params.fp)
 FP = slots("FP", (
     ("dt", "time step (s)"),
@@ -200,7 +209,8 @@ def interact_rows(P, C, W, TB, prm, n, t, hon, blk):
     where the fused wall heat of these rows adds up (the walls' own totals, or a block's part).
 
     Returns (max overlap ratio, i, j (-1-wall), 2 x contacts, direct, indirect and wall heat
-    rates exchanged (W, fused mode; the caller adds them to the totals))."""
+    rates exchanged (W, fused mode; the caller adds them to the totals), the row of xv after the
+    block's last)."""
     i0, i1, k0, xj, xv, wtot, wgap = blk.i0, blk.i1, blk.k0, blk.xj, blk.xv, blk.wtot, blk.wgap
     x, v, w, r, m, mat, f, tq = (P.position, P.velocity, P.angular_velocity, P.radius, P.mass, P.material,
                                  P.force, P.torque)
@@ -292,6 +302,7 @@ def interact_rows(P, C, W, TB, prm, n, t, hon, blk):
     who_j = -1
     ncont = 0
     k = k0
+    kcap = xv.shape[0]
     for i in range(i0, i1):
         xi0 = x[i, 0]
         xi1 = x[i, 1]
@@ -305,6 +316,8 @@ def interact_rows(P, C, W, TB, prm, n, t, hon, blk):
             kx = k
             if not loc:  # j in another block: its share waits in row kx of xv
                 k += 1
+                if kx >= kcap:  # more than counted (see interact_blocks): into the spare row
+                    kx = kcap - 1
                 xj[kx] = j
                 for q in range(XV_SIZE):
                     xv[kx, q] = 0.0
@@ -649,7 +662,7 @@ def interact_rows(P, C, W, TB, prm, n, t, hon, blk):
                 tq[i, 0] += mx
                 tq[i, 1] += my
                 tq[i, 2] += mz
-    return maxov, who_i, who_j, ncont, e_dir, e_ind, e_wall
+    return maxov, who_i, who_j, ncont, e_dir, e_ind, e_wall, k
 
 
 # fewest owned rows per block: below it a thread's share is too small to pay its start (a few
@@ -677,6 +690,33 @@ def block_bounds(nown, n, nblk):
     return bounds
 
 
+def cross_count_slots(threads):
+    """Params.xcnt for a process on ``threads`` threads: the key and room for as many blocks."""
+    return np.zeros(XC.SIZE + threads, np.int64)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def kept_cross_counts(xc, n, nown, nblk):
+    """The pairs across blocks kept in ``xc`` (Params.xcnt, slots XC) for this key (block
+    count, rows, owned rows), as interact_blocks' nblk + 1 offsets; None when they must be
+    counted (another key, or a rebuild cleared them). The count reads the whole half list, 4 %
+    of a 2-thread step of the shared 50k bed, and changes only with the list."""
+    if xc.shape[0] >= XC.start + nblk + 1 and xc[XC.nblk] == nblk and xc[XC.n] == n and xc[XC.nown] == nown:
+        return xc[XC.start:XC.start + nblk + 1].copy()
+    return None
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def keep_cross_counts(xc, cnt, n, nown, nblk):
+    """Keep the offsets ``cnt`` under their key (see kept_cross_counts), when ``xc`` has room."""
+    if xc.shape[0] >= XC.start + nblk + 1:
+        for b in range(nblk + 1):
+            xc[XC.start + b] = cnt[b]
+        xc[XC.n] = n
+        xc[XC.nown] = nown
+        xc[XC.nblk] = nblk
+
+
 @njit(cache=True, error_model="numpy", parallel=True, no_cpython_wrapper=True, no_cfunc_wrapper=True)
 def interact_blocks(P, C, W, TB, prm, n, t, hon, nblk, fused, fgen):
     """The interact phase on ``nblk`` threads: the rows cut into blocks (:func:`block_bounds`),
@@ -684,26 +724,34 @@ def interact_blocks(P, C, W, TB, prm, n, t, hon, nblk, fused, fgen):
     the pairs across two blocks give their other particle, and the blocks' wall heat. No two
     threads write the same row, and every sum runs in an order fixed by the block count: the
     result depends on the thread count (the order of a row's sum), not on the timing."""
-    bounds = block_bounds(prm.ip[IP.nown], n, nblk)
+    nown = prm.ip[IP.nown]
+    bounds = block_bounds(nown, n, nblk)
     nb, nnb = C.nb, C.nnb
-    cnt = np.zeros(nblk + 1, np.int64)
-    for b in prange(nblk):  # the pairs across blocks, counted: each block's rows of xj / xv
-        i0 = bounds[b]
-        i1 = bounds[b + 1]
-        c = 0
-        for i in range(i0, i1):
-            for s in range(nnb[i]):
-                j = nb[i, s]
-                if j < i0 or j >= i1:
-                    c += 1
-        cnt[b + 1] = c
-    for b in range(nblk):
-        cnt[b + 1] += cnt[b]
-    xj = np.empty(cnt[nblk], np.int64)
-    xv = np.empty((cnt[nblk], XV_SIZE))
+    kept = kept_cross_counts(prm.xcnt, n, nown, nblk)
+    if kept is not None:
+        cnt = kept
+    else:
+        cnt = np.zeros(nblk + 1, np.int64)
+        for b in prange(nblk):  # the pairs across blocks, counted: each block's rows of xj / xv
+            i0 = bounds[b]
+            i1 = bounds[b + 1]
+            c = 0
+            for i in range(i0, i1):
+                for s in range(nnb[i]):
+                    j = nb[i, s]
+                    if j < i0 or j >= i1:
+                        c += 1
+            cnt[b + 1] = c
+        for b in range(nblk):
+            cnt[b + 1] += cnt[b]
+        keep_cross_counts(prm.xcnt, cnt, n, nown, nblk)
+    # one spare row: a block that met more pairs across blocks than counted writes its surplus
+    # there (never past the array), and the check below stops before anything is added
+    xj = np.empty(cnt[nblk] + 1, np.int64)
+    xv = np.empty((cnt[nblk] + 1, XV_SIZE))
     wt = np.zeros((nblk, W.wtot.shape[0]))
     wg = np.zeros((nblk, W.wgap.shape[0]))
-    res = np.empty((nblk, 7))
+    res = np.empty((nblk, 8))
     for b in prange(nblk):
         r = interact_rows(P, C, W, TB, prm, n, t, hon,
                           Block(bounds[b], bounds[b + 1], cnt[b], xj, xv, wt[b], wg[b]))
@@ -714,6 +762,11 @@ def interact_blocks(P, C, W, TB, prm, n, t, hon, nblk, fused, fgen):
         res[b, 4] = r[4]
         res[b, 5] = r[5]
         res[b, 6] = r[6]
+        res[b, 7] = r[7]
+    for b in range(nblk):
+        if res[b, 7] != cnt[b + 1]:  # a neighbour list changed without after_build or dem.state
+            raise RuntimeError("internal error: the pairs across blocks of rows were not those counted "
+                               "for this neighbour list (dem.step.interact_blocks)")
     f, tq, Q, qgen, r = P.force, P.torque, P.heat_rate, P.qgen, P.radius
     for k in range(cnt[nblk]):
         j = xj[k]
@@ -762,7 +815,7 @@ def compute_forces(P, C, W, TB, prm, n, t, hon):
     fgen = hon is not None and thi[TI.heat] != 0 and thi[TI.fric] >= 0
     nblk = blocks(prm.ip)
     if nblk == 1:
-        maxov, who_i, who_j, ncont, e_dir, e_ind, e_wall = interact_rows(
+        maxov, who_i, who_j, ncont, e_dir, e_ind, e_wall, _ = interact_rows(
             P, C, W, TB, prm, n, t, hon,
             Block(np.int64(0), n, np.int64(0), np.empty(0, np.int64), np.empty((0, XV_SIZE)), W.wtot, W.wgap))
     else:
@@ -996,6 +1049,8 @@ def after_build(P, C, W, prm, n, nown, t, carry):
     heat = thi[TI.heat] != 0
     x = P.position
     nb, nnb, hist, rhist, age = C.nb, C.nnb, C.hist, C.rhist, C.age
+    if prm.xcnt.shape[0] > 0:  # a new list: the pairs across blocks are counted again
+        prm.xcnt[XC.nblk] = 0
     if not carry:
         if ip[IP.rolling] == 2:
             rhist = np.zeros(hist.shape)
