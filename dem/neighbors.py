@@ -12,7 +12,7 @@ import math
 from collections import namedtuple
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 # a box: lower and upper corner and its periodic (wrapped) axes: the domain of the minimum
 # image, or the region a cell grid covers
@@ -180,8 +180,110 @@ def _scan(i, q0, q1, order, x, r, length, periodic, reach, skin, nb, cnt):
     return cnt
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def _row_neighbours(i, grid, x, r, box, cutoff, nb, zc):
+    """Row i of the half list (the particles j > i of the 27 cells around i's within the list
+    cut-off, in cell order); returns how many there are (those beyond nb's slots are counted,
+    not stored). Writes row i of ``nb`` only, so rows can be built at once on several threads.
+    ``grid``: (cc, ncell, gwrap, cmin, ext, table, dense, order) of :func:`cell_grid`;
+    ``box``: (length, periodic) of the minimum image; ``cutoff``: (reach, skin); ``zc``: 3
+    integers of scratch, one array per thread (a tuple indexed at run time built the shared
+    50k bed's list 24 % slower)."""
+    cc, ncell, gwrap, cmin, ext, table, dense, order = grid
+    length, periodic = box
+    reach, skin = cutoff
+    cnt = np.int64(0)  # (a literal 0 would compile _scan twice)
+    for ox in range(-1, 2):
+        ax = _axis_cell(cc[i, 0], ox, ncell[0], gwrap[0], cmin[0], ext[0])
+        if ax < 0:
+            continue
+        for oy in range(-1, 2):
+            ay = _axis_cell(cc[i, 1], oy, ncell[1], gwrap[1], cmin[1], ext[1])
+            if ay < 0:
+                continue
+            # the z cells in offset order, scanned as runs of consecutive keys
+            nz = 0
+            for oz in range(-1, 2):
+                az = _axis_cell(cc[i, 2], oz, ncell[2], gwrap[2], cmin[2], ext[2])
+                if az >= 0:
+                    zc[nz] = az
+                    nz += 1
+            base = ((ax - cmin[0]) * ext[1] + (ay - cmin[1])) * ext[2] - cmin[2]
+            t = 0
+            while t < nz:
+                za = zc[t]
+                zb = za
+                while t + 1 < nz and zc[t + 1] == zb + 1:
+                    t += 1
+                    zb = zc[t]
+                t += 1
+                q0, q1 = _key_range(table, dense, base + za, base + zb)
+                cnt = _scan(i, q0, q1, order, x, r, length, periodic, reach, skin, nb, cnt)
+    return cnt
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _carry_row(i, nb, nnb, hist, rhist, age, nb_old, nnb_old, hist_old, rhist_old, age_old):
+    """Row i's history from the old list: the same pair in row i, else the pair stored the
+    other way round in row j (the spring with its sign turned). Writes row i only."""
+    rolling = rhist.shape[0] > 0
+    use_age = age.shape[0] > 0
+    for s in range(nnb[i]):
+        j = nb[i, s]
+        found = False
+        for so in range(nnb_old[i]):
+            if nb_old[i, so] == j:
+                for k in range(3):
+                    hist[i, s, k] = hist_old[i, so, k]
+                    if rolling:
+                        rhist[i, s, k] = rhist_old[i, so, k]
+                if use_age:
+                    age[i, s, 0] = age_old[i, so, 0]
+                    age[i, s, 1] = age_old[i, so, 1]
+                found = True
+                break
+        if not found:
+            for so in range(nnb_old[j]):
+                if nb_old[j, so] == i:
+                    for k in range(3):
+                        hist[i, s, k] = -hist_old[j, so, k]
+                        if rolling:
+                            rhist[i, s, k] = -rhist_old[j, so, k]
+                    if use_age:
+                        age[i, s, 0] = age_old[j, so, 0]
+                        age[i, s, 1] = age_old[j, so, 1]
+                    break
+
+
+@njit(cache=True, error_model="numpy", parallel=True)
+def _rows_threaded(nown, nthreads, grid, x, r, box, cutoff, nb, nnb, rowc):
+    """The rows of the half list (:func:`_row_neighbours`) on ``nthreads`` threads: equal blocks
+    of rows, each row written by one thread only, so the list is the same bit for bit as on one
+    thread. ``rowc[i]``: row i's count (the caller takes their largest)."""
+    slots = nb.shape[1]
+    for b in prange(nthreads):
+        i0 = (nown * b) // nthreads
+        i1 = (nown * (b + 1)) // nthreads
+        zc = np.empty(3, np.int64)
+        for i in range(i0, i1):
+            cnt = _row_neighbours(i, grid, x, r, box, cutoff, nb, zc)
+            rowc[i] = cnt
+            nnb[i] = min(cnt, slots)
+
+
+@njit(cache=True, error_model="numpy", parallel=True)
+def _carry_threaded(n, nthreads, nb, nnb, hist, rhist, age, old):
+    """The history carried over (:func:`_carry_row`) on ``nthreads`` threads, blocks of rows."""
+    nb_old, nnb_old, hist_old, rhist_old, age_old = old
+    for b in prange(nthreads):
+        i0 = (n * b) // nthreads
+        i1 = (n * (b + 1)) // nthreads
+        for i in range(i0, i1):
+            _carry_row(i, nb, nnb, hist, rhist, age, nb_old, nnb_old, hist_old, rhist_old, age_old)
+
+
 @njit(cache=True, error_model="numpy")
-def build_half_list(x, r, n, nown, dom, grid, reach, skin, slots, old):
+def build_half_list(x, r, n, nown, dom, grid, reach, skin, slots, old, nthreads):
     """Build the half list and carry the history over from ``old`` (dem.schema Pairs: its
     nb, nnb, hist, rhist, age; empty arrays for none).
 
@@ -192,6 +294,10 @@ def build_half_list(x, r, n, nown, dom, grid, reach, skin, slots, old):
     the box of occupied cells is stored (``cell_grid``), so memory grows with n, not with
     the domain. Returns (nb, nnb, hist, rhist, age, max_count). When a row overflows the
     slots the build is redone with more slots (the arrays returned are then larger).
+
+    ``nthreads`` > 1: the rows and their history on that many threads (the binning stays
+    serial); every row is written by one thread only, so the list and the history are the same
+    bit for bit as on one thread.
     """
     lo, hi, periodic = dom.lo, dom.hi, dom.periodic
     glo, ghi, gwrap = grid.lo, grid.hi, grid.periodic
@@ -200,44 +306,29 @@ def build_half_list(x, r, n, nown, dom, grid, reach, skin, slots, old):
     length = np.empty(3)
     for k in range(3):
         length[k] = hi[k] - lo[k]
-    zc = np.empty(3, np.int64)
     rolling = rhist_old.shape[0] == nb_old.shape[0] and rhist_old.shape[0] > 0
     use_age = age_old.shape[0] == nb_old.shape[0] and age_old.shape[0] > 0
+    threaded = nthreads > 1 and nown >= 2 * nthreads
+    zc = np.empty(3, np.int64)
+    grid = (cc, ncell, gwrap, cmin, ext, table, dense, order)
+    box = (length, periodic)
+    cutoff = (reach, skin)
     while True:
         nb = np.empty((n, slots), np.int32)
         nnb = np.zeros(n, np.int32)
         maxc = 0
-        for i in range(nown):
-            cnt = np.int64(0)  # (a literal 0 would compile _scan twice)
-            for ox in range(-1, 2):
-                ax = _axis_cell(cc[i, 0], ox, ncell[0], gwrap[0], cmin[0], ext[0])
-                if ax < 0:
-                    continue
-                for oy in range(-1, 2):
-                    ay = _axis_cell(cc[i, 1], oy, ncell[1], gwrap[1], cmin[1], ext[1])
-                    if ay < 0:
-                        continue
-                    # the z cells in offset order, scanned as runs of consecutive keys
-                    nz = 0
-                    for oz in range(-1, 2):
-                        az = _axis_cell(cc[i, 2], oz, ncell[2], gwrap[2], cmin[2], ext[2])
-                        if az >= 0:
-                            zc[nz] = az
-                            nz += 1
-                    base = ((ax - cmin[0]) * ext[1] + (ay - cmin[1])) * ext[2] - cmin[2]
-                    t = 0
-                    while t < nz:
-                        za = zc[t]
-                        zb = za
-                        while t + 1 < nz and zc[t + 1] == zb + 1:
-                            t += 1
-                            zb = zc[t]
-                        t += 1
-                        q0, q1 = _key_range(table, dense, base + za, base + zb)
-                        cnt = _scan(i, q0, q1, order, x, r, length, periodic, reach, skin, nb, cnt)
-            if cnt > maxc:
-                maxc = cnt
-            nnb[i] = min(cnt, slots)
+        if threaded:
+            rowc = np.zeros(nown, np.int64)
+            _rows_threaded(nown, nthreads, grid, x, r, box, cutoff, nb, nnb, rowc)
+            for i in range(nown):
+                if rowc[i] > maxc:
+                    maxc = rowc[i]
+        else:
+            for i in range(nown):
+                cnt = _row_neighbours(i, grid, x, r, box, cutoff, nb, zc)
+                if cnt > maxc:
+                    maxc = cnt
+                nnb[i] = min(cnt, slots)
         if maxc <= slots:
             break
         slots = maxc + 2
@@ -251,34 +342,12 @@ def build_half_list(x, r, n, nown, dom, grid, reach, skin, slots, old):
         age = np.zeros((n, slots, 2))
     else:
         age = np.zeros((0, 1, 2))
-    nold = nb_old.shape[0]
-    if nold == n:
-        for i in range(n):
-            for s in range(nnb[i]):
-                j = nb[i, s]
-                found = False
-                for so in range(nnb_old[i]):
-                    if nb_old[i, so] == j:
-                        for k in range(3):
-                            hist[i, s, k] = hist_old[i, so, k]
-                            if rolling:
-                                rhist[i, s, k] = rhist_old[i, so, k]
-                        if use_age:
-                            age[i, s, 0] = age_old[i, so, 0]
-                            age[i, s, 1] = age_old[i, so, 1]
-                        found = True
-                        break
-                if not found:
-                    for so in range(nnb_old[j]):
-                        if nb_old[j, so] == i:
-                            for k in range(3):
-                                hist[i, s, k] = -hist_old[j, so, k]
-                                if rolling:
-                                    rhist[i, s, k] = -rhist_old[j, so, k]
-                            if use_age:
-                                age[i, s, 0] = age_old[j, so, 0]
-                                age[i, s, 1] = age_old[j, so, 1]
-                            break
+    if nb_old.shape[0] == n:
+        if threaded:
+            _carry_threaded(n, nthreads, nb, nnb, hist, rhist, age, (nb_old, nnb_old, hist_old, rhist_old, age_old))
+        else:
+            for i in range(n):
+                _carry_row(i, nb, nnb, hist, rhist, age, nb_old, nnb_old, hist_old, rhist_old, age_old)
     return nb, nnb, hist, rhist, age, maxc
 
 

@@ -1080,7 +1080,7 @@ def rebuild(P, C, W, prm, n, t):
     fp = prm.fp
     dom = Box(prm.lo, prm.hi, prm.periodic)
     nb, nnb, hist, rhist, age, _ = build_half_list(P.position, P.radius, n, n, dom, dom, fp[FP.reach], fp[FP.skin],
-                                                   C.nb.shape[1], C)
+                                                   C.nb.shape[1], C, prm.ip[IP.threads])
     carry = C.nb.shape[0] == n  # the history was carried over (same rows); a run-time value, so that
     # after_build has one compiled form (a literal True would make a second one)
     return after_build(P, Pairs(nb, nnb, hist, rhist, age, C.Hd, C.Hi, C.rnear), W, prm, n, n, t, carry)

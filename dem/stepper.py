@@ -106,7 +106,7 @@ class Stepper:
         for _ in range(2):
             nb, nnb, hist, rhist, age, maxc = build_half_list(
                 st.position, st.radius, st.n, st.n_owned, Box(st.lo, st.hi, st.periodic), Box(glo, ghi, gwrap),
-                self.world.reach, st.fp[K.FP.skin], slots, empty)
+                self.world.reach, st.fp[K.FP.skin], slots, empty, st.ip[K.IP.threads])
             if not initial or maxc + 2 >= slots:
                 break
             slots = maxc + 2

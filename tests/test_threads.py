@@ -174,3 +174,31 @@ def test_pairs_across_blocks_kept_between_rebuilds_are_the_current_lists():
     assert fresh[-1] > 0
     assert list(st.xcnt[K.XC.n:K.XC.nown + 1]) == [n, nown]
     assert np.array_equal(st.xcnt[K.XC.start:K.XC.start + nblk + 1], fresh)
+
+
+def test_neighbour_rebuild_on_two_threads_is_the_serial_list():
+    """The rows of the half list and their carried-over history are built on the run's threads
+    (dem.neighbors.build_half_list, nthreads > 1), each row by one thread: the list, its counts
+    and every history slot (tangential spring, rolling spring) are those of one thread, bit for
+    bit, for a bed in motion whose springs are loaded."""
+    from dem import Simulation
+    from dem import step as K
+    from dem.neighbors import Box, build_half_list
+    sim = Simulation.from_file(SCENE)
+    sim.set_threads(2)
+    sim.step(3000)  # the beads have landed: thousands of loaded springs
+    st = sim.state
+    C = st.bundles()[1]
+    assert np.count_nonzero(C.hist) > 1000 and np.count_nonzero(C.rhist) > 1000
+    dom = Box(st.lo, st.hi, st.periodic)
+    st.position[:] += 1e-5 * np.sin(np.arange(st.position.size)).reshape(st.position.shape)  # a new list
+    builds = [build_half_list(st.position, st.radius, st.n, st.n_owned, dom, dom, sim.stepper.world.reach,
+                              st.fp[K.FP.skin], C.nb.shape[1], C, k) for k in (1, 2)]
+    (nb1, nnb1, h1, rh1, a1, m1), (nb2, nnb2, h2, rh2, a2, m2) = builds
+    assert m1 == m2 and np.array_equal(nnb1, nnb2)
+    used = np.arange(nb1.shape[1])[None, :] < nnb1[:, None]
+    assert np.array_equal(nb1[used], nb2[used])
+    assert not np.array_equal(nnb1, C.nnb)  # the list changed, and the history followed it
+    for a, b in ((h1, h2), (rh1, rh2), (a1, a2)):
+        assert np.array_equal(a, b)
+    assert np.count_nonzero(h1) > 1000
