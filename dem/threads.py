@@ -1,7 +1,8 @@
 """Threads inside a process: how many, and asking Numba for them.
 
-A process runs its pair loop, walls and kicks on ``k`` threads by cutting its rows into ``k``
-blocks (dem.step.interact_blocks): no two threads write the same row, and every sum runs in an
+A process runs its pair loop, walls, kicks and neighbour rebuild on ``k`` threads by cutting its
+rows into ``k`` blocks (dem.step.interact_blocks, dem.neighbors.build_half_list): no two threads
+write the same row, and every sum runs in an
 order fixed by ``k``, so a run is deterministic for a given thread count (results differ from
 another count at round-off, as with another number of MPI ranks). ``--threads auto`` (the
 command line's default) takes the cores this process may run on (its CPU affinity, which
