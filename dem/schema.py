@@ -163,7 +163,7 @@ FIELDS = (
     _f("srcbox", "param", F8, (7,), doc="volumetric heat-source boxes: min, max, W/m^3"),
     _f("tot", "param", F8, checkpoint="th_tot", doc="heat per mechanism since the start (J; slots: dem.thermal.heat TOT)"),
     _f("xcnt", "param", I8, scratch=True,
-       doc="pairs across blocks of rows, kept between neighbour builds (dem.step.interact_blocks; slots: dem.step XC)"),
+       doc="pairs across blocks of rows, kept between neighbour builds (dem.step.interact_blocks; slots: XC)"),
 )
 
 BY_NAME = {f.name: f for f in FIELDS}
@@ -221,3 +221,15 @@ def slots(name, rows, size=None):
     t.MEANING = meaning
     t.__doc__ = f"Slots of {name}: " + "; ".join(f"{a} = {i}: {meaning[a]}" for a, i in zip(names, first))
     return t(*first)
+
+
+# the slots of Params.xcnt: the pairs across blocks of rows, counted once per neighbour list and
+# block count (dem.step.interact_blocks): the key they were counted for (block count 0: not
+# counted), then each block's first row of interact_blocks' xj / xv; a rebuild (dem.step.after_build)
+# or a list set from Python (dem.state) clears the key
+XC = slots("XC", (
+    ("nblk", "block count of the counts (0: count again)"),
+    ("n", "rows (owned and ghosts) of the counts"),
+    ("nown", "owned rows of the counts"),
+    ("start", "first of the nblk + 1 offsets: block b's pairs across blocks are rows [start + b, start + b + 1)"),
+))

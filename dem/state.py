@@ -112,7 +112,7 @@ class State:
         if name in S.BY_NAME:  # a declared array replaced: the bundles are made again
             self.__dict__["_bundles"] = None
         if name in ("nb", "nnb") and self.__dict__.get("xcnt") is not None and self.xcnt.shape[0] > 0:
-            self.xcnt[0] = 0  # another neighbour list: the pairs across blocks are counted again (dem.step XC)
+            self.xcnt[S.XC.nblk] = 0  # another neighbour list: the pairs across blocks are counted again
         object.__setattr__(self, name, value)
 
     def bundles(self):

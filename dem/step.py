@@ -24,7 +24,7 @@ from .contact.linear import linear_spring_dashpot
 from .contact.rolling import constant_torque, epsd
 from .contact.walls import wall_distance, wall_velocity, WI
 from .neighbors import build_half_list, Box
-from .schema import Pairs, slots
+from .schema import Pairs, XC, slots
 from .thermal.contact_radius import (contact_radius_pw, hertz_force, hertz_overlap, geometric_pp_inv,
                                      apply_correction, HERTZ_FORCE, HERTZ_OVERLAP)
 from .thermal.direct import direct_pp, direct_pw, direct_cg_pp, direct_cg_pw, batchelor_obrien_keff
@@ -42,15 +42,6 @@ IP = slots("IP", (
     ("nown", "owned rows (the rest are ghosts)"),
     ("threads", "threads of this process: blocks of rows the kernels run at once (1: one block, serial order)"),
 ), size=8)
-# the pairs across blocks of rows (Params.xcnt), counted once per neighbour list and block count:
-# the key they were counted for (block count 0: not counted), then each block's first row of
-# interact_blocks' xj / xv; a rebuild (after_build) or a list set from Python (dem.state) clears it
-XC = slots("XC", (
-    ("nblk", "block count of the counts (0: count again)"),
-    ("n", "rows (owned and ghosts) of the counts"),
-    ("nown", "owned rows of the counts"),
-    ("start", "first of the nblk + 1 offsets: block b's pairs across blocks are rows [start + b, start + b + 1)"),
-))
 # float parameters (Params.fp)
 FP = slots("FP", (
     ("dt", "time step (s)"),

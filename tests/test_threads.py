@@ -144,7 +144,7 @@ def _cross_counts(nb, nnb, bounds):
 
 
 def test_pairs_across_blocks_kept_between_rebuilds_are_the_current_lists():
-    """The offsets of the pairs across blocks are counted once per neighbour list (dem.step XC).
+    """The offsets of the pairs across blocks are counted once per neighbour list (dem.schema XC).
     One compiled call of 300 steps, with rebuilds inside it, keeps them between steps and counts
     them again after each rebuild; 300 calls of one step count them every step (each call sets
     the list from Python). Both runs must be the same bit for bit, and the kept offsets must be
