@@ -310,7 +310,7 @@ def heat_step():
     the argument types of dem.step.heat_phase's call."""
     from .thermal.heat import heat_step as kernel
     st = _state(True)
-    _compile(kernel, (*st.bundles(), st.n, st.n_owned, 1e-5, 0.0))
+    _compile(kernel, (*st.bundles(), st.n, st.n_owned, 1e-5, 0.0, 1))
 
 
 def mechanics():

@@ -23,6 +23,7 @@ from .contact.hertz_mindlin import hertz_mindlin
 from .contact.linear import linear_spring_dashpot
 from .contact.rolling import constant_torque, epsd
 from .contact.walls import wall_distance, wall_velocity, WI
+from .blocks import block_bounds, block_count
 from .neighbors import build_half_list, Box
 from .schema import Pairs, XC, slots
 from .thermal.contact_radius import (contact_radius_pw, hertz_force, hertz_overlap, geometric_pp_inv,
@@ -656,29 +657,11 @@ def interact_rows(P, C, W, TB, prm, n, t, hon, blk):
     return maxov, who_i, who_j, ncont, e_dir, e_ind, e_wall, k
 
 
-# fewest owned rows per block: below it a thread's share is too small to pay its start (a few
-# microseconds per parallel loop); the block count is then lowered, which keeps small scenes serial
-MIN_BLOCK_ROWS = 1024
-
-
 @njit(cache=True, error_model="numpy", inline="always")
 def blocks(ip):
-    """How many blocks of rows the kernels run at once: the threads asked for (ip[IP.threads]),
-    at most one per MIN_BLOCK_ROWS owned rows. A function of the thread count and the owned
-    rows alone, so that a run is deterministic for a given thread count."""
-    return max(1, min(ip[IP.threads], ip[IP.nown] // MIN_BLOCK_ROWS))
-
-
-@njit(cache=True, error_model="numpy", inline="always")
-def block_bounds(nown, n, nblk):
-    """Rows of each block: equal shares of the owned rows (the particles are stored in cell
-    order, dem.neighbors.sort_permutation: a block is a slab of the domain, and most pairs stay
-    inside one); the ghosts [nown, n) join the last block."""
-    bounds = np.empty(nblk + 1, np.int64)
-    for b in range(nblk):
-        bounds[b] = (nown * b) // nblk
-    bounds[nblk] = n
-    return bounds
+    """How many blocks of rows the kernels run at once (dem.blocks.block_count) for the threads
+    asked for (ip[IP.threads]) and the owned rows (ip[IP.nown])."""
+    return block_count(ip[IP.threads], ip[IP.nown])
 
 
 def cross_count_slots(threads):
@@ -1095,7 +1078,7 @@ def kick_guard(P, prm, nown, maxov, who_i, who_j):
 def heat_phase(P, C, W, TB, prm, n, nown, t):
     """Phase "heat": one thermal step of the owned rows on the conductances of the force
     evaluation (dem.thermal.heat.heat_step); (BAD_TEMPERATURE, particle, value) or (OK, -1, 0)."""
-    badt = heat_step(P, C, W, TB, prm, n, nown, prm.fp[FP.dt], t)
+    badt = heat_step(P, C, W, TB, prm, n, nown, prm.fp[FP.dt], t, blocks(prm.ip))
     if badt >= 0:
         return BAD_TEMPERATURE, badt, P.temperature[badt]
     return OK, -1, 0.0

@@ -24,7 +24,7 @@ the temperatures with either
 import math
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 from .convection import convection_conductance, nusselt_gas
 from .radiation import (SIGMA_SB, radiation_accumulate, radiation_env_temperature, radiation_heat,
@@ -34,6 +34,7 @@ from .registry import EMISSIVITY, KF, RHO_F, MU_F, PR, RAD_KRAUSE_2017
 from .implicit import jacobi_pcg, CG_RTOL
 from ..neighbors import pair_distance
 from ..contact.walls import WF, WI, PLANE, wall_distance
+from ..blocks import block_bounds
 from ..schema import slots
 
 # integer thermal parameters (Params.thi; -1: the model is off)
@@ -151,7 +152,7 @@ def wall_radiation_now(P, C, W, TB, prm, nown, t, k, out):
     wgt = np.zeros((nown, wth.shape[0]))
     aw0 = np.zeros(nown)
     aw1 = np.zeros(nown)
-    wall_radiation_weights(rad, nown, x, r, W, t, prm.thf[TF.radrange], wgt, aw0, aw1)
+    wall_radiation_weights(rad, 0, nown, x, r, W, t, prm.thf[TF.radrange], wgt, aw0, aw1)
     for i in range(nown):
         if wgt[i, k] <= 0.0:
             continue
@@ -162,14 +163,14 @@ def wall_radiation_now(P, C, W, TB, prm, nown, t, k, out):
 
 
 @njit(cache=True, error_model="numpy")
-def wall_radiation_weights(rad, m, x, r, W, t, srange, wgt, aw0, aw1):
+def wall_radiation_weights(rad, i0, i1, x, r, W, t, srange, wgt, aw0, aw1):
     """The radiating walls ``W`` (dem.schema Walls) in each sphere of influence
-    (dem.thermal.radiation, walls): for rows [0, m), wgt[i, w] the weight of wall w (fixed
+    (dem.thermal.radiation, walls): for rows [i0, i1), wgt[i, w] the weight of wall w (fixed
     temperature, emissivity > 0, its surface within srange r_i of the centre) and the wall
     accumulators (aw0, aw1) of particle i."""
     wf, wi, wth, wtab = W.wf, W.wi, W.wth, W.wtab
     nw = wth.shape[0]
-    for i in range(m):
+    for i in range(i0, i1):
         s = srange * r[i]
         for w in range(nw):
             ew = wth[w, WT.emis]
@@ -185,11 +186,13 @@ def wall_radiation_weights(rad, m, x, r, W, t, srange, wgt, aw0, aw1):
 
 
 @njit(cache=True, error_model="numpy")
-def wall_radiation_parts(rad, eps_i, R_i, T_i, T_e, acc1_i, aw1_i, wgt_i, W, t, scale):
+def wall_radiation_parts(rad, eps_i, R_i, T_i, T_e, acc1_i, aw1_i, wgt_i, W, rec, t, scale):
     """Add each wall's part of particle i's radiation rate (radiation_wall_rate), times
-    ``scale``, to the walls' totals W.wtot and W.wrad (``W``: dem.schema Walls); returns the
-    sum of the parts (W, before the scale)."""
-    wth, wtab, wtot, wrad = W.wth, W.wtab, W.wtot, W.wrad
+    ``scale``, to the walls' records ``rec`` = (wtot, wrad): W.wtot and W.wrad of the walls ``W``
+    (dem.schema Walls), or a block's share of them. Returns the sum of the parts (W, before the
+    scale)."""
+    wth, wtab = W.wth, W.wtab
+    wtot, wrad = rec
     q = 0.0
     for w in range(wgt_i.shape[0]):
         g = wgt_i[w]
@@ -204,8 +207,8 @@ def wall_radiation_parts(rad, eps_i, R_i, T_i, T_e, acc1_i, aw1_i, wgt_i, W, t, 
 
 
 @njit(cache=True, error_model="numpy")
-def explicit_heat(m, n, x, r, qgen, qsrc, srcbox, dt, Q, tot):
-    """Add the explicit heat rates of rows [0, m) to Q (W): friction/impact generation qgen,
+def explicit_heat(i0, i1, n, x, r, qgen, qsrc, srcbox, dt, Q, tot):
+    """Add the explicit heat rates of rows [i0, i1) to Q (W): friction/impact generation qgen,
     per-particle sources qsrc, and the volumetric source boxes of srcbox (rows
     [xlo, ylo, zlo, xhi, yhi, zhi, W/m3]); their energies over dt go to the run totals
     (TOT.gen, TOT.src). qgen / qsrc are empty (not of n rows) when off. Serves every integrator."""
@@ -214,7 +217,7 @@ def explicit_heat(m, n, x, r, qgen, qsrc, srcbox, dt, Q, tot):
     has_gen = qgen.shape[0] == n
     has_src = qsrc.shape[0] == n
     nbox = srcbox.shape[0]
-    for i in range(m):
+    for i in range(i0, i1):
         if has_gen:
             Q[i] += qgen[i]
             eg += qgen[i] * dt
@@ -232,7 +235,7 @@ def explicit_heat(m, n, x, r, qgen, qsrc, srcbox, dt, Q, tot):
 
 
 @njit(cache=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
-def heat_step(P, C, W, TB, prm, n, nown, dt, t):
+def heat_step(P, C, W, TB, prm, n, nown, dt, t, nblk):
     """Advance the temperatures of rows [0, nown) by dt (rows [nown, n) are ghosts: another
     rank advances them). Q receives the net heat rate of each particle (W).
 
@@ -243,14 +246,17 @@ def heat_step(P, C, W, TB, prm, n, nown, dt, t):
     two particles' cross-rank rates lam_i = sum_cross H / C_i (work[:, 1], filled for ghosts
     by the caller): both ranks compute the same e (conservative), phi -> dt for small steps,
     and for any step each particle moves by a convex combination (bounded).
+
+    The links of each particle to its reservoirs (walls, gas, radiation environment) and the
+    explicit terms are updated row by row on ``nblk`` blocks of rows at once (dem.blocks;
+    _link_blocks): a row's arithmetic is the same on any number of threads, so the temperatures
+    do not depend on it; the run totals are summed per block, then in block order. The pair
+    sweeps and the radiation accumulators stay serial.
     P, C, W, TB, prm: the bundles of dem.schema (particles, pairs, walls, tables, parameters)."""
-    T, cinv, Q, v, r, x, mat = (P.temperature, P.inv_heat_capacity, P.heat_rate, P.velocity, P.radius,
-                                P.position, P.material)
-    wnb, wnn, Hw, tf, uf, por, qgen, qsrc, work = P.wnb, P.wnn, P.Hw, P.tf, P.uf, P.por, P.qgen, P.qsrc, P.work
+    T, cinv, Q = P.temperature, P.inv_heat_capacity, P.heat_rate
+    qgen, qsrc, work = P.qgen, P.qsrc, P.work
     nb, nnb, Hd, Hi, rnear = C.nb, C.nnb, C.Hd, C.Hi, C.rnear
-    wth, wtab, wtot, tmat, gas = W.wth, W.wtab, W.wtot, TB.tmat, TB.gas
-    Hwg, wgap, cgv = P.Hwg, W.wgap, heat_cg(P.cg, prm.thi)
-    has_wg = Hwg.shape[0] == n
+    wth, tmat = W.wth, TB.tmat
     thi, tot, srcbox = prm.thi, prm.tot, prm.srcbox
     integ = thi[TI.integ]
     has_ind = Hi.shape[0] == n
@@ -281,11 +287,10 @@ def heat_step(P, C, W, TB, prm, n, nown, dt, t):
     expo = integ != 0
     fwd = np.int64(1)  # the sweep direction as a run-time value: one compiled _pair_sweep (a literal
     # argument compiles one form per constant)
-    if expo:
-        hs = np.zeros(n)
-        hts = np.zeros(n)
-        if nown < n and not fused:
-            _cross_exchange(nown, dt, T, cinv, nb, nnb, Hd, Hi, has_ind, work, tot)
+    hs = np.zeros(n if expo else 0)    # sum of a particle's reservoir conductances (W/K)
+    hts = np.zeros(n if expo else 0)   # and of conductance x reservoir temperature (W)
+    if expo and nown < n and not fused:
+        _cross_exchange(nown, dt, T, cinv, nb, nnb, Hd, Hi, has_ind, work, tot)
     if not fused:
         if integ == 0:
             _pair_sweep(nown, dt, T, cinv, Q, C, has_ind, integ, fwd, tot)
@@ -293,46 +298,83 @@ def heat_step(P, C, W, TB, prm, n, nown, dt, t):
             _pair_sweep(nown, 0.5 * dt, T, cinv, Q, C, has_ind, integ, fwd, tot)
     # ---- radiation environment (from the temperatures after the first pair half-sweep)
     if rad >= 0:
-        acc0, acc1 = radiation_accumulators(rad, n, n, T, r, mat, tmat, nb, nnb, rnear)
+        acc0, acc1 = radiation_accumulators(rad, n, n, T, P.radius, P.material, tmat, nb, nnb, rnear)
+    else:
+        acc0 = np.zeros(0)
+        acc1 = np.zeros(0)
     # radiating walls (fixed temperature, emissivity > 0) in the spheres of influence
     wr = rad >= 0 and thi[TI.wrad] == 1
     wgt = np.zeros((nown if wr else 0, wth.shape[0]))
     aw0 = np.zeros(nown if wr else 0)
     aw1 = np.zeros(nown if wr else 0)
-    if wr:
-        wall_radiation_weights(rad, nown, x, r, W, t, prm.thf[TF.radrange], wgt, aw0, aw1)
-    # ---- reservoir links: fixed-temperature walls, gas (convection), radiation environment.
-    # Euler: explicit rates into Q. Exponential: all links of a particle together relax it
-    # exactly towards their conductance-weighted temperature (steady state exact, bounded,
-    # any step); radiation enters with its secant conductance eps sigma A (Te^2+T^2)(Te+T).
-    for i in range(nown if not fused else 0):
-        for q in range(wnn[i]):
-            h = Hw[i, q]
-            if h <= 0.0:
-                continue
-            w = wnb[i, q]
-            cond = wth[w, WT.cond]
-            if cond == 1.0:
-                tw = wall_temperature(wth, wtab, w, t)
-                if expo:
-                    hs[i] += h
-                    hts[i] += h * tw
-                    continue
-                qq = h * (tw - T[i])
-                if has_wg:
-                    wgap[w] += Hwg[i, q] * (tw - T[i]) * dt
-            elif cond == 2.0:
-                qq = h * wth[w, WT.q]  # fixed flux: explicit in both schemes
-            else:
-                continue
-            Q[i] += qq
-            wtot[w] += qq * dt
-            tot[TOT.wall] += qq * dt
     hconv = np.zeros(n if conv >= 0 else 0)
+    hrad = np.zeros(n if rad >= 0 else 0)
+    tenv = np.zeros(n if rad >= 0 else 0)
+    links = (acc0, acc1, wgt, aw0, aw1, hs, hts, hconv, hrad, tenv)
+    # ---- reservoir links, row by row (_link_rows)
+    if nblk == 1:
+        _link_rows(P, W, TB, prm, 0, nown, dt, t, fused, expo, links, (tot, W.wtot, W.wgap, W.wrad))
+    else:
+        _link_blocks(P, W, TB, prm, nown, dt, t, fused, expo, links, nblk)
+    if not fused and expo:
+        _pair_sweep(nown, 0.5 * dt, T, cinv, Q, C, has_ind, integ, -fwd, tot)
+    # ---- explicit terms (generation, sources, fixed fluxes), the update and its guard, row by row
+    if nblk == 1:
+        return _finish_rows(P, prm, 0, nown, n, dt, expo, tot)
+    return _finish_blocks(P, prm, nown, n, dt, expo, nblk)
+
+
+@njit(cache=True, error_model="numpy")
+def _link_rows(P, W, TB, prm, i0, i1, dt, t, fused, expo, links, rec):
+    """The links of the rows [i0, i1) to their reservoirs: fixed-temperature walls, gas
+    (convection), radiation environment (heat_step). Euler: explicit rates into Q. Exponential:
+    all links of a particle together relax it exactly towards their conductance-weighted
+    temperature (steady state exact, bounded, any step); radiation enters with its secant
+    conductance eps sigma A (Te^2+T^2)(Te+T). Reads and writes rows [i0, i1) only (``links``:
+    heat_step's per-row arrays); the run totals and the walls' records go to ``rec`` = (tot,
+    wtot, wgap, wrad): prm.tot and W's own records on one block, the block's share else."""
+    tot, wtot, wgap, wrad = rec
+    T, cinv, Q, v, r, x, mat = (P.temperature, P.inv_heat_capacity, P.heat_rate, P.velocity, P.radius,
+                                P.position, P.material)
+    wnb, wnn, Hw, tf, uf, por = P.wnb, P.wnn, P.Hw, P.tf, P.uf, P.por
+    wth, wtab, tmat, gas = W.wth, W.wtab, TB.tmat, TB.gas
+    Hwg, cgv = P.Hwg, heat_cg(P.cg, prm.thi)
+    has_wg = Hwg.shape[0] == T.shape[0]
+    thi = prm.thi
+    conv = thi[TI.conv]
+    rad = thi[TI.rad]
+    wr = rad >= 0 and thi[TI.wrad] == 1
+    acc0, acc1, wgt, aw0, aw1, hs, hts, hconv, hrad, tenv = links
+    if wr:
+        wall_radiation_weights(rad, i0, i1, x, r, W, t, prm.thf[TF.radrange], wgt, aw0, aw1)
+    if not fused:
+        for i in range(i0, i1):
+            for q in range(wnn[i]):
+                h = Hw[i, q]
+                if h <= 0.0:
+                    continue
+                w = wnb[i, q]
+                cond = wth[w, WT.cond]
+                if cond == 1.0:
+                    tw = wall_temperature(wth, wtab, w, t)
+                    if expo:
+                        hs[i] += h
+                        hts[i] += h * tw
+                        continue
+                    qq = h * (tw - T[i])
+                    if has_wg:
+                        wgap[w] += Hwg[i, q] * (tw - T[i]) * dt
+                elif cond == 2.0:
+                    qq = h * wth[w, WT.q]  # fixed flux: explicit in both schemes
+                else:
+                    continue
+                Q[i] += qq
+                wtot[w] += qq * dt
+                tot[TOT.wall] += qq * dt
     if conv >= 0:
-        convection_conductances(nown, v, r, cgv, uf, por, gas, conv, hconv)
+        _convection_rows(i0, i1, v, r, cgv, uf, por, gas, conv, hconv)
         ec = 0.0
-        for i in range(nown):
+        for i in range(i0, i1):
             h = hconv[i]
             if expo:
                 hs[i] += h
@@ -342,11 +384,9 @@ def heat_step(P, C, W, TB, prm, n, nown, dt, t):
                 Q[i] += qq
                 ec += qq * dt
         tot[TOT.conv] += ec
-    hrad = np.zeros(n if rad >= 0 else 0)
-    tenv = np.zeros(n if rad >= 0 else 0)
     if rad >= 0:
         er = 0.0
-        for i in range(nown):
+        for i in range(i0, i1):
             walls_i = wr and aw1[i] > 0.0
             if walls_i:
                 te = radiation_env_temperature_walls(rad, acc0[i], acc1[i], aw0[i], aw1[i], por[i], tf[i], T[i])
@@ -365,12 +405,13 @@ def heat_step(P, C, W, TB, prm, n, nown, dt, t):
                 Q[i] += qq
                 qw = 0.0   # the walls' parts go to their records, the rest to TOT.rad
                 if walls_i:
-                    qw = wall_radiation_parts(rad, eps_i, r[i], T[i], te, acc1[i], aw1[i], wgt[i], W, t, dt)
+                    qw = wall_radiation_parts(rad, eps_i, r[i], T[i], te, acc1[i], aw1[i], wgt[i], W,
+                                              (wtot, wrad), t, dt)
                     tot[TOT.wall] += qw * dt
                 er += (qq - qw) * dt
         tot[TOT.rad] += er
     if expo:
-        for i in range(nown):
+        for i in range(i0, i1):
             if hs[i] <= 0.0:
                 continue
             ti = T[i]
@@ -397,31 +438,83 @@ def heat_step(P, C, W, TB, prm, n, nown, dt, t):
                 tot[TOT.conv] += f * hconv[i] * (tf[i] - ti)
             if rad >= 0:
                 if wr and aw1[i] > 0.0:
-                    qw = wall_radiation_parts(rad, own_emissivity(tmat, mat, cgv, i), r[i], ti, tenv[i], acc1[i], aw1[i],
-                                              wgt[i], W, t, f)
+                    qw = wall_radiation_parts(rad, own_emissivity(tmat, mat, cgv, i), r[i], ti, tenv[i], acc1[i],
+                                              aw1[i], wgt[i], W, (wtot, wrad), t, f)
                     tot[TOT.wall] += f * qw
                     tot[TOT.rad] += f * (hrad[i] * (tenv[i] - ti) - qw)
                 else:
                     tot[TOT.rad] += f * hrad[i] * (tenv[i] - ti)
-    if not fused and expo:
-        _pair_sweep(nown, 0.5 * dt, T, cinv, Q, C, has_ind, integ, -fwd, tot)
-    # ---- explicit terms: generation, sources, fixed fluxes (Q)
+
+
+@njit(cache=True, error_model="numpy", parallel=True)
+def _link_blocks(P, W, TB, prm, nown, dt, t, fused, expo, links, nblk):
+    """:func:`_link_rows` of the owned rows on ``nblk`` blocks of rows at once, each block's
+    totals and wall records apart, then added in block order (deterministic for a thread count)."""
+    bounds = block_bounds(nown, nown, nblk)
+    tb = np.zeros((nblk, prm.tot.shape[0]))
+    wtb = np.zeros((nblk, W.wtot.shape[0]))
+    wgb = np.zeros((nblk, W.wgap.shape[0]))
+    wrb = np.zeros((nblk, W.wrad.shape[0]))
+    for b in prange(nblk):
+        _link_rows(P, W, TB, prm, bounds[b], bounds[b + 1], dt, t, fused, expo, links,
+                   (tb[b], wtb[b], wgb[b], wrb[b]))
+    _add_block_records(prm.tot, W.wtot, W.wgap, W.wrad, tb, wtb, wgb, wrb)
+
+
+@njit(cache=True, error_model="numpy")
+def _add_block_records(tot, wtot, wgap, wrad, tb, wtb, wgb, wrb):
+    """Add the blocks' totals and wall records, in block order."""
+    for b in range(tb.shape[0]):
+        for k in range(tot.shape[0]):
+            tot[k] += tb[b, k]
+        for k in range(wtot.shape[0]):
+            wtot[k] += wtb[b, k]
+        for k in range(wgap.shape[0]):
+            wgap[k] += wgb[b, k]
+        for k in range(wrad.shape[0]):
+            wrad[k] += wrb[b, k]
+
+
+@njit(cache=True, error_model="numpy")
+def _finish_rows(P, prm, i0, i1, n, dt, expo, tot):
+    """The end of heat_step for rows [i0, i1): the explicit heat (generation, sources, fixed
+    fluxes) and the temperature update, then the guard: the first of these rows with a
+    non-finite or non-positive temperature, or -1."""
+    T, cinv, Q, x, r, work = P.temperature, P.inv_heat_capacity, P.heat_rate, P.position, P.radius, P.work
     if expo:
-        for i in range(nown):
+        for i in range(i0, i1):
             work[i, 2] = Q[i]  # explicit wall flux so far
             Q[i] = 0.0
-    explicit_heat(nown, n, x, r, qgen, qsrc, srcbox, dt, Q, tot)
-    if integ == 0:
-        for i in range(nown):
+    explicit_heat(i0, i1, n, x, r, P.qgen, P.qsrc, prm.srcbox, dt, Q, tot)
+    if not expo:
+        for i in range(i0, i1):
             T[i] += dt * Q[i] * cinv[i]
     else:
-        for i in range(nown):
+        for i in range(i0, i1):
             T[i] += dt * (Q[i] + work[i, 2]) * cinv[i]
             Q[i] = (T[i] - work[i, 0]) / (cinv[i] * dt)
-    # guard: report the first non-finite or non-positive temperature
-    for i in range(nown):
+    for i in range(i0, i1):
         if not (T[i] > 0.0) or not math.isfinite(T[i]):
             return i
+    return -1
+
+
+@njit(cache=True, error_model="numpy", parallel=True)
+def _finish_blocks(P, prm, nown, n, dt, expo, nblk):
+    """:func:`_finish_rows` on ``nblk`` blocks of rows at once; the first bad row of the first
+    block that has one (the same row as on one thread)."""
+    bounds = block_bounds(nown, nown, nblk)
+    tb = np.zeros((nblk, prm.tot.shape[0]))
+    bad = np.empty(nblk, np.int64)
+    for b in prange(nblk):
+        bad[b] = _finish_rows(P, prm, bounds[b], bounds[b + 1], n, dt, expo, tb[b])
+    tot = prm.tot
+    for b in range(nblk):
+        for k in range(tot.shape[0]):
+            tot[k] += tb[b, k]
+    for b in range(nblk):
+        if bad[b] >= 0:
+            return bad[b]
     return -1
 
 
@@ -495,7 +588,7 @@ def _implicit_assemble(P, C, W, TB, prm, m, dt_diag, dt, t, has_ind, b, dg):
     qw = np.zeros((m if wr else 0, nw))
     om = np.zeros((m if wr else 0, nw))
     if wr:
-        wall_radiation_weights(rad, m, x, r, W, t, prm.thf[TF.radrange], wgt, aw0, aw1)
+        wall_radiation_weights(rad, 0, m, x, r, W, t, prm.thf[TF.radrange], wgt, aw0, aw1)
     if rad >= 0:
         for i in range(m):
             walls_i = wr and aw1[i] > 0.0
@@ -517,7 +610,7 @@ def _implicit_assemble(P, C, W, TB, prm, m, dt_diag, dt, t, has_ind, b, dg):
             dg[i] += krad[i]
             b[i] += qrad[i]
     # explicit heat: generation, sources
-    explicit_heat(m, n, x, r, qgen, qsrc, srcbox, dt, b, tot)
+    explicit_heat(0, m, n, x, r, qgen, qsrc, srcbox, dt, b, tot)
     return hconv, qrad, krad, wgt, aw1, qw, om
 
 
@@ -868,8 +961,14 @@ def convection_conductances(n, v, r, cg, uf, por, gas, conv, out):
     the same numbers heat_step uses, for the gas-side source terms of a coupled run. A parcel
     (cg, empty without coarse graining) takes its real particles' law, R = r / cg in Re and
     h A, times their number cg^3 (docs/models.md, "Coarse graining")."""
+    _convection_rows(0, n, v, r, cg, uf, por, gas, conv, out)
+
+
+@njit(cache=True, error_model="numpy")
+def _convection_rows(i0, i1, v, r, cg, uf, por, gas, conv, out):
+    """:func:`convection_conductances` of the rows [i0, i1)."""
     has_cg = cg.shape[0] > 0
-    for i in range(n):
+    for i in range(i0, i1):
         ux = uf[i, 0] - v[i, 0]
         uy = uf[i, 1] - v[i, 1]
         uz = uf[i, 2] - v[i, 2]
