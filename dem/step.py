@@ -23,7 +23,7 @@ from .contact.hertz_mindlin import hertz_mindlin
 from .contact.linear import linear_spring_dashpot
 from .contact.rolling import constant_torque, epsd
 from .contact.walls import wall_distance, wall_velocity, WI
-from .blocks import block_bounds, block_count
+from .blocks import block_bounds, block_count, kept_cross_counts
 from .neighbors import build_half_list, Box
 from .schema import Pairs, XC, slots
 from .thermal.contact_radius import (contact_radius_pw, hertz_force, hertz_overlap, geometric_pp_inv,
@@ -670,17 +670,6 @@ def cross_count_slots(threads):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def kept_cross_counts(xc, n, nown, nblk):
-    """The pairs across blocks kept in ``xc`` (Params.xcnt, slots XC) for this key (block
-    count, rows, owned rows), as interact_blocks' nblk + 1 offsets; None when they must be
-    counted (another key, or a rebuild cleared them). The count reads the whole half list, 4 %
-    of a 2-thread step of the shared 50k bed, and changes only with the list."""
-    if xc.shape[0] >= XC.start + nblk + 1 and xc[XC.nblk] == nblk and xc[XC.n] == n and xc[XC.nown] == nown:
-        return xc[XC.start:XC.start + nblk + 1].copy()
-    return None
-
-
-@njit(cache=True, error_model="numpy", inline="always")
 def keep_cross_counts(xc, cnt, n, nown, nblk):
     """Keep the offsets ``cnt`` under their key (see kept_cross_counts), when ``xc`` has room."""
     if xc.shape[0] >= XC.start + nblk + 1:
@@ -702,7 +691,7 @@ def interact_blocks(P, C, W, TB, prm, n, t, hon, nblk, fused, fgen):
     bounds = block_bounds(nown, n, nblk)
     nb, nnb = C.nb, C.nnb
     kept = kept_cross_counts(prm.xcnt, n, nown, nblk)
-    if kept is not None:
+    if kept.shape[0] == nblk + 1:
         cnt = kept
     else:
         cnt = np.zeros(nblk + 1, np.int64)

@@ -204,33 +204,35 @@ def test_neighbour_rebuild_on_two_threads_is_the_serial_list():
     assert np.count_nonzero(h1) > 1000
 
 
-def _reservoir_scene(integrator):
-    """The threads bed with every per-particle heat link on: gas convection (Gunn), radiation
-    (Krause 2017) with a radiating fixed-temperature floor, a heat source, and the pairs fused
-    into the force loop (Euler) or swept exponentially."""
+def _reservoir_scene(integrator, radiation):
+    """The threads bed with every per-particle heat link on: gas convection (Gunn), a heat source,
+    the floor at a fixed temperature, and, with ``radiation``, radiation (Krause 2017) with a
+    radiating floor; the pairs fused into the force loop (Euler) or swept exponentially."""
     import tomllib
     with open(SCENE, "rb") as fh:
         data = tomllib.load(fh)
-    data["materials"][0]["emissivity"] = 0.8
-    data["thermal"].update(convection="gunn", radiation="krause_2017", integrator=integrator,
-                           sources=[{"group": 0, "power": 1e-3}])
+    data["thermal"].update(convection="gunn", integrator=integrator, sources=[{"group": 0, "power": 1e-3}])
     data["gas"]["velocity"] = [0.0, 0.0, 0.3]
-    data["walls"][0]["thermal"]["emissivity"] = 0.7
+    if radiation:
+        data["materials"][0]["emissivity"] = 0.8
+        data["thermal"]["radiation"] = "krause_2017"
+        data["walls"][0]["thermal"]["emissivity"] = 0.7
     return data
 
 
-@pytest.mark.parametrize("integrator", ["euler", "exponential"])
-def test_heat_links_on_two_threads_are_the_serial_temperatures(integrator):
+@pytest.mark.parametrize("integrator, radiation", [("euler", False), ("exponential", False), ("euler", True)])
+def test_heat_links_on_two_threads_are_the_serial_step(integrator, radiation):
     """The heat step's per-particle links (walls, convection, radiation, sources, the exponential
-    relaxation) run on blocks of rows (dem.thermal.heat._link_rows): from the same state, one heat
-    step on 2 threads gives the temperatures and heat rates of 1 thread bit for bit, and the run
-    totals and the floor's records to round-off (only their order of summation changes)."""
+    relaxation) run on blocks of rows (dem.thermal.heat._link_rows), and so do the radiation
+    accumulators. From the same state, one heat step on 2 threads gives the temperatures and heat
+    rates of 1 thread bit for bit (with radiation, whose accumulators are summed in another order,
+    to 1e-14), and the run totals and the floor's records to round-off."""
     from dem import Simulation
     from dem import step as K
     from dem.thermal.heat import TOT
     sims = []
     for _ in range(2):
-        sim = Simulation.from_dict(_reservoir_scene(integrator), base_dir=os.path.dirname(SCENE))
+        sim = Simulation.from_dict(_reservoir_scene(integrator, radiation), base_dir=os.path.dirname(SCENE))
         sim.set_threads(1)
         sim.step(200)
         sims.append(sim)
@@ -248,10 +250,15 @@ def test_heat_links_on_two_threads_are_the_serial_temperatures(integrator):
                      W.wrad - wrad0, sim.state.temperature - t0))
     (T1, Q1, tot1, wt1, wr1, dT1), (T2, Q2, tot2, wt2, wr2, dT2) = recs
     assert np.count_nonzero(dT1) > 4000  # every particle's temperature moved in this step
-    assert np.array_equal(T1, T2)
-    assert np.array_equal(Q1, Q2)
-    for k in (TOT.conv, TOT.rad, TOT.wall, TOT.src):
+    if radiation:
+        assert _rel(dT2, dT1) < 1e-12 and _rel(Q2, Q1) < 1e-12
+        assert abs(wr1[0]) > 0.0  # the floor radiates
+    else:
+        assert np.array_equal(T1, T2) and np.array_equal(Q1, Q2)
+    # the floor's conduction is in the heat step when it is not fused into the force loop (Euler)
+    floor = integrator == "exponential" or radiation
+    for k in (TOT.conv, TOT.src) + ((TOT.wall,) if floor else ()) + ((TOT.rad,) if radiation else ()):
         assert abs(tot1[k]) > 0.0, k
         assert abs(tot2[k] - tot1[k]) <= 1e-12 * abs(tot1[k]), k
-    assert abs(wr1[0]) > 0.0 and abs(wt1[0]) > 0.0  # the floor radiates and conducts
+    assert abs(wt1[0]) > 0.0 or not floor
     assert np.allclose(wt2, wt1, rtol=1e-12, atol=0.0) and np.allclose(wr2, wr1, rtol=1e-12, atol=0.0)

@@ -34,7 +34,7 @@ from .registry import EMISSIVITY, KF, RHO_F, MU_F, PR, RAD_KRAUSE_2017
 from .implicit import jacobi_pcg, CG_RTOL
 from ..neighbors import pair_distance
 from ..contact.walls import WF, WI, PLANE, wall_distance
-from ..blocks import block_bounds
+from ..blocks import block_bounds, kept_cross_counts
 from ..schema import slots
 
 # integer thermal parameters (Params.thi; -1: the model is off)
@@ -135,6 +135,101 @@ def radiation_accumulators(rad, rows, n, T, r, mat, tmat, nb, nnb, rnear):
                 acc0[j] = a0
                 acc1[j] = a1
     return acc0, acc1
+
+
+@njit(cache=True, error_model="numpy", parallel=True)
+def _radiation_accumulators_blocks(rad, n, nown, xcnt, T, r, mat, tmat, C, nblk):
+    """:func:`radiation_accumulators` of every row on ``nblk`` blocks of rows at once
+    (dem.blocks). A block adds each pair to its own rows and keeps what a pair gives a row of a
+    other block in its own range of a buffer, added after in block and
+    pair order: no two threads write one row, and the order of every sum is fixed by the block
+    count (a row of a later block adds the earlier blocks' shares last: round-off against one
+    thread, as in the interact phase). The ranges are the
+    pairs across blocks that the interact phase kept for this list
+    (``xcnt``, dem.blocks.kept_cross_counts: a superset of the pairs in range), else counted."""
+    bounds = block_bounds(nown, n, nblk)
+    cnt = _radiation_offsets(xcnt, n, nown, C, bounds)
+    acc = (np.zeros(n), np.zeros(n))
+    buf = (np.empty(cnt[nblk], np.int64), np.empty((cnt[nblk], 2)))
+    end = np.empty(nblk, np.int64)
+    for b in prange(nblk):
+        end[b] = _radiation_rows(rad, bounds[b], bounds[b + 1], acc, T, r, mat, tmat, C, buf, cnt[b])
+    acc0, acc1 = acc
+    xj, xa = buf
+    for b in range(nblk):
+        if end[b] > cnt[b + 1]:  # a neighbour list changed without after_build or dem.state
+            raise RuntimeError("internal error: more pairs across blocks of rows in radiation range than "
+                               "the list has (dem.thermal.heat._radiation_accumulators_blocks)")
+        for k in range(cnt[b], end[b]):
+            acc0[xj[k]] += xa[k, 0]
+            acc1[xj[k]] += xa[k, 1]
+    return acc0, acc1
+
+
+@njit(cache=True, error_model="numpy")
+def _radiation_offsets(xcnt, n, nown, C, bounds):
+    """Each block's range of the buffer of :func:`_radiation_accumulators_blocks`: the pairs
+    across blocks kept for this list, else those in radiation range, counted."""
+    kept = kept_cross_counts(xcnt, n, nown, bounds.shape[0] - 1)
+    if kept.shape[0] == bounds.shape[0]:
+        return kept
+    return _radiation_cross_counts(C, bounds)
+
+
+@njit(cache=True, error_model="numpy", parallel=True)
+def _radiation_cross_counts(C, bounds):
+    """Offsets of each block's pairs in radiation range across blocks (blocks ``bounds``)."""
+    nb, nnb, rnear = C.nb, C.nnb, C.rnear
+    nblk = bounds.shape[0] - 1
+    cnt = np.zeros(nblk + 1, np.int64)
+    for b in prange(nblk):
+        i0 = bounds[b]
+        i1 = bounds[b + 1]
+        c = 0
+        for i in range(i0, i1):
+            for q in range(nnb[i]):
+                j = nb[i, q]
+                if rnear[i, q] and (j < i0 or j >= i1):
+                    c += 1
+        cnt[b + 1] = c
+    for b in range(nblk):
+        cnt[b + 1] += cnt[b]
+    return cnt
+
+
+@njit(cache=True, error_model="numpy")
+def _radiation_rows(rad, i0, i1, acc, T, r, mat, tmat, C, buf, k):
+    """The radiation accumulators of the pairs of rows [i0, i1) (see
+    :func:`_radiation_accumulators_blocks`): a pair with j in [i0, i1) adds to both rows, another
+    writes j's share at buf[k], k + 1, ... Returns the next free k."""
+    nb, nnb, rnear = C.nb, C.nnb, C.rnear
+    acc0, acc1 = acc
+    xj, xa = buf
+    for i in range(i0, i1):
+        ai0 = acc0[i]
+        ai1 = acc1[i]
+        ti = T[i]
+        ei = tmat[mat[i], EMISSIVITY]
+        ri = r[i]
+        for s in range(nnb[i]):
+            if rnear[i, s]:
+                j = nb[i, s]
+                ai0, ai1 = radiation_accumulate(rad, ai0, ai1, T[j], tmat[mat[j], EMISSIVITY], r[j])
+                if i0 <= j < i1:
+                    a0, a1 = radiation_accumulate(rad, acc0[j], acc1[j], ti, ei, ri)
+                    acc0[j] = a0
+                    acc1[j] = a1
+                elif k < xj.shape[0]:
+                    a0, a1 = radiation_accumulate(rad, 0.0, 0.0, ti, ei, ri)
+                    xj[k] = j
+                    xa[k, 0] = a0
+                    xa[k, 1] = a1
+                    k += 1
+                else:
+                    k += 1  # no room: counted, for the caller's check
+        acc0[i] = ai0
+        acc1[i] = ai1
+    return k
 
 
 @njit(cache=True, error_model="numpy")
@@ -249,9 +344,10 @@ def heat_step(P, C, W, TB, prm, n, nown, dt, t, nblk):
 
     The links of each particle to its reservoirs (walls, gas, radiation environment) and the
     explicit terms are updated row by row on ``nblk`` blocks of rows at once (dem.blocks;
-    _link_blocks): a row's arithmetic is the same on any number of threads, so the temperatures
-    do not depend on it; the run totals are summed per block, then in block order. The pair
-    sweeps and the radiation accumulators stay serial.
+    _link_blocks): a row's arithmetic is the same on any number of threads; the run totals are
+    summed per block, then in block order. The radiation accumulators are summed on the blocks
+    too (_radiation_accumulators_blocks: their order, and so the temperatures of a run with
+    radiation, depend on the thread count at round-off). The pair sweeps stay serial.
     P, C, W, TB, prm: the bundles of dem.schema (particles, pairs, walls, tables, parameters)."""
     T, cinv, Q = P.temperature, P.inv_heat_capacity, P.heat_rate
     qgen, qsrc, work = P.qgen, P.qsrc, P.work
@@ -297,7 +393,9 @@ def heat_step(P, C, W, TB, prm, n, nown, dt, t, nblk):
         else:
             _pair_sweep(nown, 0.5 * dt, T, cinv, Q, C, has_ind, integ, fwd, tot)
     # ---- radiation environment (from the temperatures after the first pair half-sweep)
-    if rad >= 0:
+    if rad >= 0 and nblk > 1:
+        acc0, acc1 = _radiation_accumulators_blocks(rad, n, nown, prm.xcnt, T, P.radius, P.material, tmat, C, nblk)
+    elif rad >= 0:
         acc0, acc1 = radiation_accumulators(rad, n, n, T, P.radius, P.material, tmat, nb, nnb, rnear)
     else:
         acc0 = np.zeros(0)
