@@ -3,7 +3,7 @@
 interact phase and the kicks of dem.step, the heat step of dem.thermal.heat) takes the same
 cut without importing the others."""
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 from .schema import XC
 
@@ -44,3 +44,27 @@ def kept_cross_counts(xc, n, nown, nblk):
     if xc.shape[0] >= XC.start + nblk + 1 and xc[XC.nblk] == nblk and xc[XC.n] == n and xc[XC.nown] == nown:
         return xc[XC.start:XC.start + nblk + 1].copy()
     return np.empty(0, np.int64)
+
+
+@njit(cache=True, error_model="numpy", parallel=True)
+def cross_counts(nb, nnb, mask, bounds):
+    """Offsets (nblk + 1) of each block's pairs across blocks: the half-list pairs (i, j) of the
+    block's rows whose j lies in another block, counted on the blocks at once. ``mask``: a flag
+    per list slot (only the flagged pairs count, e.g. Pairs.rnear), or an empty array (every
+    pair counts)."""
+    nblk = bounds.shape[0] - 1
+    masked = mask.shape[0] > 0
+    cnt = np.zeros(nblk + 1, np.int64)
+    for b in prange(nblk):
+        i0 = bounds[b]
+        i1 = bounds[b + 1]
+        c = 0
+        for i in range(i0, i1):
+            for s in range(nnb[i]):
+                j = nb[i, s]
+                if (j < i0 or j >= i1) and (not masked or mask[i, s]):
+                    c += 1
+        cnt[b + 1] = c
+    for b in range(nblk):
+        cnt[b + 1] += cnt[b]
+    return cnt

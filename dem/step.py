@@ -23,7 +23,7 @@ from .contact.hertz_mindlin import hertz_mindlin
 from .contact.linear import linear_spring_dashpot
 from .contact.rolling import constant_torque, epsd
 from .contact.walls import wall_distance, wall_velocity, WI
-from .blocks import block_bounds, block_count, kept_cross_counts
+from .blocks import block_bounds, block_count, cross_counts, kept_cross_counts
 from .neighbors import build_half_list, Box
 from .schema import Pairs, XC, slots
 from .thermal.contact_radius import (contact_radius_pw, hertz_force, hertz_overlap, geometric_pp_inv,
@@ -693,20 +693,8 @@ def interact_blocks(P, C, W, TB, prm, n, t, hon, nblk, fused, fgen):
     kept = kept_cross_counts(prm.xcnt, n, nown, nblk)
     if kept.shape[0] == nblk + 1:
         cnt = kept
-    else:
-        cnt = np.zeros(nblk + 1, np.int64)
-        for b in prange(nblk):  # the pairs across blocks, counted: each block's rows of xj / xv
-            i0 = bounds[b]
-            i1 = bounds[b + 1]
-            c = 0
-            for i in range(i0, i1):
-                for s in range(nnb[i]):
-                    j = nb[i, s]
-                    if j < i0 or j >= i1:
-                        c += 1
-            cnt[b + 1] = c
-        for b in range(nblk):
-            cnt[b + 1] += cnt[b]
+    else:  # the pairs across blocks, counted: each block's rows of xj / xv
+        cnt = cross_counts(nb, nnb, np.empty((0, 0), np.uint8), bounds)
         keep_cross_counts(prm.xcnt, cnt, n, nown, nblk)
     # one spare row: a block that met more pairs across blocks than counted writes its surplus
     # there (never past the array), and the check below stops before anything is added

@@ -34,7 +34,7 @@ from .registry import EMISSIVITY, KF, RHO_F, MU_F, PR, RAD_KRAUSE_2017
 from .implicit import jacobi_pcg, CG_RTOL
 from ..neighbors import pair_distance
 from ..contact.walls import WF, WI, PLANE, wall_distance
-from ..blocks import block_bounds, kept_cross_counts
+from ..blocks import block_bounds, cross_counts, kept_cross_counts
 from ..schema import slots
 
 # integer thermal parameters (Params.thi; -1: the model is off)
@@ -173,28 +173,7 @@ def _radiation_offsets(xcnt, n, nown, C, bounds):
     kept = kept_cross_counts(xcnt, n, nown, bounds.shape[0] - 1)
     if kept.shape[0] == bounds.shape[0]:
         return kept
-    return _radiation_cross_counts(C, bounds)
-
-
-@njit(cache=True, error_model="numpy", parallel=True)
-def _radiation_cross_counts(C, bounds):
-    """Offsets of each block's pairs in radiation range across blocks (blocks ``bounds``)."""
-    nb, nnb, rnear = C.nb, C.nnb, C.rnear
-    nblk = bounds.shape[0] - 1
-    cnt = np.zeros(nblk + 1, np.int64)
-    for b in prange(nblk):
-        i0 = bounds[b]
-        i1 = bounds[b + 1]
-        c = 0
-        for i in range(i0, i1):
-            for q in range(nnb[i]):
-                j = nb[i, q]
-                if rnear[i, q] and (j < i0 or j >= i1):
-                    c += 1
-        cnt[b + 1] = c
-    for b in range(nblk):
-        cnt[b + 1] += cnt[b]
-    return cnt
+    return cross_counts(C.nb, C.nnb, C.rnear, bounds)
 
 
 @njit(cache=True, error_model="numpy")
