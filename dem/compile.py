@@ -313,6 +313,21 @@ def heat_step():
     _compile(kernel, (*st.bundles(), st.n, st.n_owned, 1e-5, 0.0, 1))
 
 
+def heat_blocks():
+    """The heat step's kernels on blocks of rows (dem.thermal.heat._heat_blocks and
+    _radiation_accumulators_blocks: parallel loops, seconds each), with the argument types of
+    heat_step's calls, so that the heat step's own job, after this one, loads them."""
+    import numpy as np
+    from .thermal import heat as H
+    st = _state(True)
+    P, C, W, TB, prm = st.bundles()
+    i, f = np.int64(1), np.zeros(0)
+    links = (f, f, np.zeros((0, 1)), f, f, f, f, f, f, f)
+    _compile(H._heat_blocks, (P, W, TB, prm, i, 1e-5, 0.0, True, True, links, i, i))
+    _compile(H._radiation_accumulators_blocks, (i, i, i, prm.xcnt, P.temperature, P.radius, P.material, TB.tmat,
+                                                C, i))
+
+
 def mechanics():
     """The step without heat (the ``hon`` = None specialisation of dem.step.advance)."""
     from .simulation import Simulation
@@ -358,14 +373,16 @@ def insertion():
     scene.parse(data, "<compile>")
 
 
-# compute_forces and heat_step are compiled on their own first (by signature, in parallel),
-# then the step of each heat switch (dem.step.advance and the rest) loads them; the heat step
-# after the mechanics-only one, whose neighbour, kick and rebuild kernels it shares
+# compute_forces and heat_step are compiled on their own first (by signature, in parallel; the
+# heat step's parallel loops before it, in a job of their own), then the step of each heat switch
+# (dem.step.advance and the rest) loads them; the heat step after the mechanics-only one, whose
+# neighbour, kick and rebuild kernels it shares
 DEM_JOBS = (
     Job("dem.forces", "dem.compile:forces", (False,)),
     Job("dem.forces_heat", "dem.compile:forces", (True,)),
     Job("dem.mechanics", "dem.compile:mechanics", after=("dem.forces",)),
-    Job("dem.heat_step", "dem.compile:heat_step"),
+    Job("dem.heat_blocks", "dem.compile:heat_blocks"),
+    Job("dem.heat_step", "dem.compile:heat_step", after=("dem.heat_blocks",)),
     Job("dem.insertion", "dem.compile:insertion"),
     Job("dem.heat", "dem.compile:heat", after=("dem.forces_heat", "dem.heat_step", "dem.mechanics")),
     Job("dem.frozen", "dem.compile:frozen", after=("dem.heat",)),

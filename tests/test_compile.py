@@ -174,9 +174,11 @@ def test_compile_fills_the_cache_and_the_examples_then_compile_nothing(tmp_path)
     before = _cache_files(tmp_path)
     assert len(before) > 100
     # compute_forces and heat_step, compiled alone by signature (dem.compile.forces, heat_step),
-    # have the types dem.step.advance calls them with: one entry per heat switch, none added by
-    # advance's compile
-    for kernel, entries in (("step.compute_forces", 2), ("heat.heat_step", 1)):
+    # have the types dem.step.advance calls them with, and the heat step's parallel loops
+    # (dem.compile.heat_blocks) those heat_step calls them with: one entry per heat switch, none
+    # added by the compile of their caller
+    for kernel, entries in (("step.compute_forces", 2), ("heat.heat_step", 1), ("heat._heat_blocks", 1),
+                            ("heat._radiation_accumulators_blocks", 1)):
         (index,) = glob.glob(str(tmp_path / "xdg" / "**" / f"{kernel}-*.nbi"), recursive=True)
         with open(index, "rb") as fh:
             pickle.load(fh)

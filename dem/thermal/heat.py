@@ -323,7 +323,7 @@ def heat_step(P, C, W, TB, prm, n, nown, dt, t, nblk):
 
     The links of each particle to its reservoirs (walls, gas, radiation environment) and the
     explicit terms are updated row by row on ``nblk`` blocks of rows at once (dem.blocks;
-    _link_blocks): a row's arithmetic is the same on any number of threads; the run totals are
+    _heat_blocks): a row's arithmetic is the same on any number of threads; the run totals are
     summed per block, then in block order. The radiation accumulators are summed on the blocks
     too (_radiation_accumulators_blocks: their order, and so the temperatures of a run with
     radiation, depend on the thread count at round-off). The pair sweeps stay serial.
@@ -361,7 +361,8 @@ def heat_step(P, C, W, TB, prm, n, nown, dt, t, nblk):
     # conduction chain is off by O(dt^2) only; Euler's steady state is exact).
     expo = integ != 0
     fwd = np.int64(1)  # the sweep direction as a run-time value: one compiled _pair_sweep (a literal
-    # argument compiles one form per constant)
+    # argument compiles one form per constant); so are row 0 of _link_rows and _finish_rows (the
+    # blocks call them with run-time rows) and the stages of _heat_blocks (fwd - 1 is 0)
     hs = np.zeros(n if expo else 0)    # sum of a particle's reservoir conductances (W/K)
     hts = np.zeros(n if expo else 0)   # and of conductance x reservoir temperature (W)
     if expo and nown < n and not fused:
@@ -390,15 +391,15 @@ def heat_step(P, C, W, TB, prm, n, nown, dt, t, nblk):
     links = (acc0, acc1, wgt, aw0, aw1, hs, hts, hconv, hrad, tenv)
     # ---- reservoir links, row by row (_link_rows)
     if nblk == 1:
-        _link_rows(P, W, TB, prm, 0, nown, dt, t, fused, expo, links, (tot, W.wtot, W.wgap, W.wrad))
+        _link_rows(P, W, TB, prm, fwd - 1, nown, dt, t, fused, expo, links, (tot, W.wtot, W.wgap, W.wrad))
     else:
-        _link_blocks(P, W, TB, prm, nown, dt, t, fused, expo, links, nblk)
+        _heat_blocks(P, W, TB, prm, nown, dt, t, fused, expo, links, nblk, fwd - 1)  # stage 0
     if not fused and expo:
         _pair_sweep(nown, 0.5 * dt, T, cinv, Q, C, has_ind, integ, -fwd, tot)
     # ---- explicit terms (generation, sources, fixed fluxes), the update and its guard, row by row
     if nblk == 1:
-        return _finish_rows(P, prm, 0, nown, n, dt, expo, tot)
-    return _finish_blocks(P, prm, nown, n, dt, expo, nblk)
+        return _finish_rows(P, prm, fwd - 1, nown, n, dt, expo, tot)
+    return _heat_blocks(P, W, TB, prm, nown, dt, t, fused, expo, links, nblk, fwd)  # stage 1
 
 
 @njit(cache=True, error_model="numpy")
@@ -524,18 +525,31 @@ def _link_rows(P, W, TB, prm, i0, i1, dt, t, fused, expo, links, rec):
 
 
 @njit(cache=True, error_model="numpy", parallel=True)
-def _link_blocks(P, W, TB, prm, nown, dt, t, fused, expo, links, nblk):
-    """:func:`_link_rows` of the owned rows on ``nblk`` blocks of rows at once, each block's
-    totals and wall records apart, then added in block order (deterministic for a thread count)."""
+def _heat_blocks(P, W, TB, prm, nown, dt, t, fused, expo, links, nblk, stage):
+    """A stage of heat_step on ``nblk`` blocks of the owned rows at once: 0 the links
+    (:func:`_link_rows`), 1 the explicit heat, the update and the guard (:func:`_finish_rows`).
+    Each block's totals and wall records are kept apart, then added in block order
+    (deterministic for a thread count). Returns the first bad row of the first block that has
+    one (the same row as on one thread), or -1. (One parallel function for both stages: each
+    costs seconds of compile on the bundles.)"""
+    n = P.temperature.shape[0]
     bounds = block_bounds(nown, nown, nblk)
     tb = np.zeros((nblk, prm.tot.shape[0]))
     wtb = np.zeros((nblk, W.wtot.shape[0]))
     wgb = np.zeros((nblk, W.wgap.shape[0]))
     wrb = np.zeros((nblk, W.wrad.shape[0]))
+    bad = np.full(nblk, -1, np.int64)
     for b in prange(nblk):
-        _link_rows(P, W, TB, prm, bounds[b], bounds[b + 1], dt, t, fused, expo, links,
-                   (tb[b], wtb[b], wgb[b], wrb[b]))
+        if stage == 0:
+            _link_rows(P, W, TB, prm, bounds[b], bounds[b + 1], dt, t, fused, expo, links,
+                       (tb[b], wtb[b], wgb[b], wrb[b]))
+        else:
+            bad[b] = _finish_rows(P, prm, bounds[b], bounds[b + 1], n, dt, expo, tb[b])
     _add_block_records(prm.tot, W.wtot, W.wgap, W.wrad, tb, wtb, wgb, wrb)
+    for b in range(nblk):
+        if bad[b] >= 0:
+            return bad[b]
+    return -1
 
 
 @njit(cache=True, error_model="numpy")
@@ -573,25 +587,6 @@ def _finish_rows(P, prm, i0, i1, n, dt, expo, tot):
     for i in range(i0, i1):
         if not (T[i] > 0.0) or not math.isfinite(T[i]):
             return i
-    return -1
-
-
-@njit(cache=True, error_model="numpy", parallel=True)
-def _finish_blocks(P, prm, nown, n, dt, expo, nblk):
-    """:func:`_finish_rows` on ``nblk`` blocks of rows at once; the first bad row of the first
-    block that has one (the same row as on one thread)."""
-    bounds = block_bounds(nown, nown, nblk)
-    tb = np.zeros((nblk, prm.tot.shape[0]))
-    bad = np.empty(nblk, np.int64)
-    for b in prange(nblk):
-        bad[b] = _finish_rows(P, prm, bounds[b], bounds[b + 1], n, dt, expo, tb[b])
-    tot = prm.tot
-    for b in range(nblk):
-        for k in range(tot.shape[0]):
-            tot[k] += tb[b, k]
-    for b in range(nblk):
-        if bad[b] >= 0:
-            return bad[b]
     return -1
 
 
