@@ -314,9 +314,10 @@ def heat_step():
 
 
 def heat_blocks():
-    """The heat step's kernels on blocks of rows (dem.thermal.heat._heat_blocks and
-    _radiation_accumulators_blocks: parallel loops, seconds each), with the argument types of
-    heat_step's calls, so that the heat step's own job, after this one, loads them."""
+    """The heat step's kernels on blocks of rows (dem.thermal.heat._heat_blocks,
+    _radiation_accumulators_blocks, the implicit solver's jacobi_pcg_blocks and pair_heat_blocks:
+    parallel loops, seconds each), with the argument types of heat_step's calls, so that the heat
+    step's own job, after this one, loads them."""
     import numpy as np
     from .thermal import heat as H
     st = _state(True)
@@ -326,6 +327,9 @@ def heat_blocks():
     _compile(H._heat_blocks, (P, W, TB, prm, i, 1e-5, 0.0, True, True, links, i, i))
     _compile(H._radiation_accumulators_blocks, (i, i, i, prm.xcnt, P.temperature, P.radius, P.material, TB.tmat,
                                                 C, i))
+    pairs = (C.nb, C.nnb, C.Hd, C.Hi)
+    _compile(H.jacobi_pcg_blocks, (i, pairs, True, f, f, f, 1e-10, i, i))
+    _compile(H.pair_heat_blocks, (i, pairs, True, f, 1e-5, i))
 
 
 def mechanics():

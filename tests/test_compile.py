@@ -178,7 +178,8 @@ def test_compile_fills_the_cache_and_the_examples_then_compile_nothing(tmp_path)
     # (dem.compile.heat_blocks) those heat_step calls them with: one entry per heat switch, none
     # added by the compile of their caller
     for kernel, entries in (("step.compute_forces", 2), ("heat.heat_step", 1), ("heat._heat_blocks", 1),
-                            ("heat._radiation_accumulators_blocks", 1)):
+                            ("heat._radiation_accumulators_blocks", 1),
+                            ("implicit.jacobi_pcg_blocks", 1), ("implicit.pair_heat_blocks", 1)):
         (index,) = glob.glob(str(tmp_path / "xdg" / "**" / f"{kernel}-*.nbi"), recursive=True)
         with open(index, "rb") as fh:
             pickle.load(fh)

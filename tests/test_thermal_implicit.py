@@ -430,3 +430,39 @@ def test_mpi_refuses_implicit_and_auto_falls_back(tmp_path):
                        text=True, env=env, cwd=tmp_path, timeout=600)
     assert p.returncode != 0 and "Traceback" not in p.stderr
     assert "\"trbdf2\" runs on one process only" in p.stderr and "thermal.integrator" in p.stderr
+
+
+@pytest.mark.parametrize("integrator", ["implicit", "trbdf2"])
+def test_two_threads_solve_the_same_steps(integrator):
+    """The conjugate gradients, the diagonal and the pairs' heat totals run on blocks of rows
+    (dem.thermal.implicit.jacobi_pcg_blocks, pair_heat_blocks) when a process has 2 threads: a
+    frozen lattice of 2,560 touching spheres (two blocks of rows) between a floor at 400 K and a
+    side wall with a fixed flux, with convection, radiation and a source, advanced 20 steps far
+    above the explicit limits, has the temperatures of one thread to the solver's tolerance
+    (CG_RTOL 1e-10 a solve), and conserves energy on 2 threads as on one."""
+    from dem import step as K
+    sc = bed_scene(100.0, 2000.0, integrator)
+    ov = 2e-5
+    pitch = 2 * R - ov
+    pos = [[R + i * pitch, R + j * pitch, R - ov + k * pitch] for i in range(16) for j in range(16) for k in range(10)]
+    sc["particles"] = [{"material": "p", "positions": pos[:1280], "radius": R, "temperature": 300.0},
+                       {"material": "p", "positions": pos[1280:], "radius": R, "temperature": 320.0}]
+    sc["domain"] = {"min": [-0.001, -0.001, -0.001], "max": [0.034, 0.034, 0.022]}
+    runs = {}
+    for threads in (1, 2):
+        sim = Simulation.from_dict(sc)
+        sim.set_threads(threads)
+        assert K.blocks(sim.state.ip) == threads
+        st = sim.state
+        C = 1.0 / st.inv_heat_capacity
+        t0 = st.temperature.copy()
+        sim.run(progress=False)
+        tot = sim.thermal.tot.copy()
+        heat_in = tot[2] + tot[3] + tot[4] + tot[5] + tot[6]
+        gain = np.sum(C * (st.temperature - t0))
+        assert abs(gain - heat_in) <= 1e-9 * np.sum(np.abs(tot[2:7])), threads
+        runs[threads] = (st.temperature - t0, tot)
+    (d1, tot1), (d2, tot2) = runs[1], runs[2]
+    assert np.abs(d1).max() > 10.0  # the bed heated through
+    assert np.abs(d2 - d1).max() <= 1e-8 * np.abs(d1).max()
+    assert tot1[0] > 0.0 and abs(tot2[0] - tot1[0]) <= 1e-8 * tot1[0]  # pair conduction

@@ -31,7 +31,7 @@ from .radiation import (SIGMA_SB, radiation_accumulate, radiation_env_temperatur
                         radiation_wall_weight, radiation_wall_accumulate, radiation_env_temperature_walls,
                         radiation_wall_omega, radiation_wall_rate)
 from .registry import EMISSIVITY, KF, RHO_F, MU_F, PR, RAD_KRAUSE_2017
-from .implicit import jacobi_pcg, CG_RTOL
+from .implicit import jacobi_pcg, jacobi_pcg_blocks, pair_heat_blocks, pair_heat_rows, CG_RTOL
 from ..neighbors import pair_distance
 from ..contact.walls import WF, WI, PLANE, wall_distance
 from ..blocks import block_bounds, cross_counts, kept_cross_counts
@@ -336,9 +336,9 @@ def heat_step(P, C, W, TB, prm, n, nown, dt, t, nblk):
     integ = thi[TI.integ]
     has_ind = Hi.shape[0] == n
     if integ == 2:
-        return _implicit_step(P, C, W, TB, prm, nown, dt, t, has_ind)
+        return _implicit_step(P, C, W, TB, prm, nown, dt, t, has_ind, nblk)
     if integ == 3:
-        return _trbdf2_step(P, C, W, TB, prm, nown, dt, t, has_ind)
+        return _trbdf2_step(P, C, W, TB, prm, nown, dt, t, has_ind, nblk)
     conv = thi[TI.conv]
     rad = thi[TI.rad]
     fused = thi[TI.fused] == 1
@@ -687,12 +687,13 @@ def _implicit_assemble(P, C, W, TB, prm, m, dt_diag, dt, t, has_ind, b, dg):
 
 
 @njit(cache=True, error_model="numpy")
-def _implicit_totals(P, C, W, prm, m, Ts, d, t, f, has_ind, links):
+def _implicit_totals(P, C, W, prm, m, Ts, d, t, f, has_ind, links, nblk):
     """Add to the run totals the heat of every linear link at the temperatures Ts (rows
     [0, m)) times the weight f (s): pairs |H (T_j - T_i)|, fixed-temperature walls at time t,
     convection, and the linearised radiation qrad - krad d (d = Ts - T^n), a radiating wall's
     part qw - omega krad d (``links`` = (hconv, qrad, krad, wgt, aw1, qw, om) of
-    _implicit_assemble)."""
+    _implicit_assemble). The pairs' sum on ``nblk`` blocks of rows when nblk > 1
+    (dem.thermal.implicit.pair_heat_blocks)."""
     hconv, qrad, krad, wgt, aw1, qw, om = links
     nb, nnb, Hd, Hi = C.nb, C.nnb, C.Hd, C.Hi
     wnb, wnn, Hw, tf = P.wnb, P.wnn, P.Hw, P.tf
@@ -704,21 +705,10 @@ def _implicit_totals(P, C, W, prm, m, Ts, d, t, f, has_ind, links):
     rad = prm.thi[TI.rad]
     wr = rad >= 0 and prm.thi[TI.wrad] == 1
     nw = wth.shape[0]
-    ed = 0.0
-    ei = 0.0
-    for i in range(m):
-        for s in range(nnb[i]):
-            j = nb[i, s]
-            if j >= m:
-                continue
-            hd = Hd[i, s]
-            hi = Hi[i, s] if has_ind else 0.0
-            h = hd + hi
-            if h <= 0.0:
-                continue
-            e = abs(h * (Ts[j] - Ts[i])) * f
-            ed += e * hd / h
-            ei += e * hi / h
+    if nblk > 1:
+        ed, ei = pair_heat_blocks(m, (nb, nnb, Hd, Hi), has_ind, Ts, f, nblk)
+    else:
+        ed, ei = pair_heat_rows(m - m, m, m, (nb, nnb, Hd, Hi), has_ind, Ts, f)  # (row 0 at run time)
     tot[TOT.direct] += ed
     tot[TOT.indirect] += ei
     for i in range(m):
@@ -764,7 +754,7 @@ def _temperature_guard(T, m):
 
 
 @njit(cache=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
-def _implicit_step(P, C, W, TB, prm, m, dt, t, has_ind):
+def _implicit_step(P, C, W, TB, prm, m, dt, t, has_ind, nblk):
     """Backward Euler heat step of the rows [0, m) (``integrator = "implicit"``; the scene
     parser refuses it under MPI, so every row is owned): with d = T^{n+1} - T^n,
 
@@ -784,19 +774,27 @@ def _implicit_step(P, C, W, TB, prm, m, dt, t, has_ind):
     tolerance (the pair terms cancel exactly). The totals count the heats at T^{n+1}.
     Returns the first particle with a non-finite or non-positive temperature, or -1."""
     T, cinv, Q = P.temperature, P.inv_heat_capacity, P.heat_rate
-    nb, nnb, Hd, Hi = C.nb, C.nnb, C.Hd, C.Hi
     b = np.zeros(m)   # Q(T^n), W
     dg = np.empty(m)  # C/dt + K, W/K
     links = _implicit_assemble(P, C, W, TB, prm, m, dt, dt, t, has_ind, b, dg)
     # solve, update
     d = np.empty(m)
-    jacobi_pcg(m, nb, nnb, Hd, Hi, has_ind, dg, b, d, CG_RTOL, 10 * m + 100)
+    _solve(m, C, has_ind, dg, b, d, nblk)
     for i in range(m):
         T[i] += d[i]
         Q[i] = d[i] / (cinv[i] * dt)
     # totals at T^{n+1}
-    _implicit_totals(P, C, W, prm, m, T, d, t, dt, has_ind, links)
+    _implicit_totals(P, C, W, prm, m, T, d, t, dt, has_ind, links, nblk)
     return _temperature_guard(T, m)
+
+
+@njit(cache=True, error_model="numpy")
+def _solve(m, C, has_ind, dg, rhs, out, nblk):
+    """out = (diag(dg) + L)^-1 rhs over the rows [0, m) (dem.thermal.implicit): the Jacobi
+    preconditioned conjugate gradients, on ``nblk`` blocks of rows at once when nblk > 1."""
+    if nblk > 1:
+        return jacobi_pcg_blocks(m, (C.nb, C.nnb, C.Hd, C.Hi), has_ind, dg, rhs, out, CG_RTOL, 10 * m + 100, nblk)
+    return jacobi_pcg(m, C.nb, C.nnb, C.Hd, C.Hi, has_ind, dg, rhs, out, CG_RTOL, 10 * m + 100)
 
 
 # TR-BDF2's stage fraction gamma = 2 - sqrt(2) (Hosea & Shampine 1996): both stages then have
@@ -819,7 +817,7 @@ def _wall_source_shift(P, W, m, t, t0, out):
 
 
 @njit(cache=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
-def _trbdf2_step(P, C, W, TB, prm, m, dt, t, has_ind):
+def _trbdf2_step(P, C, W, TB, prm, m, dt, t, has_ind, nblk):
     """TR-BDF2 heat step of the rows [0, m) (``integrator = "trbdf2"``; every row owned, as for
     "implicit"): the trapezoidal rule to t_n + gamma dt, then the second-order backward
     difference formula through t_n, t_n + gamma dt and t_n + dt (Bank, Coughran, Fichtner,
@@ -848,7 +846,6 @@ def _trbdf2_step(P, C, W, TB, prm, m, dt, t, has_ind):
     the totals count each link with these weights at T^n, T^g and T^{n+1}. Returns the first
     particle with a non-finite or non-positive temperature, or -1."""
     T, cinv, Q = P.temperature, P.inv_heat_capacity, P.heat_rate
-    nb, nnb, Hd, Hi = C.nb, C.nnb, C.Hd, C.Hi
     g = TRBDF2_GAMMA
     dt1 = 0.5 * g * dt
     w = (1.0 - g) / (2.0 - g) * dt
@@ -871,7 +868,7 @@ def _trbdf2_step(P, C, W, TB, prm, m, dt, t, has_ind):
         _wall_source_shift(P, W, m, t0, t, rhs)
         _wall_source_shift(P, W, m, tg, t, rhs)
     d1 = np.empty(m)
-    jacobi_pcg(m, nb, nnb, Hd, Hi, has_ind, dg, rhs, d1, CG_RTOL, 10 * m + 100)
+    _solve(m, C, has_ind, dg, rhs, d1, nblk)
     # BDF2 to t_n + dt
     c2 = 1.0 / (w * g * (2.0 - g))
     for i in range(m):
@@ -879,7 +876,7 @@ def _trbdf2_step(P, C, W, TB, prm, m, dt, t, has_ind):
         dg[i] += ci / w - ci / dt1
         rhs[i] = b[i] + ci * d1[i] * c2
     d2 = np.empty(m)
-    jacobi_pcg(m, nb, nnb, Hd, Hi, has_ind, dg, rhs, d2, CG_RTOL, 10 * m + 100)
+    _solve(m, C, has_ind, dg, rhs, d2, nblk)
     Tn = np.empty(m)
     Tg = np.empty(m)
     zero = np.zeros(m)
@@ -889,9 +886,9 @@ def _trbdf2_step(P, C, W, TB, prm, m, dt, t, has_ind):
         T[i] += d2[i]
         Q[i] = d2[i] / (cinv[i] * dt)
     # totals: the links at T^n (walls at t_n), T^g (t_n + gamma dt) and T^{n+1} (t_n+1)
-    _implicit_totals(P, C, W, prm, m, Tn, zero, t0, a, has_ind, links)
-    _implicit_totals(P, C, W, prm, m, Tg, d1, tg, a, has_ind, links)
-    _implicit_totals(P, C, W, prm, m, T, d2, t, w, has_ind, links)
+    _implicit_totals(P, C, W, prm, m, Tn, zero, t0, a, has_ind, links, nblk)
+    _implicit_totals(P, C, W, prm, m, Tg, d1, tg, a, has_ind, links, nblk)
+    _implicit_totals(P, C, W, prm, m, T, d2, t, w, has_ind, links, nblk)
     return _temperature_guard(T, m)
 
 

@@ -23,7 +23,9 @@ given) and compiled once (no literal-argument specialisations).
 import math
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
+
+from ..blocks import block_bounds, cross_counts
 
 # relative residual at which the conjugate gradients stop (||r|| <= CG_RTOL ||b||, b the heat
 # rates Q(T^n)): the energy defect of a step is dt sum(r) <= dt sqrt(n) CG_RTOL ||Q(T^n)||, far
@@ -38,40 +40,14 @@ def laplacian_apply(n, nb, nnb, Hd, Hi, has_ind, dg, x, y):
     """y = (diag(dg) + L) x over the rows [0, n): L the graph Laplacian of the pair
     conductances H_ij = Hd[i, s] + Hi[i, s] (j = nb[i, s], each pair listed once, in the
     half list): (L x)_i = sum_j H_ij (x_i - x_j). Pairs with j >= n are ignored (ghosts)."""
-    for i in range(n):
-        y[i] = dg[i] * x[i]
-    for i in range(n):
-        xi = x[i]
-        acc = 0.0
-        for s in range(nnb[i]):
-            j = nb[i, s]
-            if j >= n:
-                continue
-            h = Hd[i, s] + (Hi[i, s] if has_ind else 0.0)
-            if h <= 0.0:
-                continue
-            q = h * (xi - x[j])
-            acc += q
-            y[j] -= q
-        y[i] += acc
+    _apply_rows(0, n, n, (nb, nnb, Hd, Hi), has_ind, dg, x, y, (np.empty(0, np.int64), np.empty(0)), 0, False)
 
 
 @njit(cache=True, error_model="numpy")
 def laplacian_diagonal(n, nb, nnb, Hd, Hi, has_ind, dg, out):
     """out = dg + diag(L): dg_i plus the sum of particle i's pair conductances (the Jacobi
     preconditioner of diag(dg) + L)."""
-    for i in range(n):
-        out[i] = dg[i]
-    for i in range(n):
-        for s in range(nnb[i]):
-            j = nb[i, s]
-            if j >= n:
-                continue
-            h = Hd[i, s] + (Hi[i, s] if has_ind else 0.0)
-            if h <= 0.0:
-                continue
-            out[i] += h
-            out[j] += h
+    _apply_rows(0, n, n, (nb, nnb, Hd, Hi), has_ind, dg, dg, out, (np.empty(0, np.int64), np.empty(0)), 0, True)
 
 
 @njit(cache=True, error_model="numpy")
@@ -125,3 +101,183 @@ def jacobi_pcg(n, nb, nnb, Hd, Hi, has_ind, dg, b, x, rtol, maxit):
             p[i] = z[i] + beta * p[i]
         it += 1
     return it, math.sqrt(rr / bb)
+
+
+@njit(cache=True, error_model="numpy")
+def _apply_rows(i0, i1, n, pairs, has_ind, dg, x, y, buf, k, diag):
+    """Rows [i0, i1) of :func:`laplacian_apply` (``diag`` False: y_i = dg_i x_i plus the row's
+    pairs, each pair's q = H_ij (x_i - x_j) added to row i and subtracted from row j) or of
+    :func:`laplacian_diagonal` (``diag`` True: y_i = dg_i, each pair's H_ij added to both rows;
+    x unused). A pair whose j lies in another block writes j's share at buf[k], k + 1, ...,
+    added later in block order. Returns the next free k."""
+    nb, nnb, Hd, Hi = pairs
+    xj, xq = buf
+    sgn = 1.0 if diag else -1.0
+    for i in range(i0, i1):
+        y[i] = dg[i] if diag else dg[i] * x[i]
+    for i in range(i0, i1):
+        xi = 0.0 if diag else x[i]
+        acc = 0.0
+        for s in range(nnb[i]):
+            j = nb[i, s]
+            if j >= n:
+                continue
+            h = Hd[i, s] + (Hi[i, s] if has_ind else 0.0)
+            if h <= 0.0:
+                continue
+            q = h if diag else h * (xi - x[j])
+            if diag:  # (the diagonal's sums in the order of the serial pass before blocks)
+                y[i] += q
+            else:
+                acc += q
+            if i0 <= j < i1:
+                y[j] += sgn * q
+            else:
+                if k < xj.shape[0]:
+                    xj[k] = j
+                    xq[k] = sgn * q
+                k += 1
+        if not diag:
+            y[i] += acc
+    return k
+
+
+@njit(cache=True, error_model="numpy", parallel=True)
+def _apply_blocks(n, pairs, has_ind, dg, x, y, bounds, cnt, buf, diag):
+    """:func:`_apply_rows` on the blocks ``bounds`` at once, then the shares buffered for rows of
+    other blocks added in block and pair order (``cnt``: each block's range of ``buf``)."""
+    nblk = bounds.shape[0] - 1
+    end = np.empty(nblk, np.int64)
+    for c in prange(nblk):
+        end[c] = _apply_rows(bounds[c], bounds[c + 1], n, pairs, has_ind, dg, x, y, buf, cnt[c], diag)
+    xj, xq = buf
+    for c in range(nblk):
+        if end[c] > cnt[c + 1]:  # a neighbour list changed without after_build or dem.state
+            raise RuntimeError("internal error: more pairs across blocks of rows than counted "
+                               "(dem.thermal.implicit._apply_blocks)")
+        for k in range(cnt[c], end[c]):
+            y[xj[k]] += xq[k]
+
+
+@njit(cache=True, error_model="numpy", parallel=True)
+def jacobi_pcg_blocks(n, pairs, has_ind, dg, b, x, rtol, maxit, nblk):
+    """:func:`jacobi_pcg` on ``nblk`` blocks of rows at once (dem.blocks): the products with A
+    and its diagonal by :func:`_apply_blocks` (the pairs across blocks buffered, then added in
+    block and pair order), the vector updates per row, and every dot product summed per block
+    and then in block order, so a solve is deterministic for a thread count (round-off against
+    one thread: the sums run in another order). ``pairs`` = (nb, nnb, Hd, Hi)."""
+    nb, nnb = pairs[0], pairs[1]
+    bounds = block_bounds(n, n, nblk)
+    part = np.zeros((nblk, 3))
+    for c in prange(nblk):
+        bbb = 0.0
+        for i in range(bounds[c], bounds[c + 1]):
+            x[i] = 0.0
+            bbb += b[i] * b[i]
+        part[c, 0] = bbb
+    bb = 0.0
+    for c in range(nblk):
+        bb += part[c, 0]
+    if bb == 0.0:
+        return 0, 0.0
+    cnt = cross_counts(nb, nnb, np.empty((0, 0), np.uint8), bounds)
+    buf = (np.empty(cnt[nblk], np.int64), np.empty(cnt[nblk]))
+    dinv = np.empty(n)
+    _apply_blocks(n, pairs, has_ind, dg, x, dinv, bounds, cnt, buf, True)
+    r = np.empty(n)
+    z = np.empty(n)
+    p = np.empty(n)
+    q = np.empty(n)
+    for c in prange(nblk):
+        rzb = 0.0
+        for i in range(bounds[c], bounds[c + 1]):
+            dinv[i] = 1.0 / dinv[i]
+            r[i] = b[i]
+            z[i] = dinv[i] * r[i]
+            p[i] = z[i]
+            rzb += r[i] * z[i]
+        part[c, 0] = rzb
+    rz = 0.0
+    for c in range(nblk):
+        rz += part[c, 0]
+    stop = rtol * rtol * bb
+    rr = bb
+    it = 0
+    while it < maxit and rr > stop:
+        _apply_blocks(n, pairs, has_ind, dg, p, q, bounds, cnt, buf, False)
+        for c in prange(nblk):
+            pqb = 0.0
+            for i in range(bounds[c], bounds[c + 1]):
+                pqb += p[i] * q[i]
+            part[c, 0] = pqb
+        pq = 0.0
+        for c in range(nblk):
+            pq += part[c, 0]
+        if not (pq > 0.0):  # p = 0 in floating point: nothing left to reduce
+            break
+        alpha = rz / pq
+        for c in prange(nblk):
+            rrb = 0.0
+            rzb = 0.0
+            for i in range(bounds[c], bounds[c + 1]):
+                x[i] += alpha * p[i]
+                r[i] -= alpha * q[i]
+                rrb += r[i] * r[i]
+                z[i] = dinv[i] * r[i]
+                rzb += r[i] * z[i]
+            part[c, 1] = rrb
+            part[c, 2] = rzb
+        rr = 0.0
+        rz_new = 0.0
+        for c in range(nblk):
+            rr += part[c, 1]
+            rz_new += part[c, 2]
+        beta = rz_new / rz
+        rz = rz_new
+        for c in prange(nblk):
+            for i in range(bounds[c], bounds[c + 1]):
+                p[i] = z[i] + beta * p[i]
+        it += 1
+    return it, math.sqrt(rr / bb)
+
+
+@njit(cache=True, error_model="numpy")
+def pair_heat_rows(i0, i1, n, pairs, has_ind, T, f):
+    """The heat over f seconds of the pairs of the rows [i0, i1) at the temperatures T,
+    sum |H_ij (T_j - T_i)| f split into its direct and indirect (Hd and Hi) parts; pairs with
+    j >= n are ignored (ghosts). Returns (direct, indirect) in J."""
+    nb, nnb, Hd, Hi = pairs
+    ed = 0.0
+    ei = 0.0
+    for i in range(i0, i1):
+        for s in range(nnb[i]):
+            j = nb[i, s]
+            if j >= n:
+                continue
+            hd = Hd[i, s]
+            hi = Hi[i, s] if has_ind else 0.0
+            h = hd + hi
+            if h <= 0.0:
+                continue
+            e = abs(h * (T[j] - T[i])) * f
+            ed += e * hd / h
+            ei += e * hi / h
+    return ed, ei
+
+
+@njit(cache=True, error_model="numpy", parallel=True)
+def pair_heat_blocks(n, pairs, has_ind, T, f, nblk):
+    """:func:`pair_heat_rows` of the rows [0, n) on ``nblk`` blocks of rows at once: each block's
+    sums apart, then added in block order. Returns (direct, indirect) in J."""
+    bounds = block_bounds(n, n, nblk)
+    part = np.zeros((nblk, 2))
+    for c in prange(nblk):
+        ed, ei = pair_heat_rows(bounds[c], bounds[c + 1], n, pairs, has_ind, T, f)
+        part[c, 0] = ed
+        part[c, 1] = ei
+    ed = 0.0
+    ei = 0.0
+    for c in range(nblk):
+        ed += part[c, 0]
+        ei += part[c, 1]
+    return ed, ei
