@@ -378,14 +378,15 @@ def insertion():
 
 
 # compute_forces and heat_step are compiled on their own first (by signature, in parallel; the
-# heat step's parallel loops before it, in a job of their own), then the step of each heat switch
+# heat step's parallel loops before it, in a job of their own that starts first: the longest chain
+# is theirs, the heat step's and the step with heat), then the step of each heat switch
 # (dem.step.advance and the rest) loads them; the heat step after the mechanics-only one, whose
 # neighbour, kick and rebuild kernels it shares
 DEM_JOBS = (
     Job("dem.forces", "dem.compile:forces", (False,)),
+    Job("dem.heat_blocks", "dem.compile:heat_blocks"),
     Job("dem.forces_heat", "dem.compile:forces", (True,)),
     Job("dem.mechanics", "dem.compile:mechanics", after=("dem.forces",)),
-    Job("dem.heat_blocks", "dem.compile:heat_blocks"),
     Job("dem.heat_step", "dem.compile:heat_step", after=("dem.heat_blocks",)),
     Job("dem.insertion", "dem.compile:insertion"),
     Job("dem.heat", "dem.compile:heat", after=("dem.forces_heat", "dem.heat_step", "dem.mechanics")),

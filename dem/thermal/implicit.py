@@ -40,14 +40,18 @@ def laplacian_apply(n, nb, nnb, Hd, Hi, has_ind, dg, x, y):
     """y = (diag(dg) + L) x over the rows [0, n): L the graph Laplacian of the pair
     conductances H_ij = Hd[i, s] + Hi[i, s] (j = nb[i, s], each pair listed once, in the
     half list): (L x)_i = sum_j H_ij (x_i - x_j). Pairs with j >= n are ignored (ghosts)."""
-    _apply_rows(0, n, n, (nb, nnb, Hd, Hi), has_ind, dg, x, y, (np.empty(0, np.int64), np.empty(0)), 0, False)
+    zero = n - n  # row 0, slot 0 and the mode as run-time values: a literal argument compiles _apply_rows again
+    _apply_rows(zero, n, n, (nb, nnb, Hd, Hi), has_ind, dg, x, y, (np.empty(0, np.int64), np.empty(0)), zero,
+                zero > 0)
 
 
 @njit(cache=True, error_model="numpy")
 def laplacian_diagonal(n, nb, nnb, Hd, Hi, has_ind, dg, out):
     """out = dg + diag(L): dg_i plus the sum of particle i's pair conductances (the Jacobi
     preconditioner of diag(dg) + L)."""
-    _apply_rows(0, n, n, (nb, nnb, Hd, Hi), has_ind, dg, dg, out, (np.empty(0, np.int64), np.empty(0)), 0, True)
+    zero = n - n  # (run-time values, as in laplacian_apply)
+    _apply_rows(zero, n, n, (nb, nnb, Hd, Hi), has_ind, dg, dg, out, (np.empty(0, np.int64), np.empty(0)), zero,
+                zero == 0)
 
 
 @njit(cache=True, error_model="numpy")
@@ -183,7 +187,7 @@ def jacobi_pcg_blocks(n, pairs, has_ind, dg, b, x, rtol, maxit, nblk):
     cnt = cross_counts(nb, nnb, np.empty((0, 0), np.uint8), bounds)
     buf = (np.empty(cnt[nblk], np.int64), np.empty(cnt[nblk]))
     dinv = np.empty(n)
-    _apply_blocks(n, pairs, has_ind, dg, x, dinv, bounds, cnt, buf, True)
+    _apply_blocks(n, pairs, has_ind, dg, x, dinv, bounds, cnt, buf, nblk > 0)  # (the modes as run-time values)
     r = np.empty(n)
     z = np.empty(n)
     p = np.empty(n)
@@ -204,7 +208,7 @@ def jacobi_pcg_blocks(n, pairs, has_ind, dg, b, x, rtol, maxit, nblk):
     rr = bb
     it = 0
     while it < maxit and rr > stop:
-        _apply_blocks(n, pairs, has_ind, dg, p, q, bounds, cnt, buf, False)
+        _apply_blocks(n, pairs, has_ind, dg, p, q, bounds, cnt, buf, nblk < 0)
         for c in prange(nblk):
             pqb = 0.0
             for i in range(bounds[c], bounds[c + 1]):
