@@ -68,3 +68,18 @@ def cross_counts(nb, nnb, mask, bounds):
     for b in range(nblk):
         cnt[b + 1] += cnt[b]
     return cnt
+
+
+@njit(cache=True, error_model="numpy")
+def add_buffered(y, xj, xq, cnt, end):
+    """y[xj[k]] += xq[k] over each block's range [cnt[b], end[b]) of a buffer of shares for
+    rows of other blocks, in block order and buffer order. Returns False, having added nothing,
+    when a block met more pairs across blocks than its room (end[b] > cnt[b + 1]: a neighbour
+    list changed without its count being cleared)."""
+    for b in range(end.shape[0]):
+        if end[b] > cnt[b + 1]:
+            return False
+    for b in range(end.shape[0]):
+        for k in range(cnt[b], end[b]):
+            y[xj[k]] += xq[k]
+    return True

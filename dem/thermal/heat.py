@@ -34,7 +34,7 @@ from .registry import EMISSIVITY, KF, RHO_F, MU_F, PR, RAD_KRAUSE_2017
 from .implicit import jacobi_pcg, jacobi_pcg_blocks, pair_heat_blocks, pair_heat_rows, CG_RTOL
 from ..neighbors import pair_distance
 from ..contact.walls import WF, WI, PLANE, wall_distance
-from ..blocks import block_bounds, cross_counts, kept_cross_counts
+from ..blocks import add_buffered, block_bounds, cross_counts, kept_cross_counts
 from ..schema import slots
 
 # integer thermal parameters (Params.thi; -1: the model is off)
@@ -150,19 +150,16 @@ def _radiation_accumulators_blocks(rad, n, nown, xcnt, T, r, mat, tmat, C, nblk)
     bounds = block_bounds(nown, n, nblk)
     cnt = _radiation_offsets(xcnt, n, nown, C, bounds)
     acc = (np.zeros(n), np.zeros(n))
-    buf = (np.empty(cnt[nblk], np.int64), np.empty((cnt[nblk], 2)))
+    buf = (np.empty(cnt[nblk], np.int64), np.empty(cnt[nblk]), np.empty(cnt[nblk]))
     end = np.empty(nblk, np.int64)
     for b in prange(nblk):
         end[b] = _radiation_rows(rad, bounds[b], bounds[b + 1], acc, T, r, mat, tmat, C, buf, cnt[b])
     acc0, acc1 = acc
-    xj, xa = buf
-    for b in range(nblk):
-        if end[b] > cnt[b + 1]:  # a neighbour list changed without after_build or dem.state
-            raise RuntimeError("internal error: more pairs across blocks of rows in radiation range than "
-                               "the list has (dem.thermal.heat._radiation_accumulators_blocks)")
-        for k in range(cnt[b], end[b]):
-            acc0[xj[k]] += xa[k, 0]
-            acc1[xj[k]] += xa[k, 1]
+    xj, xa0, xa1 = buf
+    # (a neighbour list changed without after_build or dem.state, if not)
+    if not (add_buffered(acc0, xj, xa0, cnt, end) and add_buffered(acc1, xj, xa1, cnt, end)):
+        raise RuntimeError("internal error: more pairs across blocks of rows in radiation range than "
+                           "the list has (dem.thermal.heat._radiation_accumulators_blocks)")
     return acc0, acc1
 
 
@@ -183,7 +180,7 @@ def _radiation_rows(rad, i0, i1, acc, T, r, mat, tmat, C, buf, k):
     writes j's share at buf[k], k + 1, ... Returns the next free k."""
     nb, nnb, rnear = C.nb, C.nnb, C.rnear
     acc0, acc1 = acc
-    xj, xa = buf
+    xj, xa0, xa1 = buf
     for i in range(i0, i1):
         ai0 = acc0[i]
         ai1 = acc1[i]
@@ -201,8 +198,8 @@ def _radiation_rows(rad, i0, i1, acc, T, r, mat, tmat, C, buf, k):
                 elif k < xj.shape[0]:
                     a0, a1 = radiation_accumulate(rad, 0.0, 0.0, ti, ei, ri)
                     xj[k] = j
-                    xa[k, 0] = a0
-                    xa[k, 1] = a1
+                    xa0[k] = a0
+                    xa1[k] = a1
                     k += 1
                 else:
                     k += 1  # no room: counted, for the caller's check

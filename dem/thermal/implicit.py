@@ -25,7 +25,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from ..blocks import block_bounds, cross_counts
+from ..blocks import add_buffered, block_bounds, cross_counts
 
 # relative residual at which the conjugate gradients stop (||r|| <= CG_RTOL ||b||, b the heat
 # rates Q(T^n)): the energy defect of a step is dt sum(r) <= dt sqrt(n) CG_RTOL ||Q(T^n)||, far
@@ -154,13 +154,9 @@ def _apply_blocks(n, pairs, has_ind, dg, x, y, bounds, cnt, buf, diag):
     end = np.empty(nblk, np.int64)
     for c in prange(nblk):
         end[c] = _apply_rows(bounds[c], bounds[c + 1], n, pairs, has_ind, dg, x, y, buf, cnt[c], diag)
-    xj, xq = buf
-    for c in range(nblk):
-        if end[c] > cnt[c + 1]:  # a neighbour list changed without after_build or dem.state
-            raise RuntimeError("internal error: more pairs across blocks of rows than counted "
-                               "(dem.thermal.implicit._apply_blocks)")
-        for k in range(cnt[c], end[c]):
-            y[xj[k]] += xq[k]
+    if not add_buffered(y, buf[0], buf[1], cnt, end):  # a list changed without after_build or dem.state
+        raise RuntimeError("internal error: more pairs across blocks of rows than counted "
+                           "(dem.thermal.implicit._apply_blocks)")
 
 
 @njit(cache=True, error_model="numpy", parallel=True)
