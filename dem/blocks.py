@@ -1,7 +1,8 @@
 """Blocks of rows: how a process cuts its particles among its threads (docs/architecture.md,
-"Threads inside a process"). A leaf module, so that every kernel that runs on blocks (the
-interact phase and the kicks of dem.step, the heat step of dem.thermal.heat) takes the same
-cut without importing the others."""
+"Threads inside a process"), and the pairs across blocks kept between neighbour builds
+(Params.xcnt, slots dem.schema.XC). A leaf module, so that every kernel that runs on blocks (the
+interact phase and the kicks of dem.step, the neighbour rebuild of dem.neighbors, the heat step
+and the implicit solvers of dem.thermal) takes the same cut without importing the others."""
 import numpy as np
 from numba import njit, prange
 
@@ -44,6 +45,22 @@ def kept_cross_counts(xc, n, nown, nblk):
     if xc.shape[0] >= XC.start + nblk + 1 and xc[XC.nblk] == nblk and xc[XC.n] == n and xc[XC.nown] == nown:
         return xc[XC.start:XC.start + nblk + 1].copy()
     return np.empty(0, np.int64)
+
+
+def cross_count_slots(threads):
+    """Params.xcnt for a process on ``threads`` threads: the key and room for as many blocks."""
+    return np.zeros(XC.SIZE + threads, np.int64)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def keep_cross_counts(xc, cnt, n, nown, nblk):
+    """Keep the offsets ``cnt`` under their key (see kept_cross_counts), when ``xc`` has room."""
+    if xc.shape[0] >= XC.start + nblk + 1:
+        for b in range(nblk + 1):
+            xc[XC.start + b] = cnt[b]
+        xc[XC.n] = n
+        xc[XC.nown] = nown
+        xc[XC.nblk] = nblk
 
 
 @njit(cache=True, error_model="numpy", parallel=True)

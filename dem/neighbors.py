@@ -14,6 +14,8 @@ from collections import namedtuple
 import numpy as np
 from numba import njit, prange
 
+from .blocks import block_bounds
+
 # a box: lower and upper corner and its periodic (wrapped) axes: the domain of the minimum
 # image, or the region a cell grid covers
 Box = namedtuple("Box", "lo hi periodic")
@@ -261,11 +263,10 @@ def _rows_threaded(nown, nthreads, grid, x, r, box, cutoff, nb, nnb, rowc):
     of rows, each row written by one thread only, so the list is the same bit for bit as on one
     thread. ``rowc[i]``: row i's count (the caller takes their largest)."""
     slots = nb.shape[1]
+    bounds = block_bounds(nown, nown, nthreads)
     for b in prange(nthreads):
-        i0 = (nown * b) // nthreads
-        i1 = (nown * (b + 1)) // nthreads
         zc = np.empty(3, np.int64)
-        for i in range(i0, i1):
+        for i in range(bounds[b], bounds[b + 1]):
             cnt = _row_neighbours(i, grid, x, r, box, cutoff, nb, zc)
             rowc[i] = cnt
             nnb[i] = min(cnt, slots)
@@ -275,10 +276,9 @@ def _rows_threaded(nown, nthreads, grid, x, r, box, cutoff, nb, nnb, rowc):
 def _carry_threaded(n, nthreads, nb, nnb, hist, rhist, age, old):
     """The history carried over (:func:`_carry_row`) on ``nthreads`` threads, blocks of rows."""
     nb_old, nnb_old, hist_old, rhist_old, age_old = old
+    bounds = block_bounds(n, n, nthreads)
     for b in prange(nthreads):
-        i0 = (n * b) // nthreads
-        i1 = (n * (b + 1)) // nthreads
-        for i in range(i0, i1):
+        for i in range(bounds[b], bounds[b + 1]):
             _carry_row(i, nb, nnb, hist, rhist, age, nb_old, nnb_old, hist_old, rhist_old, age_old)
 
 

@@ -22,6 +22,7 @@ import time
 
 from . import reports
 from . import step as K
+from .blocks import cross_count_slots
 from . import scene as scene_mod
 from .checkpointer import Checkpointer
 from .errors import SimulationError  # noqa: F401  (dem.simulation.SimulationError, as before)
@@ -124,7 +125,7 @@ class Simulation:
         threads.apply(k)
         self.threads = k
         self.state.ip[K.IP.threads] = k
-        self.state.xcnt = K.cross_count_slots(k)
+        self.state.xcnt = cross_count_slots(k)
 
     def warmup(self):
         """Compile (or load from Numba's cache) the kernels; returns seconds spent."""

@@ -23,7 +23,7 @@ from .contact.hertz_mindlin import hertz_mindlin
 from .contact.linear import linear_spring_dashpot
 from .contact.rolling import constant_torque, epsd
 from .contact.walls import wall_distance, wall_velocity, WI
-from .blocks import block_bounds, block_count, cross_counts, kept_cross_counts
+from .blocks import block_bounds, block_count, cross_counts, keep_cross_counts, kept_cross_counts
 from .neighbors import build_half_list, Box
 from .schema import Pairs, XC, slots
 from .thermal.contact_radius import (contact_radius_pw, hertz_force, hertz_overlap, geometric_pp_inv,
@@ -662,22 +662,6 @@ def blocks(ip):
     """How many blocks of rows the kernels run at once (dem.blocks.block_count) for the threads
     asked for (ip[IP.threads]) and the owned rows (ip[IP.nown])."""
     return block_count(ip[IP.threads], ip[IP.nown])
-
-
-def cross_count_slots(threads):
-    """Params.xcnt for a process on ``threads`` threads: the key and room for as many blocks."""
-    return np.zeros(XC.SIZE + threads, np.int64)
-
-
-@njit(cache=True, error_model="numpy", inline="always")
-def keep_cross_counts(xc, cnt, n, nown, nblk):
-    """Keep the offsets ``cnt`` under their key (see kept_cross_counts), when ``xc`` has room."""
-    if xc.shape[0] >= XC.start + nblk + 1:
-        for b in range(nblk + 1):
-            xc[XC.start + b] = cnt[b]
-        xc[XC.n] = n
-        xc[XC.nown] = nown
-        xc[XC.nblk] = nblk
 
 
 @njit(cache=True, error_model="numpy", parallel=True, no_cpython_wrapper=True, no_cfunc_wrapper=True)
