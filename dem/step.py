@@ -295,14 +295,15 @@ def interact_rows(P, C, W, TB, prm, n, t, hon, blk):
     ncont = 0
     k = k0
     kcap = xv.shape[0]
-    for i in range(i0, i1):
+    for iu in range(i0, i1):
+        i = np.uint32(iu)
         xi0 = x[i, 0]
         xi1 = x[i, 1]
         xi2 = x[i, 2]
         ri = r[i]
         mi = mat[i]
         for s in range(nnb[i]):
-            j = nb[i, s]
+            j = np.uint32(nb[i, s])
             wgt = 1.0 if j < nown else 0.5
             loc = j >= i0 and j < i1
             kx = k
@@ -515,11 +516,12 @@ def interact_rows(P, C, W, TB, prm, n, t, hon, blk):
                     xv[kx, XV.my] = my
                     xv[kx, XV.mz] = mz
     # walls (candidates from the wall list built with the neighbour list)
-    for i in range(i0, i1):
+    for iu in range(i0, i1):
+        i = np.uint32(iu)
         ri = r[i]
         mi = mat[i]
         for q in range(wnn[i]):
-            wl = wnb[i, q]
+            wl = np.uint32(wnb[i, q])
             dist, nx, ny, nz = wall_distance(wf, wi, wl, x[i, 0], x[i, 1], x[i, 2], t)
             if not (dist < ri) or dist < -ri:
                 whist[i, wl, 0] = 0.0
