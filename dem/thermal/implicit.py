@@ -119,11 +119,12 @@ def _apply_rows(i0, i1, n, pairs, has_ind, dg, x, y, buf, k, diag):
     sgn = 1.0 if diag else -1.0
     for i in range(i0, i1):
         y[i] = dg[i] if diag else dg[i] * x[i]
-    for i in range(i0, i1):
+    for iu in range(i0, i1):
+        i = np.uint32(iu)
         xi = 0.0 if diag else x[i]
         acc = 0.0
         for s in range(nnb[i]):
-            j = nb[i, s]
+            j = np.uint32(nb[i, s])
             if j >= n:
                 continue
             h = Hd[i, s] + (Hi[i, s] if has_ind else 0.0)
