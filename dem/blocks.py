@@ -100,3 +100,13 @@ def add_buffered(y, xj, xq, cnt, end):
         for k in range(cnt[b], end[b]):
             y[xj[k]] += xq[k]
     return True
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def block_sum(part, k):
+    """Column k of per-block partial sums ``part`` (one row per block) added in block order,
+    from 0.0: a sum over blocks that does not depend on which thread finished first."""
+    s = 0.0
+    for c in range(part.shape[0]):
+        s += part[c, k]
+    return s

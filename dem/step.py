@@ -295,6 +295,8 @@ def interact_rows(P, C, W, TB, prm, n, t, hon, blk):
     ncont = 0
     k = k0
     kcap = xv.shape[0]
+    # rows as uint32: Numba wraps a signed index around the array's length at every access
+    # (docs/architecture.md, "Unsigned row indices in the contact loops")
     for iu in range(i0, i1):
         i = np.uint32(iu)
         xi0 = x[i, 0]

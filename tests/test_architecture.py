@@ -191,8 +191,7 @@ def test_pair_loops_index_rows_unsigned(path, name, expected, loops):
         if (isinstance(n, ast.Assign) and len(n.targets) == 1 and isinstance(n.targets[0], ast.Name)
                 and isinstance(n.value, ast.Call) and isinstance(n.value.func, ast.Attribute)
                 and n.value.func.attr == "uint32"):
-            casts.setdefault(n.targets[0].id, 0)
-            casts[n.targets[0].id] += 1
+            casts[n.targets[0].id] = casts.get(n.targets[0].id, 0) + 1
     assert casts == expected, casts
     # every loop over the pairs' rows goes through the cast
     fors = [n for n in ast.walk(fn) if isinstance(n, ast.For) and isinstance(n.target, ast.Name)]

@@ -25,7 +25,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from ..blocks import add_buffered, block_bounds, cross_counts
+from ..blocks import add_buffered, block_bounds, block_sum, cross_counts
 
 # relative residual at which the conjugate gradients stop (||r|| <= CG_RTOL ||b||, b the heat
 # rates Q(T^n)): the energy defect of a step is dt sum(r) <= dt sqrt(n) CG_RTOL ||Q(T^n)||, far
@@ -119,7 +119,7 @@ def _apply_rows(i0, i1, n, pairs, has_ind, dg, x, y, buf, k, diag):
     sgn = 1.0 if diag else -1.0
     for i in range(i0, i1):
         y[i] = dg[i] if diag else dg[i] * x[i]
-    for iu in range(i0, i1):
+    for iu in range(i0, i1):  # rows as uint32: no wrap-around of a negative index (dem.step.interact_rows)
         i = np.uint32(iu)
         xi = 0.0 if diag else x[i]
         acc = 0.0
@@ -176,9 +176,7 @@ def jacobi_pcg_blocks(n, pairs, has_ind, dg, b, x, rtol, maxit, nblk):
             x[i] = 0.0
             bbb += b[i] * b[i]
         part[c, 0] = bbb
-    bb = 0.0
-    for c in range(nblk):
-        bb += part[c, 0]
+    bb = block_sum(part, 0)
     if bb == 0.0:
         return 0, 0.0
     cnt = cross_counts(nb, nnb, np.empty((0, 0), np.uint8), bounds)
@@ -198,9 +196,7 @@ def jacobi_pcg_blocks(n, pairs, has_ind, dg, b, x, rtol, maxit, nblk):
             p[i] = z[i]
             rzb += r[i] * z[i]
         part[c, 0] = rzb
-    rz = 0.0
-    for c in range(nblk):
-        rz += part[c, 0]
+    rz = block_sum(part, 0)
     stop = rtol * rtol * bb
     rr = bb
     it = 0
@@ -211,9 +207,7 @@ def jacobi_pcg_blocks(n, pairs, has_ind, dg, b, x, rtol, maxit, nblk):
             for i in range(bounds[c], bounds[c + 1]):
                 pqb += p[i] * q[i]
             part[c, 0] = pqb
-        pq = 0.0
-        for c in range(nblk):
-            pq += part[c, 0]
+        pq = block_sum(part, 0)
         if not (pq > 0.0):  # p = 0 in floating point: nothing left to reduce
             break
         alpha = rz / pq
@@ -228,11 +222,8 @@ def jacobi_pcg_blocks(n, pairs, has_ind, dg, b, x, rtol, maxit, nblk):
                 rzb += r[i] * z[i]
             part[c, 1] = rrb
             part[c, 2] = rzb
-        rr = 0.0
-        rz_new = 0.0
-        for c in range(nblk):
-            rr += part[c, 1]
-            rz_new += part[c, 2]
+        rr = block_sum(part, 1)
+        rz_new = block_sum(part, 2)
         beta = rz_new / rz
         rz = rz_new
         for c in prange(nblk):
@@ -276,9 +267,4 @@ def pair_heat_blocks(n, pairs, has_ind, T, f, nblk):
         ed, ei = pair_heat_rows(bounds[c], bounds[c + 1], n, pairs, has_ind, T, f)
         part[c, 0] = ed
         part[c, 1] = ei
-    ed = 0.0
-    ei = 0.0
-    for c in range(nblk):
-        ed += part[c, 0]
-        ei += part[c, 1]
-    return ed, ei
+    return block_sum(part, 0), block_sum(part, 1)
