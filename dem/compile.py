@@ -270,23 +270,29 @@ _MAT = dict(name="m", density=2500.0, youngs_modulus=1e7, poisson_ratio=0.3, res
             friction=0.3, thermal_conductivity=1.0, heat_capacity=840.0)
 
 
-def _base():
-    return {"simulation": {"time_step": 1e-5, "end_time": 1e-4},
+def _base(full=False):
+    """A throwaway scene of two particles and a floor; ``full``: with a rolling model, so that
+    its step is the full form of the interact phase (dem.step.full_form), else the lean one."""
+    data = {"simulation": {"time_step": 1e-5, "end_time": 1e-4},
             "domain": {"min": [-0.01] * 3, "max": [0.01] * 3}, "materials": [dict(_MAT)],
             "particles": [{"material": "m", "positions": [[0, 0, 0], [0.00199, 0, 0]], "radius": 1e-3}],
             "walls": [{"type": "plane", "point": [0, 0, -0.001], "normal": [0, 0, 1], "material": "m"}]}
+    if full:
+        data["materials"][0]["rolling_friction"] = 0.02
+        data["contact"] = {"model": "hertz_mindlin", "rolling": "epsd"}
+    return data
 
 
-def _thermal():
-    return dict(_base(), thermal={"direct": "batchelor_obrien", "initial_temperature": 300.0})
+def _thermal(full=False):
+    return dict(_base(full), thermal={"direct": "batchelor_obrien", "initial_temperature": 300.0})
 
 
-def _state(hon):
+def _state(hon, full=False):
     """The declared state of a throwaway scene (with heat or not), no kernel run yet: the
     bundles every kernel takes have the types of every scene's (dem.schema)."""
     from . import scene
     from .world import World
-    return World(scene.parse(_thermal() if hon else _base(), "<compile>")).state
+    return World(scene.parse(_thermal(full) if hon else _base(full), "<compile>")).state
 
 
 def _compile(kernel, args):
@@ -296,13 +302,15 @@ def _compile(kernel, args):
     kernel.compile(tuple(kernel.typeof_pyval(a) for a in args))
 
 
-def forces(hon):
-    """dem.step.compute_forces of one heat switch (the largest part of the step: contact and
-    wall laws, the pair loop serial and on blocks of rows, and with heat the conductance laws),
-    with the argument types dem.step.advance calls it with (n int64, t float64, hon)."""
+def forces(hon, full=False):
+    """dem.step.compute_forces of one heat switch and one form (the largest part of the step:
+    contact and wall laws, the pair loop serial and on blocks of rows, and with heat the
+    conductance laws; ``full``: the full form, with rolling, periodic images and every heat
+    model, else the lean one), with the argument types dem.step.advance calls it with (n int64,
+    t float64, hon, xon)."""
     from . import step as K
-    st = _state(hon)
-    _compile(K.compute_forces, (*st.bundles(), st.n, 0.0, True if hon else None))
+    st = _state(hon, full)
+    _compile(K.compute_forces, (*st.bundles(), st.n, 0.0, True if hon else None, True if full else None))
 
 
 def heat_step():
@@ -332,17 +340,19 @@ def heat_blocks():
     _compile(H.pair_heat_blocks, (i, pairs, True, f, 1e-5, i))
 
 
-def mechanics():
-    """The step without heat (the ``hon`` = None specialisation of dem.step.advance)."""
+def mechanics(full=False):
+    """The step without heat (the ``hon`` = None specialisation of dem.step.advance), lean or
+    ``full`` (``xon``)."""
     from .simulation import Simulation
-    Simulation.from_dict(_base()).run(progress=False)
+    Simulation.from_dict(_base(full)).run(progress=False)
 
 
-def heat():
-    """The step with heat, and the output kernels of a run with an output folder."""
+def heat(full=False):
+    """The step with heat (lean or ``full``), and the output kernels of a run with an output
+    folder."""
     from .simulation import Simulation
     with tempfile.TemporaryDirectory(prefix="dem_compile_") as tmp:
-        Simulation.from_dict(_thermal()).run(progress=False, out_dir=os.path.join(tmp, "out"))
+        Simulation.from_dict(_thermal(full)).run(progress=False, out_dir=os.path.join(tmp, "out"))
 
 
 def frozen():
@@ -386,10 +396,15 @@ DEM_JOBS = (
     Job("dem.forces", "dem.compile:forces", (False,)),
     Job("dem.heat_blocks", "dem.compile:heat_blocks"),
     Job("dem.forces_heat", "dem.compile:forces", (True,)),
+    Job("dem.forces_full", "dem.compile:forces", (False, True)),
+    Job("dem.forces_heat_full", "dem.compile:forces", (True, True)),
     Job("dem.mechanics", "dem.compile:mechanics", after=("dem.forces",)),
     Job("dem.heat_step", "dem.compile:heat_step", after=("dem.heat_blocks",)),
     Job("dem.insertion", "dem.compile:insertion"),
+    Job("dem.mechanics_full", "dem.compile:mechanics", (True,), after=("dem.forces_full", "dem.mechanics")),
     Job("dem.heat", "dem.compile:heat", after=("dem.forces_heat", "dem.heat_step", "dem.mechanics")),
+    Job("dem.heat_full", "dem.compile:heat", (True,), after=("dem.forces_heat_full", "dem.heat",
+                                                             "dem.mechanics_full")),
     Job("dem.frozen", "dem.compile:frozen", after=("dem.heat",)),
     Job("dem.mpi", "dem.compile:mpi_entry_points", after=("dem.heat",)),
 )

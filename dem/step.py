@@ -182,9 +182,25 @@ def _rotate_history(h, i, s, nx, ny, nz):
     return 0.0, 0.0, 0.0
 
 
+@njit(cache=True, error_model="numpy")
+def full_form(ip, thi, periodic):
+    """Whether a scene needs the full form of the interact phase (``xon`` = True): rolling
+    resistance, a periodic direction, or with heat the models the lean form (``xon`` = None)
+    leaves out: indirect conduction, radiation, frictional heating, contact age. Like ``hon``,
+    ``xon`` is a type, so that Numba compiles the lean form without that code and without
+    its run-time switches: the shared heat beds, whose scene uses none of them, run their
+    interact phase about 10 % faster (docs/benchmarks.md, "The lean form of the contact loops").
+    dem.stepper.Stepper.xon asks this; dem.step.compute_forces refuses the lean form for a
+    scene that needs the full one."""
+    if ip[IP.rolling] != 0 or periodic[0] or periodic[1] or periodic[2]:
+        return True
+    return thi[TI.heat] != 0 and (thi[TI.indirect] >= 0 or thi[TI.rad] >= 0 or thi[TI.fric] >= 0
+                                  or thi[TI.age] != 0)
+
+
 @njit(cache=True, error_model="numpy", fastmath={"nsz", "arcp", "contract", "afn", "reassoc"},
       no_cpython_wrapper=True, no_cfunc_wrapper=True)
-def interact_rows(P, C, W, TB, prm, n, t, hon, blk):
+def interact_rows(P, C, W, TB, prm, n, t, hon, xon, blk):
     """The interact phase of the rows [i0, i1) of ``blk`` (:data:`Block`): body forces, the pairs of the half list that start
     at those rows, and their walls; with heat, the conductances of every neighbour slot and wall
     candidate for the heat step (Hd, Hi, Hw, the radiation neighbour flags) and the friction
@@ -212,15 +228,30 @@ def interact_rows(P, C, W, TB, prm, n, t, hon, blk):
     thi = prm.thi
     heat = hon is not None and thi[TI.heat] != 0
     # each heat block tests `hon is not None` first: Numba removes those blocks before typing
-    # when hon is None, so the mechanics-only form neither types nor compiles the heat models
+    # when hon is None, so the mechanics-only form neither types nor compiles the heat models;
+    # likewise `xon is not None` for the optional physics (:func:`full_form`): the lean form
+    # (xon None) has neither their code nor their run-time switches
     dmodel = thi[TI.direct]
     crm = thi[TI.cr]
     crc = thi[TI.corr]
-    imodel = thi[TI.indirect]
-    radon = thi[TI.rad] >= 0
-    fric = thi[TI.fric]
+    imodel = -1
+    radon = False
+    fric = -1
+    use_age = False
+    rolling = 0
+    px = False
+    py = False
+    pz = False
+    if xon is not None:
+        imodel = thi[TI.indirect]
+        radon = thi[TI.rad] >= 0
+        fric = thi[TI.fric]
+        use_age = thi[TI.age] != 0
+        rolling = ip[IP.rolling]
+        px = periodic[0]
+        py = periodic[1]
+        pz = periodic[2]
     pmodel = thi[TI.part]
-    use_age = thi[TI.age] != 0
     thf = prm.thf
     tmat = TB.tmat
     gas = TB.gas
@@ -249,7 +280,7 @@ def interact_rows(P, C, W, TB, prm, n, t, hon, blk):
     e_dir = 0.0
     e_ind = 0.0
     e_wall = 0.0
-    if hon is not None and heat and fric >= 0:
+    if hon is not None and xon is not None and heat and fric >= 0:
         for i in range(i0, i1):
             qgen[i] = 0.0
     if fused:
@@ -257,7 +288,6 @@ def interact_rows(P, C, W, TB, prm, n, t, hon, blk):
             Q[i] = 0.0
     dt = fp[FP.dt]
     model = ip[IP.contact]
-    rolling = ip[IP.rolling]
     law = contact_law(ip, fp)
     etar = fp[FP.etar]
     gx = fp[FP.gx]
@@ -266,9 +296,6 @@ def interact_rows(P, C, W, TB, prm, n, t, hon, blk):
     Lx = hi[0] - lo[0]
     Ly = hi[1] - lo[1]
     Lz = hi[2] - lo[2]
-    px = periodic[0]
-    py = periodic[1]
-    pz = periodic[2]
     has_ext = fext.shape[0] == n
     text = P.external_torque
     has_text = text.shape[0] == n
@@ -331,16 +358,16 @@ def interact_rows(P, C, W, TB, prm, n, t, hon, blk):
                 hist[i, s, 0] = 0.0
                 hist[i, s, 1] = 0.0
                 hist[i, s, 2] = 0.0
-                if rolling == 2:
+                if xon is not None and rolling == 2:
                     rhist[i, s, 0] = 0.0
                     rhist[i, s, 1] = 0.0
                     rhist[i, s, 2] = 0.0
                 if hon is not None and heat:
                     if not fused:
                         Hd[i, s] = 0.0
-                    if use_age:
+                    if xon is not None and use_age:
                         age[i, s, 0] = 0.0
-                    if imodel >= 0 or radon:
+                    if xon is not None and (imodel >= 0 or radon):
                         d = math.sqrt(d2)
                         if imodel >= 0:
                             if has_cg:
@@ -399,7 +426,10 @@ def interact_rows(P, C, W, TB, prm, n, t, hon, blk):
             hist[i, s, 1] = hy
             hist[i, s, 2] = hz
             if hon is not None and heat:
-                tc, vimp = _contact_age(age, i, s, vn, dt) if use_age else (0.0, 0.0)
+                tc = 0.0
+                vimp = 0.0
+                if xon is not None and use_age:
+                    tc, vimp = _contact_age(age, i, s, vn, dt)
                 fel = (2.0 / 3.0) * kn * delta if model == 0 else kn * delta
                 # contact radius (the dispatcher of dem.thermal.contact_radius, with R* at hand)
                 if crm == HERTZ_OVERLAP:
@@ -423,7 +453,7 @@ def interact_rows(P, C, W, TB, prm, n, t, hon, blk):
                         hdir = dfac * direct_pp(dmodel, ri, rj, d, rc, mi, mj, tmat, gas, tc, vimp)
                 else:
                     hdir = 0.0
-                if imodel < 0:
+                if xon is None or imodel < 0:
                     hind = 0.0
                 elif has_cg:
                     c = cgv[i]
@@ -445,9 +475,9 @@ def interact_rows(P, C, W, TB, prm, n, t, hon, blk):
                     Hd[i, s] = hdir
                     if imodel >= 0:
                         Hi[i, s] = hind
-                if radon:
+                if xon is not None and radon:
                     rnear[i, s] = 1
-                if fric >= 0:
+                if xon is not None and fric >= 0:
                     qf = _contact_heat(fric, tab[TAB.mu, mi, mj], thf, vtx, vty, vtz, ftx, fty, ftz, fn, vn)
                     psi = partition(pmodel, mi, mj, tmat)
                     qgen[i] += psi * qf
@@ -485,7 +515,7 @@ def interact_rows(P, C, W, TB, prm, n, t, hon, blk):
                 xv[kx, XV.cx] = cx
                 xv[kx, XV.cy] = cy
                 xv[kx, XV.cz] = cz
-            if rolling != 0:
+            if xon is not None and rolling != 0:
                 mur = tab[TAB.mur, mi, mj]
                 wx = w[i, 0] - w[j, 0]
                 wy = w[i, 1] - w[j, 1]
@@ -529,15 +559,15 @@ def interact_rows(P, C, W, TB, prm, n, t, hon, blk):
                 whist[i, wl, 0] = 0.0
                 whist[i, wl, 1] = 0.0
                 whist[i, wl, 2] = 0.0
-                if rolling == 2:
+                if xon is not None and rolling == 2:
                     wrhist[i, wl, 0] = 0.0
                     wrhist[i, wl, 1] = 0.0
                     wrhist[i, wl, 2] = 0.0
                 if hon is not None and heat:
-                    if use_age:
+                    if xon is not None and use_age:
                         wage[i, wl, 0] = 0.0
                     hw = 0.0
-                    if imodel >= 0 and wth[wl, WT.cond] == 1.0 and dist >= ri:
+                    if xon is not None and imodel >= 0 and wth[wl, WT.cond] == 1.0 and dist >= ri:
                         if has_cg:
                             c = cgv[i]
                             hw = c * c * indirect_pw(imodel, ri / c, dist / c, 0.0, mi, np.int32(wi[wl, WI.mat]),
@@ -590,7 +620,10 @@ def interact_rows(P, C, W, TB, prm, n, t, hon, blk):
             if hon is not None and heat:
                 cond = wth[wl, WT.cond]
                 fel = (2.0 / 3.0) * kn * delta if model == 0 else kn * delta
-                tc, vimp = _contact_age(wage, i, wl, vn, dt) if use_age else (0.0, 0.0)
+                tc = 0.0
+                vimp = 0.0
+                if xon is not None and use_age:
+                    tc, vimp = _contact_age(wage, i, wl, vn, dt)
                 hw = 0.0
                 hwg = 0.0  # the part across the gas gap
                 if cond != 0.0:
@@ -601,13 +634,13 @@ def interact_rows(P, C, W, TB, prm, n, t, hon, blk):
                             hw = dfac * direct_cg_pw(dmodel, c, ri / c, dist / c, rc / c, mi, mw, tmat, gas,
                                                      tc / c, vimp) \
                                 * direct_pw(dmodel, ri / c, dist / c, rc / c, mi, mw, tmat, gas, tc / c, vimp)
-                        if imodel >= 0:
+                        if xon is not None and imodel >= 0:
                             hwg = c * c * indirect_pw(imodel, ri / c, dist / c, rc / c, mi, mw, por[i], tmat, gas)
                             hw += hwg
                     elif cond == 1.0:
                         if dmodel >= 0:
                             hw = dfac * direct_pw(dmodel, ri, dist, rc, mi, mw, tmat, gas, tc, vimp)
-                        if imodel >= 0:
+                        if xon is not None and imodel >= 0:
                             hwg = indirect_pw(imodel, ri, dist, rc, mi, mw, por[i], tmat, gas)
                             hw += hwg
                     else:
@@ -627,7 +660,7 @@ def interact_rows(P, C, W, TB, prm, n, t, hon, blk):
                 Hw[i, q] = hw   # both modes (see above)
                 if has_wg:
                     Hwg[i, q] = hwg
-                if fric >= 0:
+                if xon is not None and fric >= 0:
                     qf = _contact_heat(fric, tab[TAB.mu, mi, mw], thf, vtx, vty, vtz, ftx, fty, ftz, fn, vn)
                     qgen[i] += partition(pmodel, mi, mw, tmat) * qf
             f[i, 0] += -fn * nx + ftx
@@ -636,7 +669,7 @@ def interact_rows(P, C, W, TB, prm, n, t, hon, blk):
             tq[i, 0] += ri * (ny * ftz - nz * fty)
             tq[i, 1] += ri * (nz * ftx - nx * ftz)
             tq[i, 2] += ri * (nx * fty - ny * ftx)
-            if rolling != 0:
+            if xon is not None and rolling != 0:
                 mur = tab[TAB.mur, mi, mw]
                 wx = w[i, 0]
                 wy = w[i, 1]
@@ -669,7 +702,7 @@ def blocks(ip):
 
 
 @njit(cache=True, error_model="numpy", parallel=True, no_cpython_wrapper=True, no_cfunc_wrapper=True)
-def interact_blocks(P, C, W, TB, prm, n, t, hon, nblk, fused, fgen):
+def interact_blocks(P, C, W, TB, prm, n, t, hon, xon, nblk, fused, fgen):
     """The interact phase on ``nblk`` threads: the rows cut into blocks (:func:`block_bounds`),
     each block's pairs and walls by :func:`interact_rows` at once, then, in block order, what
     the pairs across two blocks give their other particle, and the blocks' wall heat. No two
@@ -692,7 +725,7 @@ def interact_blocks(P, C, W, TB, prm, n, t, hon, nblk, fused, fgen):
     wg = np.zeros((nblk, W.wgap.shape[0]))
     res = np.empty((nblk, 8))
     for b in prange(nblk):
-        r = interact_rows(P, C, W, TB, prm, n, t, hon,
+        r = interact_rows(P, C, W, TB, prm, n, t, hon, xon,
                           Block(bounds[b], bounds[b + 1], cnt[b], xj, xv, wt[b], wg[b]))
         res[b, 0] = r[0]
         res[b, 1] = r[1]
@@ -745,20 +778,23 @@ def interact_blocks(P, C, W, TB, prm, n, t, hon, nblk, fused, fgen):
 
 
 @njit(cache=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
-def compute_forces(P, C, W, TB, prm, n, t, hon):
+def compute_forces(P, C, W, TB, prm, n, t, hon, xon):
     """The interact phase (:func:`interact_rows`) of every row, on one thread (one block, the
     serial order) or on ip[IP.threads] blocks at once (:func:`interact_blocks`); adds the fused
     heat exchanged to the totals. Returns (max overlap ratio, i, j (-1-wall), 2 x contacts)."""
     thi = prm.thi
     fused = hon is not None and thi[TI.heat] != 0 and thi[TI.fused] == 1
-    fgen = hon is not None and thi[TI.heat] != 0 and thi[TI.fric] >= 0
+    fgen = hon is not None and xon is not None and thi[TI.heat] != 0 and thi[TI.fric] >= 0
+    if xon is None and full_form(prm.ip, thi, prm.periodic):
+        raise ValueError("internal error: the lean form of the interact phase was called for a scene "
+                         "that uses rolling, periodic images or heat models it leaves out (dem.step.full_form)")
     nblk = blocks(prm.ip)
     if nblk == 1:
         maxov, who_i, who_j, ncont, e_dir, e_ind, e_wall, _ = interact_rows(
-            P, C, W, TB, prm, n, t, hon,
+            P, C, W, TB, prm, n, t, hon, xon,
             Block(np.int64(0), n, np.int64(0), np.empty(0, np.int64), np.empty((0, XV_SIZE)), W.wtot, W.wgap))
     else:
-        maxov, who_i, who_j, ncont, e_dir, e_ind, e_wall = interact_blocks(P, C, W, TB, prm, n, t, hon, nblk,
+        maxov, who_i, who_j, ncont, e_dir, e_ind, e_wall = interact_blocks(P, C, W, TB, prm, n, t, hon, xon, nblk,
                                                                            fused, fgen)
     if fused:
         dt = prm.fp[FP.dt]
@@ -1050,7 +1086,7 @@ def heat_phase(P, C, W, TB, prm, n, nown, t):
 
 
 @njit(cache=True, error_model="numpy")
-def advance(nsteps, s0, n, nown, P, C, W, TB, prm, hon, phases):
+def advance(nsteps, s0, n, nown, P, C, W, TB, prm, hon, xon, phases):
     """Advance ``nsteps`` steps from step number s0, time s0 dt (the forces of that time are in
     P.force, P.torque), composing the phases of one step: drift (PH_DRIFT), rebuild when due
     (PH_REBUILD), interact (compute_forces, PH_FORCES), kick + guards (PH_KICK), heat (PH_HEAT).
@@ -1093,7 +1129,7 @@ def advance(nsteps, s0, n, nown, P, C, W, TB, prm, hon, phases):
                 C = rebuild(P, C, W, prm, n, t)
                 nreb += 1
         if phases & PH_FORCES:
-            maxov, wi_, wj_, ncont = compute_forces(P, C, W, TB, prm, n, t, hon)
+            maxov, wi_, wj_, ncont = compute_forces(P, C, W, TB, prm, n, t, hon, xon)
         if phases & PH_KICK:
             status, who, other, value = kick_guard(P, prm, nown, maxov, wi_, wj_)
             if status != OK:

@@ -29,7 +29,7 @@ class Stepper:
         self.forces_ready = False
         self.pair_count = 0      # contacts x 2 of the last force evaluation (a half list counts each twice)
         self.last_contacts = 0
-        self._entry = None       # (bundles, heat switch, compiled entry point) of the last call
+        self._entry = None       # (bundles, heat switch, form switch, compiled entry point) of the last call
 
     # ------------------------------------------------------------------ compiled calls
     @property
@@ -39,6 +39,16 @@ class Stepper:
         (docs/benchmarks.md, "Cost of each mechanism": a run-time flag alone cost ~5 %)."""
         return True if self.world.thermal is not None else None
 
+    @property
+    def xon(self):
+        """The kernels' optional-physics switch as a type: True when the scene uses rolling
+        resistance, periodic images or (with heat) indirect conduction, radiation, frictional
+        heating or contact age (dem.step.full_form), None otherwise, so that Numba compiles a
+        lean interact phase without that code (docs/benchmarks.md, "The lean form of the contact
+        loops")."""
+        st = self.state
+        return True if K.full_form(st.ip, st.thi, st.periodic) else None
+
     def phases(self, phases, nsteps=1, s0=None):
         """dem.step.advance over ``nsteps`` steps from step number s0 (by default the step in
         progress: a force evaluation alone is at the current time), the given phases only."""
@@ -46,14 +56,15 @@ class Stepper:
         b = st.bundles()
         s0 = self.world.step_count - 1 if s0 is None else s0
         hon = self.hon
+        xon = self.xon
         ent = self._entry
-        if ent is not None and ent[0] is b and ent[1] is hon:
+        if ent is not None and ent[0] is b and ent[1] is hon and ent[2] is xon:
             # the compiled form found for these very bundles: called without the dispatcher's type
             # resolution of the ~60 arrays (25 us -> 12 us a call; an MPI step makes 2-3 calls)
-            return ent[2](nsteps, s0, st.n, st.n_owned, *b, hon, phases)
-        args = (nsteps, s0, st.n, st.n_owned, *b, hon, phases)
+            return ent[3](nsteps, s0, st.n, st.n_owned, *b, hon, xon, phases)
+        args = (nsteps, s0, st.n, st.n_owned, *b, hon, xon, phases)
         res = K.advance(*args)
-        self._entry = (b, hon, K.advance.get_overload(tuple(K.advance.typeof_pyval(a) for a in args)))
+        self._entry = (b, hon, xon, K.advance.get_overload(tuple(K.advance.typeof_pyval(a) for a in args)))
         return res
 
     def set_pairs(self, C):

@@ -196,3 +196,19 @@ def test_pair_loops_index_rows_unsigned(path, name, expected, loops):
     # every loop over the pairs' rows goes through the cast
     fors = [n for n in ast.walk(fn) if isinstance(n, ast.For) and isinstance(n.target, ast.Name)]
     assert sum(1 for n in fors if n.target.id == "iu") == loops
+
+
+def test_lean_form_leaves_out_only_what_full_form_checks():
+    """The lean form of the interact phase (``xon`` None) replaces the switches it leaves out by
+    constants in one block, ``if xon is not None:`` of ``interact_rows``; each switch read there
+    is one that ``full_form`` (which picks the form for a scene) checks, so that no scene using
+    it runs in the lean form (tests/test_lean_form.py runs both forms)."""
+    tree = ast.parse((ROOT / "dem/step.py").read_text())
+    fns = {n.name: n for n in tree.body if isinstance(n, ast.FunctionDef)}
+    block = next(n for n in fns["interact_rows"].body if isinstance(n, ast.If)
+                 and ast.unparse(n.test) == "xon is not None")
+    read = {ast.unparse(s) for a in block.body for s in ast.walk(a.value) if isinstance(s, ast.Subscript)}
+    lean = {a.targets[0].id for a in block.body}
+    assert lean == {"imodel", "radon", "fric", "use_age", "rolling", "px", "py", "pz"}, lean
+    checked = {ast.unparse(s) for s in ast.walk(fns["full_form"]) if isinstance(s, ast.Subscript)}
+    assert read and read <= checked, read - checked

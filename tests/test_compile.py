@@ -175,9 +175,10 @@ def test_compile_fills_the_cache_and_the_examples_then_compile_nothing(tmp_path)
     assert len(before) > 100
     # compute_forces and heat_step, compiled alone by signature (dem.compile.forces, heat_step),
     # have the types dem.step.advance calls them with, and the heat step's parallel loops
-    # (dem.compile.heat_blocks) those heat_step calls them with: one entry per heat switch, none
-    # added by the compile of their caller
-    for kernel, entries in (("step.compute_forces", 2), ("heat.heat_step", 1), ("heat._heat_blocks", 1),
+    # (dem.compile.heat_blocks) those heat_step calls them with: one entry per heat switch (and
+    # for compute_forces per form, lean or full: dem.step.full_form), none added by the compile
+    # of their caller
+    for kernel, entries in (("step.compute_forces", 4), ("heat.heat_step", 1), ("heat._heat_blocks", 1),
                             ("heat._radiation_accumulators_blocks", 1),
                             ("implicit.jacobi_pcg_blocks", 1), ("implicit.pair_heat_blocks", 1)):
         (index,) = glob.glob(str(tmp_path / "xdg" / "**" / f"{kernel}-*.nbi"), recursive=True)

@@ -6,7 +6,9 @@ springs, contact age, friction heat, indirect conduction, radiation, group sourc
 exponential, implicit and TR-BDF2 integration, frozen packing, fluid forces, fluid torque and virtual
 mass, no walls, periodic axes) in this one
 process, then counts the compiled signatures of each kernel: at most two (heat on, heat off:
-the ``hon`` switch), whatever ran before in this test session (this file runs last).
+the ``hon`` switch), four for the step and its interact phase (lean or full form too: the
+``xon`` switch, dem.step.full_form), whatever ran before in this test session (this file runs
+last).
 """
 import glob
 import os
@@ -93,11 +95,13 @@ def test_every_scene_shares_one_kernel_per_heat_switch():
     assert np.all(np.isfinite(sim.state.angular_velocity))
     assert len(K.advance.signatures) >= 1  # every run calls advance (its phases, serial or MPI)
     for k in KERNELS:  # (a phase called only inside advance has no signature of its own when
-        # advance came from the cache, one per heat switch when it was compiled here)
+        # advance came from the cache, one per heat switch when it was compiled here; advance and
+        # compute_forces one per heat switch and form, lean or full: dem.step.full_form)
         sigs = k.signatures
-        assert len(sigs) <= 2, (k.py_func.__name__, len(sigs), sigs)
-        if len(sigs) == 2:  # the two differ in the heat switch alone
-            a, b = sigs
-            diff = [i for i, (x, y) in enumerate(zip(a, b)) if x != y]
-            assert len(diff) == 1 and {str(a[diff[0]]), str(b[diff[0]])} == {"none", "bool"}, (
-                k.py_func.__name__, a, b)
+        switches = 2 if k in (K.advance, K.compute_forces) else 1
+        assert len(sigs) <= 2 ** switches, (k.py_func.__name__, len(sigs), sigs)
+        for a in sigs:  # any two differ in the switches alone (types none / bool)
+            for b in sigs:
+                diff = [i for i, (x, y) in enumerate(zip(a, b)) if x != y]
+                assert len(diff) <= switches and all({str(a[i]), str(b[i])} == {"none", "bool"} for i in diff), (
+                    k.py_func.__name__, a, b)
