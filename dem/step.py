@@ -3,9 +3,14 @@ neighbour-list maintenance and the stability guards, run for many steps inside o
 compiled call (no Python per step).
 
 The kernel is one cached Numba function with integer model switches (contact law,
-rolling model) rather than code generated per scene: the switch is a perfectly
-predicted branch (no measurable cost), and every scene reuses the same cached machine
-code, so a new scene starts in about a second instead of recompiling.
+rolling model) rather than code generated per scene: every scene reuses the same cached
+machine code, so a new scene starts in about a second instead of recompiling. Two switches
+are types instead, each compiling a form without the code it turns off: ``hon`` (heat or
+not) and ``xon`` (:func:`full_form`: rolling, periodic images and the heat models beyond
+direct conduction, or none of them), so at most four forms of the step, all compiled by the
+set-up (dem.compile). A run-time switch is a well-predicted branch, but in the pair loop, which
+is bound by the instructions it issues, the lean form's constants made the shared heat beds
+about 12 % faster.
 The force loop is compiled with the fast-math flags that reorder and contract arithmetic
 (nsz, arcp, contract, afn, reassoc: 12 % faster on the shared 10k bed) but not with
 nnan/ninf, so infinities (unbounded walls) and the NaN guards keep their meaning.
@@ -205,7 +210,9 @@ def interact_rows(P, C, W, TB, prm, n, t, hon, xon, blk):
     at those rows, and their walls; with heat, the conductances of every neighbour slot and wall
     candidate for the heat step (Hd, Hi, Hw, the radiation neighbour flags) and the friction
     heat. ``hon``: True with heat, None without (a type, so that the mechanics-only
-    specialisation is compiled without the heat code). Rows >= ip[IP.nown] are ghosts (copies
+    specialisation is compiled without the heat code); ``xon``: True for the full form, None
+    for the lean one, without rolling, periodic images and the heat models beyond direct
+    conduction (:func:`full_form`). Rows >= ip[IP.nown] are ghosts (copies
     of another rank's particles, no pairs of their own); a pair with a ghost is computed on both
     ranks, so it counts 1 (of 2) and half its exchanged heat goes into the totals.
 
@@ -1099,7 +1106,7 @@ def advance(nsteps, s0, n, nown, P, C, W, TB, prm, hon, xon, phases):
     the calls: PH_DRIFT returns REBUILD_DUE (no step done) when the lists must be rebuilt,
     which the caller does around its exchange, ending with PH_AFTER_BUILD (after_build on the
     lists it built). Every caller goes through this one compiled function: the phases are
-    compiled once per heat switch, and compute_forces, after_build and heat_step have no
+    compiled once per heat switch ``hon`` and form ``xon`` (:func:`full_form`), and compute_forces, after_build and heat_step have no
     Python entry of their own (each costs about 1.5 s of compile to unpack the bundles).
 
     Returns (steps done, status, particle, other (j, or -1-wall), value, contacts, rebuilds,
