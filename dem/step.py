@@ -1106,8 +1106,9 @@ def advance(nsteps, s0, n, nown, P, C, W, TB, prm, hon, xon, phases):
     the calls: PH_DRIFT returns REBUILD_DUE (no step done) when the lists must be rebuilt,
     which the caller does around its exchange, ending with PH_AFTER_BUILD (after_build on the
     lists it built). Every caller goes through this one compiled function: the phases are
-    compiled once per heat switch ``hon`` and form ``xon`` (:func:`full_form`), and compute_forces, after_build and heat_step have no
-    Python entry of their own (each costs about 1.5 s of compile to unpack the bundles).
+    compiled once per heat switch ``hon`` and form ``xon`` (:func:`full_form`), and
+    compute_forces, after_build and heat_step have no Python entry of their own (each costs
+    about 1.5 s of compile to unpack the bundles).
 
     Returns (steps done, status, particle, other (j, or -1-wall), value, contacts, rebuilds,
     Pairs): the neighbour arrays may have been reallocated. Without PH_KICK (a force evaluation
