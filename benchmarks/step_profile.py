@@ -42,12 +42,13 @@ from dem import step as K  # noqa: E402
 
 # The arithmetic of one sticking Hertz-Mindlin contact with tangential history in
 # dem.step.interact_rows, counted by hand from the code (dem.step, dem.contact.hertz_mindlin):
-# distance test 10, root and normal 6, overlap ratio 2, contact-point velocity 24, normal and
-# tangential parts 11, spring rotation (_rotate_history) 26, R* and m* 6, Hertz-Mindlin with
-# Tsuji damping and Coulomb test 41, force sums on both rows 12, torque sums 21: 159 operations,
-# of which 6 divisions and 4 square roots. Fused conduction (Batchelor-O'Brien on the Hertz
-# contact radius, H = 2 k a, rate into both rows, energy tally): 14 more, one root.
-OPS_MECH, DIVSQRT_MECH = 159, 10
+# distance test 10, 1/d^2, root and normal 7, overlap ratio 2, contact-point velocity 24, normal
+# and tangential parts 11, spring rotation on the centre line (_rotate_history) 27, R* and m*
+# (from 1/m) 4, Hertz-Mindlin with Tsuji damping (its ratio sqrt(4 G*/E*) from the pair table)
+# and Coulomb test 38, force sums on both rows 12, torque sums 21: 156 operations, of which 5
+# divisions and 4 square roots. Fused conduction (Batchelor-O'Brien on the Hertz contact radius,
+# H = 2 k a, rate into both rows, energy tally): 14 more, one root.
+OPS_MECH, DIVSQRT_MECH = 156, 9
 OPS_HEAT, DIVSQRT_HEAT = 14, 1
 # The floor in cycles: 4 scalar floating-point operations per cycle (2 FMA/multiply + 2 add
 # pipes of an AMD Zen core, counting each operation as one), or the divider: about 5 cycles

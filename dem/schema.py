@@ -147,7 +147,7 @@ FIELDS = (
     _f("wrad", "wall", F8, (), checkpoint="th_wrad",
        doc="the part of wtot by radiation (a fixed-temperature wall with an emissivity, J)"),
     # ---------------------------------------------------------------- tables
-    _f("tab", "table", F8, (None, None), doc="pair tables E*, G*, damping, mu, mu_r [5, mat, mat] (slots: dem.step TAB)"),
+    _f("tab", "table", F8, (None, None), doc="pair tables E*, G*, damping, mu, mu_r, c_t/c_n [6, mat, mat] (slots: dem.step TAB)"),
     _f("tmat", "table", F8, (None,), doc="thermal material table (dem.thermal.registry)"),
     _f("gas", "table", F8, doc="gas and model parameters (dem.thermal.registry)"),
     _f("ereal", "table", F8, (None,), doc="real effective modulus per material pair (Pa)"),

@@ -71,6 +71,7 @@ TAB = slots("TAB", (
     ("damp", "damping coefficient (dem.contact.damping)"),
     ("mu", "sliding friction coefficient"),
     ("mur", "rolling friction coefficient"),
+    ("ctr", "Hertz-Mindlin tangential / normal damping ratio sqrt(4 G* / E*) (dem.contact.hertz_mindlin)"),
 ))
 # what a pair gives its other particle j when j is in another block of rows (interact_rows' xv)
 XV = slots("XV", (
@@ -125,7 +126,7 @@ def pair_material(tab, mi, mj):
 
 @njit(cache=True, error_model="numpy", fastmath={"nsz", "arcp", "contract", "afn", "reassoc"}, inline="always")
 def _pair_law(model, delta, vn, vtx, vty, vtz, hx, hy, hz, rstar, mstar, estar, gstar,
-              damp, mu, dt, lin_kn, vchar, kt_ratio):
+              damp, mu, ctr, dt, lin_kn, vchar, kt_ratio):
     """The contact law of the run (``model``: ip[IP.contact], 0 Hertz-Mindlin, 1 linear spring-
     dashpot) with its scalars: normal and tangential force of one contact. It keeps the laws'
     scalar parameter list (tests/test_architecture.py, SCALAR_LAWS): taking the records
@@ -140,7 +141,7 @@ def _pair_law(model, delta, vn, vtx, vty, vtz, hx, hy, hz, rstar, mstar, estar, 
     former call boundary."""
     if model == 0:
         return hertz_mindlin(delta, vn, vtx, vty, vtz, hx, hy, hz,
-                             rstar, mstar, estar, gstar, damp, mu, dt)
+                             rstar, mstar, estar, gstar, damp, mu, ctr, dt)
     kn = lin_kn
     if kn <= 0.0:  # Hertz-equivalent stiffness at the characteristic velocity
         sr = math.sqrt(rstar)
@@ -168,18 +169,21 @@ def _contact_heat(fric, mu, thf, vtx, vty, vtz, ftx, fty, ftz, fn, vn):
 
 
 @njit(cache=True, error_model="numpy")
-def _rotate_history(h, i, s, nx, ny, nz):
-    """Project a stored spring onto the current tangent plane, keeping its length."""
+def _rotate_history(h, i, s, ux, uy, uz, inv_u2):
+    """Project the spring stored in slot (i, s) of ``h`` onto the plane normal to (ux, uy, uz),
+    whose squared length is 1 / inv_u2, keeping its length (Luding 2008). The pair loop gives
+    the centre line and 1/d^2 (the projection then waits neither for the root of d^2 nor for a
+    division by d); the walls and the rolling spring give the unit normal and 1."""
     hx = h[i, s, 0]
     hy = h[i, s, 1]
     hz = h[i, s, 2]
     old2 = hx * hx + hy * hy + hz * hz
     if old2 == 0.0:
         return 0.0, 0.0, 0.0
-    hn = hx * nx + hy * ny + hz * nz
-    hx -= hn * nx
-    hy -= hn * ny
-    hz -= hn * nz
+    hn = (hx * ux + hy * uy + hz * uz) * inv_u2
+    hx -= hn * ux
+    hy -= hn * uy
+    hz -= hn * uz
     new2 = hx * hx + hy * hy + hz * hz
     if new2 > 0.0:
         sc = math.sqrt(old2 / new2)
@@ -229,6 +233,7 @@ def interact_rows(P, C, W, TB, prm, n, t, hon, xon, blk):
     i0, i1, k0, xj, xv, wtot, wgap = blk.i0, blk.i1, blk.k0, blk.xj, blk.xv, blk.wtot, blk.wgap
     x, v, w, r, m, mat, f, tq = (P.position, P.velocity, P.angular_velocity, P.radius, P.mass, P.material,
                                  P.force, P.torque)
+    inv_m = P.inv_mass
     fext, wnb, wnn, whist, wrhist = P.external_force, P.wnb, P.wnn, P.whist, P.wrhist
     nb, nnb, hist, rhist, age, Hd, Hi, rnear = C.nb, C.nnb, C.hist, C.rhist, C.age, C.Hd, C.Hi, C.rnear
     wf, wi, tab, ip, fp, lo, hi, periodic = W.wf, W.wi, TB.tab, prm.ip, prm.fp, prm.lo, prm.hi, prm.periodic
@@ -398,9 +403,10 @@ def interact_rows(P, C, W, TB, prm, n, t, hon, xon, blk):
                             rnear[i, s] = 1 if d < radrange * max(ri, r[j]) else 0
                 continue
             ncont += 2 if j < nown else 1
+            invd2 = 1.0 / d2
             d = math.sqrt(d2)
             delta = rs - d
-            invd = 1.0 / d
+            invd = d * invd2
             nx = dx * invd
             ny = dy * invd
             nz = dz * invd
@@ -422,13 +428,13 @@ def interact_rows(P, C, W, TB, prm, n, t, hon, xon, blk):
             vtx = vrx - vn * nx
             vty = vry - vn * ny
             vtz = vrz - vn * nz
-            hx, hy, hz = _rotate_history(hist, i, s, nx, ny, nz)
+            hx, hy, hz = _rotate_history(hist, i, s, dx, dy, dz, invd2)
             rstar = ri * rj / rs
-            mstar = m[i] * m[j] / (m[i] + m[j])
+            mstar = 1.0 / (inv_m[i] + inv_m[j])
             fn, ftx, fty, ftz, hx, hy, hz, kn = _pair_law(
                 law.model, delta, vn, vtx, vty, vtz, hx, hy, hz, rstar, mstar,
                 tab[TAB.estar, mi, mj], tab[TAB.gstar, mi, mj], tab[TAB.damp, mi, mj],
-                tab[TAB.mu, mi, mj], law.dt, law.lin_kn, law.vchar, law.kt_ratio)
+                tab[TAB.mu, mi, mj], tab[TAB.ctr, mi, mj], law.dt, law.lin_kn, law.vchar, law.kt_ratio)
             hist[i, s, 0] = hx
             hist[i, s, 1] = hy
             hist[i, s, 2] = hz
@@ -534,7 +540,7 @@ def interact_rows(P, C, W, TB, prm, n, t, hon, xon, blk):
                 if rolling == 1:
                     mx, my, mz = constant_torque(wx, wy, wz, rstar, fn, mur)
                 else:
-                    qx, qy, qz = _rotate_history(rhist, i, s, nx, ny, nz)
+                    qx, qy, qz = _rotate_history(rhist, i, s, nx, ny, nz, 1.0)
                     ii = 1.4 * m[i] * ri * ri
                     ij = 1.4 * m[j] * rj * rj
                     ir = 1.0 / (1.0 / ii + 1.0 / ij)
@@ -616,11 +622,11 @@ def interact_rows(P, C, W, TB, prm, n, t, hon, xon, blk):
             vtx = vrx - vn * nx
             vty = vry - vn * ny
             vtz = vrz - vn * nz
-            hx, hy, hz = _rotate_history(whist, i, wl, nx, ny, nz)
+            hx, hy, hz = _rotate_history(whist, i, wl, nx, ny, nz, 1.0)
             fn, ftx, fty, ftz, hx, hy, hz, kn = _pair_law(
                 law.model, delta, vn, vtx, vty, vtz, hx, hy, hz, ri, m[i],
                 tab[TAB.estar, mi, mw], tab[TAB.gstar, mi, mw], tab[TAB.damp, mi, mw],
-                tab[TAB.mu, mi, mw], law.dt, law.lin_kn, law.vchar, law.kt_ratio)
+                tab[TAB.mu, mi, mw], tab[TAB.ctr, mi, mw], law.dt, law.lin_kn, law.vchar, law.kt_ratio)
             whist[i, wl, 0] = hx
             whist[i, wl, 1] = hy
             whist[i, wl, 2] = hz
@@ -688,7 +694,7 @@ def interact_rows(P, C, W, TB, prm, n, t, hon, xon, blk):
                 if rolling == 1:
                     mx, my, mz = constant_torque(wx, wy, wz, ri, fn, mur)
                 else:
-                    qx, qy, qz = _rotate_history(wrhist, i, wl, nx, ny, nz)
+                    qx, qy, qz = _rotate_history(wrhist, i, wl, nx, ny, nz, 1.0)
                     ir = 1.4 * m[i] * ri * ri
                     mx, my, mz, qx, qy, qz = epsd(wx, wy, wz, qx, qy, qz, ri, fn, kn,
                                                   mur, etar, ir, dt)

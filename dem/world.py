@@ -140,6 +140,8 @@ def pair_tables(scene):
     tab[K.TAB.gstar] = t["gstar"]
     tab[K.TAB.mu] = t["friction"]
     tab[K.TAB.mur] = t["rolling_friction"]
+    # c_t / c_n of the Hertz-Mindlin law (dem.contact.hertz_mindlin), once per pair, not per contact
+    tab[K.TAB.ctr] = np.sqrt(4.0 * t["gstar"] / t["estar"])
     for a in range(nm):
         for b in range(nm):
             tab[K.TAB.damp, a, b] = damping_factor(t["restitution"][a, b], model, damping)

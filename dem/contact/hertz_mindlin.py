@@ -22,12 +22,13 @@ from numba import njit
 
 @njit(cache=True, error_model="numpy", fastmath={"nsz", "arcp", "contract", "afn", "reassoc"})
 def hertz_mindlin(delta, vn, vtx, vty, vtz, hx, hy, hz,
-                  rstar, mstar, estar, gstar, damp_a, mu, dt):
+                  rstar, mstar, estar, gstar, damp_a, mu, ctr, dt):
     """Hertz-Mindlin pair force.
 
     delta: overlap (m, > 0); vn: normal approach speed (m/s, > 0 approaching);
     vt*: tangential relative velocity of the contact point; h*: tangential
-    spring history (m) already in the tangent plane.
+    spring history (m) already in the tangent plane; ctr: sqrt(4 G* / E*), the ratio
+    c_t / c_n of the material pair (dem.step TAB.ctr, tabulated once by dem.world.pair_tables).
     Returns (F_n >= 0, Ft_x, Ft_y, Ft_z, new history x, y, z, k_n).
     """
     sq = math.sqrt(rstar * delta)
@@ -38,8 +39,9 @@ def hertz_mindlin(delta, vn, vtx, vty, vtz, hx, hy, hz,
     if fn < 0.0:
         fn = 0.0
     st = 8.0 * gstar * sq
-    # c_t = c_n sqrt(S_t / S_n) = c_n sqrt(4 G* / E*)  (S_n = 2 E* sqrt(R* delta))
-    ct = cn * math.sqrt(4.0 * gstar / estar)
+    # c_t = c_n sqrt(S_t / S_n) = c_n sqrt(4 G* / E*)  (S_n = 2 E* sqrt(R* delta)): the root of
+    # a material constant, from the table (the same rounding as computed here: sqrt and / are exact)
+    ct = cn * ctr
     hx += vtx * dt
     hy += vty * dt
     hz += vtz * dt
