@@ -56,8 +56,10 @@ def test_settled_bed_pressure_drop_is_steady(tmp_path, solver, bed, step):
     # steady: every coupling step of the second half within 1 % of the mean (explicit drag:
     # 39 % at 1 ms, the bed thrown up at 2 ms)
     assert dev < 0.01, (step, mean, dev, vmax)
-    # the bed is at rest (a bead at 1 mm/s would cross its diameter in a second) ...
-    assert vmax < 1e-3, vmax
+    # the bed is at rest: no bead faster than 5 mm/s, while the unstable schemes of the same
+    # bed throw beads at 9-200 mm/s (docs/benchmarks.md, "Semi-implicit drag"); a bead creeping
+    # into place as the bed settles under the drag reaches 1-3 mm/s in some packings ...
+    assert vmax < 5e-3, vmax
     # ... and its pressure drop is the held bed's: it settled a little further under the drag
     # (the bed expands by a few micrometres; 0.6 % measured), not more
     assert mean == pytest.approx(dp_held, rel=0.01), (mean, dp_held)
