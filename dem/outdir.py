@@ -26,8 +26,10 @@ also work for files the Python API writes anywhere.
 """
 from __future__ import annotations
 
+import fcntl
 import json
 import os
+import secrets
 import shutil
 
 from .errors import SceneError
@@ -70,22 +72,40 @@ class _Folder:
 
     def save(self, merge=True):
         """Write the manifest; ``merge``: keep entries another process (dem render beside a
-        running dem run) added since we read it."""
-        if merge:
+        running dem run) added since we read it. Processes saving at once take turns (an
+        exclusive lock on the folder for the read, merge and replace), each through its own
+        temporary file (TMP_PREFIX: a killed writer's is cleaned up like every temporary file of
+        ours): with one shared temporary name, two savers at once made one of them fail, and a
+        run could stop there (docs/reliability.md)."""
+        dfd = os.open(self.path, os.O_RDONLY)
+        try:
             try:
-                self.entries |= read_manifest(self.path) or set()
-            except OutputFolderError:
+                fcntl.flock(dfd, fcntl.LOCK_EX)
+            except OSError:   # a file system without locks: the own temporary file still holds
                 pass
-        data = dict(tool="thermodem", format=FORMAT, command=self.command,
-                    note=f"entries written by thermodem; '{TMP_PREFIX}*' are its temporary files. "
-                         "--overwrite removes exactly these entries.",
-                    entries=sorted(self.entries))
-        target = os.path.join(self.path, MANIFEST)
-        tmp = target + ".tmp"
-        with open(tmp, "w") as fh:
-            json.dump(data, fh, indent=1)
-            fh.write("\n")
-        os.replace(tmp, target)
+            if merge:
+                try:
+                    self.entries |= read_manifest(self.path) or set()
+                except OutputFolderError:
+                    pass
+            data = dict(tool="thermodem", format=FORMAT, command=self.command,
+                        note=f"entries written by thermodem; '{TMP_PREFIX}*' are its temporary files. "
+                             "--overwrite removes exactly these entries.",
+                        entries=sorted(self.entries))
+            # (created as open() creates files, honouring the umask: mkstemp's would be 0600)
+            tmp = os.path.join(self.path, f"{TMP_PREFIX}{os.getpid()}_{secrets.token_hex(4)}.manifest")
+            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+            try:
+                with os.fdopen(fd, "w") as fh:
+                    json.dump(data, fh, indent=1)
+                    fh.write("\n")
+                os.replace(tmp, os.path.join(self.path, MANIFEST))
+            except BaseException:
+                if os.path.lexists(tmp):
+                    os.unlink(tmp)
+                raise
+        finally:
+            os.close(dfd)   # (releases the lock)
 
 
 _claimed: dict[str, _Folder] = {}

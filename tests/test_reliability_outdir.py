@@ -277,3 +277,40 @@ def test_api_run_refuses_a_users_folder(tmp_path):
     sim.run(end_time=2e-5, out_dir=str(tmp_path / "new"), progress=False)   # a new folder is fine,
     sim.run(end_time=4e-5, out_dir=str(tmp_path / "new"), progress=False)   # and continuing it
     assert listed(tmp_path / "new") == set(os.listdir(tmp_path / "new")) - {MANIFEST}
+
+
+_SAVER = """
+import os, sys
+from dem.outdir import claim, claim_folder
+out, tag = sys.argv[1], sys.argv[2]
+claim_folder(out, restart=True, reuse=True, command="dem render", what="--out")
+for k in range(60):
+    name = os.path.join(out, f"frame_{tag}_{k:03d}.png")
+    claim(name)                       # recorded in the manifest (merged with the others')
+    open(name, "w").close()
+"""
+
+
+def test_manifest_saved_by_several_processes_at_once(scene, tmp_path):
+    """Processes that write into one output folder at once (``dem render`` beside a running
+    ``dem run``) each merge their entries into the manifest. With one shared temporary file for
+    the manifest, two saving at the same moment made one of them fail ("cannot prepare the
+    output folder: No such file or directory": 3 of 4 such processes failed) and entries
+    could be lost. Four real processes, 60 entries each, at once: every process ends normally,
+    the manifest lists all 240 entries (so --overwrite removes them all) and no temporary file
+    is left behind."""
+    out = tmp_path / "out"
+    r = dem("run", scene, "--out", out, "--end-time", "1e-4", "--quiet", "--threads", "1")
+    assert r.returncode == 0, r.stderr
+    procs = [subprocess.Popen([sys.executable, "-c", _SAVER, str(out), str(p)], env=_env(),
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for p in range(4)]
+    for p in procs:
+        _, err = p.communicate(timeout=120)
+        assert p.returncode == 0, err
+    listed = set(json.loads((out / MANIFEST).read_text())["entries"])
+    frames = {f"frame_{p}_{k:03d}.png" for p in range(4) for k in range(60)}
+    assert frames <= listed, sorted(frames - listed)[:5]
+    assert not [n for n in os.listdir(out) if n.startswith(".tmp_thermodem_") or n.endswith(".tmp")]
+    r = dem("run", scene, "--out", out, "--end-time", "1e-4", "--quiet", "--threads", "1", "--overwrite")
+    assert r.returncode == 0, r.stderr
+    assert not [n for n in os.listdir(out) if n.startswith("frame_")]
