@@ -581,6 +581,8 @@ SIM_REFUSED = {"time_step": "the contact history and every integrated quantity a
                "mechanics": "frozen and moving packings keep different arrays"}
 CONTACT_REFUSED = {"model": "the contact history holds the springs of the former model",
                    "rolling": "the rolling history exists only with the model that wrote it"}
+# [contact] keys newer than some checkpoints: what a checkpoint without them ran
+CONTACT_ADDED = {"tangential": "rescaled"}
 
 
 def plan_restart(sim, ck_path, arrays, record):
@@ -650,7 +652,7 @@ def _plan_simulation(sim, ck_path, record, now, plan):
 
 def _plan_contact(sim, ck_path, record, now, plan):
     for k, new in now["contact"].items():
-        old = record["contact"].get(k)
+        old = record["contact"].get(k, CONTACT_ADDED.get(k))
         if old == new:
             continue
         if k in CONTACT_REFUSED:

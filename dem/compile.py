@@ -307,10 +307,11 @@ def forces(hon, full=False):
     contact and wall laws, the pair loop serial and on blocks of rows, and with heat the
     conductance laws; ``full``: the full form, with rolling, periodic images and every heat
     model, else the lean one), with the argument types dem.step.advance calls it with (n int64,
-    t float64, hon, xon)."""
+    t float64, hon, xon, and ton None: the rescaled tangential model of every scene that does not
+    ask for the projected one, whose forms a scene compiles once on its first run)."""
     from . import step as K
     st = _state(hon, full)
-    _compile(K.compute_forces, (*st.bundles(), st.n, 0.0, True if hon else None, True if full else None))
+    _compile(K.compute_forces, (*st.bundles(), st.n, 0.0, True if hon else None, True if full else None, None))
 
 
 def heat_step():

@@ -78,7 +78,7 @@ def models_report(world, par):
     """(what runs, what is skipped and why): one line each."""
     from .energy_guard import inputs_of
     sc = world.scene
-    runs = [f"contact: {sc.contact['model']} (damping {sc.contact['damping']})"]
+    runs = [f"contact: {sc.contact['model']} (damping {sc.contact['damping']}, tangential {sc.contact['tangential']})"]
     skipped = []
     if sc.contact["rolling"] != "none":
         runs.append(f"rolling resistance: {sc.contact['rolling']}")

@@ -9,7 +9,7 @@ import tomllib
 
 import numpy as np
 
-from .contact.registry import CONTACT_MODELS, ROLLING_MODELS, DAMPING_MODELS
+from .contact.registry import CONTACT_MODELS, ROLLING_MODELS, DAMPING_MODELS, TANGENTIAL_MODELS
 from .errors import SceneError
 from .parcels import parcel_factors
 
@@ -137,7 +137,7 @@ PART_KEYS = {"material", "positions", "radii", "radius", "velocities", "velocity
              "region", "temperature", "angular_velocities", "coarse_graining"}
 WALL_KEYS = {"type", "material", "point", "normal", "extent", "u_axis", "axis", "radius", "inside",
              "length", "velocity", "angular_velocity", "rotation_center", "name", "thermal"}
-CONTACT_KEYS = {"model", "rolling", "damping", "normal_stiffness", "tangential_stiffness_ratio",
+CONTACT_KEYS = {"model", "rolling", "damping", "tangential", "normal_stiffness", "tangential_stiffness_ratio",
                 "characteristic_velocity", "rolling_damping"}
 OUTPUT_KEYS = {"vtk"}
 PARALLEL_KEYS = {"decomposition", "slab_axis", "balance_threshold", "pair_weight", "insertion_block"}
@@ -360,6 +360,7 @@ def parse(data, file="<dict>", base_dir=".", end_time=None, comm="auto"):
         model=v.string(c, "model", "contact", default="hertz_mindlin", choices=list(CONTACT_MODELS)),
         rolling=v.string(c, "rolling", "contact", default="none", choices=list(ROLLING_MODELS)),
         damping=v.string(c, "damping", "contact", default="exact", choices=list(DAMPING_MODELS)),
+        tangential=v.string(c, "tangential", "contact", default="rescaled", choices=list(TANGENTIAL_MODELS)),
         normal_stiffness=v.num(c, "normal_stiffness", "contact", default=0.0, lo=0),
         tangential_stiffness_ratio=v.num(c, "tangential_stiffness_ratio", "contact", default=2.0 / 7.0, lo=0, lo_open=True),
         characteristic_velocity=v.num(c, "characteristic_velocity", "contact", default=None, lo=0, lo_open=True),

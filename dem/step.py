@@ -27,6 +27,7 @@ from numba import njit, prange
 from .contact.hertz_mindlin import hertz_mindlin
 from .contact.linear import linear_spring_dashpot
 from .contact.rolling import constant_torque, epsd
+from .contact.tangential import turn_spring, TANGENTIAL_PROJECTED
 from .contact.walls import wall_distance, wall_velocity, WI
 from .blocks import block_bounds, block_count, cross_counts, keep_cross_counts, kept_cross_counts
 from .neighbors import build_half_list, Box
@@ -47,6 +48,8 @@ IP = slots("IP", (
     ("mech", "1: mechanics on; 0: a frozen packing (heat alone)"),
     ("nown", "owned rows (the rest are ghosts)"),
     ("threads", "threads of this process: blocks of rows the kernels run at once (1: one block, serial order)"),
+    ("tangential", "tangential spring (TANGENTIAL_MODELS: 0 rescaled, Luding 2008; 1 projected, Silbert 2001 as "
+                   "LAMMPS / LIGGGHTS; dem.contact.tangential)"),
 ), size=8)
 # float parameters (Params.fp)
 FP = slots("FP", (
@@ -126,9 +129,10 @@ def pair_material(tab, mi, mj):
 
 @njit(cache=True, error_model="numpy", fastmath={"nsz", "arcp", "contract", "afn", "reassoc"}, inline="always")
 def _pair_law(model, delta, vn, vtx, vty, vtz, hx, hy, hz, rstar, mstar, estar, gstar,
-              damp, mu, ctr, dt, lin_kn, vchar, kt_ratio):
+              damp, mu, ctr, dt, lin_kn, vchar, kt_ratio, ton):
     """The contact law of the run (``model``: ip[IP.contact], 0 Hertz-Mindlin, 1 linear spring-
-    dashpot) with its scalars: normal and tangential force of one contact. It keeps the laws'
+    dashpot) with its scalars and the tangential model ``ton`` (a type: None rescaled, True
+    projected; dem.contact.tangential): normal and tangential force of one contact. It keeps the laws'
     scalar parameter list (tests/test_architecture.py, SCALAR_LAWS): taking the records
     ContactLaw / PairMaterial and 3-tuples through the call ran the shared 10k heat bed 7-10 %
     slower (benchmarks/loop_time.py, alternated pairs).
@@ -141,13 +145,13 @@ def _pair_law(model, delta, vn, vtx, vty, vtz, hx, hy, hz, rstar, mstar, estar, 
     former call boundary."""
     if model == 0:
         return hertz_mindlin(delta, vn, vtx, vty, vtz, hx, hy, hz,
-                             rstar, mstar, estar, gstar, damp, mu, ctr, dt)
+                             rstar, mstar, estar, gstar, damp, mu, ctr, dt, ton)
     kn = lin_kn
     if kn <= 0.0:  # Hertz-equivalent stiffness at the characteristic velocity
         sr = math.sqrt(rstar)
         kn = 16.0 / 15.0 * sr * estar * (15.0 * mstar * vchar * vchar / (16.0 * sr * estar)) ** 0.2
     return linear_spring_dashpot(delta, vn, vtx, vty, vtz, hx, hy, hz,
-                                 mstar, kn, kt_ratio, damp, mu, dt)
+                                 mstar, kn, kt_ratio, damp, mu, dt, ton)
 
 
 @njit(cache=True, error_model="numpy")
@@ -169,26 +173,14 @@ def _contact_heat(fric, mu, thf, vtx, vty, vtz, ftx, fty, ftz, fn, vn):
 
 
 @njit(cache=True, error_model="numpy")
-def _rotate_history(h, i, s, ux, uy, uz, inv_u2):
-    """Project the spring stored in slot (i, s) of ``h`` onto the plane normal to (ux, uy, uz),
-    whose squared length is 1 / inv_u2, keeping its length (Luding 2008). The pair loop gives
-    the centre line and 1/d^2 (the projection then waits neither for the root of d^2 nor for a
-    division by d); the walls and the rolling spring give the unit normal and 1."""
-    hx = h[i, s, 0]
-    hy = h[i, s, 1]
-    hz = h[i, s, 2]
-    old2 = hx * hx + hy * hy + hz * hz
-    if old2 == 0.0:
-        return 0.0, 0.0, 0.0
-    hn = (hx * ux + hy * uy + hz * uz) * inv_u2
-    hx -= hn * ux
-    hy -= hn * uy
-    hz -= hn * uz
-    new2 = hx * hx + hy * hy + hz * hz
-    if new2 > 0.0:
-        sc = math.sqrt(old2 / new2)
-        return hx * sc, hy * sc, hz * sc
-    return 0.0, 0.0, 0.0
+def _rotate_history(h, i, s, ux, uy, uz, inv_u2, ton):
+    """The spring stored in slot (i, s) of ``h`` turned onto the plane normal to (ux, uy, uz),
+    whose squared length is 1 / inv_u2, by the tangential model ``ton`` (dem.contact.tangential:
+    None keeping its length, Luding 2008; True projected, Silbert 2001). The pair loop gives the
+    centre line and 1/d^2 (the turn then waits neither for the root of d^2 nor for a division by
+    d); the walls and the rolling spring give the unit normal and 1. The rolling spring always
+    keeps its length (None)."""
+    return turn_spring(ton, h[i, s, 0], h[i, s, 1], h[i, s, 2], ux, uy, uz, inv_u2)
 
 
 @njit(cache=True, error_model="numpy")
@@ -209,12 +201,14 @@ def full_form(ip, thi, periodic):
 
 @njit(cache=True, error_model="numpy", fastmath={"nsz", "arcp", "contract", "afn", "reassoc"},
       no_cpython_wrapper=True, no_cfunc_wrapper=True)
-def interact_rows(P, C, W, TB, prm, n, t, hon, xon, blk):
+def interact_rows(P, C, W, TB, prm, n, t, hon, xon, ton, blk):
     """The interact phase of the rows [i0, i1) of ``blk`` (:data:`Block`): body forces, the pairs of the half list that start
     at those rows, and their walls; with heat, the conductances of every neighbour slot and wall
     candidate for the heat step (Hd, Hi, Hw, the radiation neighbour flags) and the friction
     heat. ``hon``: True with heat, None without (a type, so that the mechanics-only
-    specialisation is compiled without the heat code); ``xon``: True for the full form, None
+    specialisation is compiled without the heat code); ``ton``: the tangential spring model as a
+    type, None for the rescaled one (the default), True for the projected one
+    (dem.contact.tangential; as a run-time switch it cost the pair loop 5-15 %); ``xon``: True for the full form, None
     for the lean one, without rolling, periodic images and the heat models beyond direct
     conduction (:func:`full_form`). Rows >= ip[IP.nown] are ghosts (copies
     of another rank's particles, no pairs of their own); a pair with a ghost is computed on both
@@ -428,13 +422,13 @@ def interact_rows(P, C, W, TB, prm, n, t, hon, xon, blk):
             vtx = vrx - vn * nx
             vty = vry - vn * ny
             vtz = vrz - vn * nz
-            hx, hy, hz = _rotate_history(hist, i, s, dx, dy, dz, invd2)
+            hx, hy, hz = _rotate_history(hist, i, s, dx, dy, dz, invd2, ton)
             rstar = ri * rj / rs
             mstar = 1.0 / (inv_m[i] + inv_m[j])
             fn, ftx, fty, ftz, hx, hy, hz, kn = _pair_law(
                 law.model, delta, vn, vtx, vty, vtz, hx, hy, hz, rstar, mstar,
                 tab[TAB.estar, mi, mj], tab[TAB.gstar, mi, mj], tab[TAB.damp, mi, mj],
-                tab[TAB.mu, mi, mj], tab[TAB.ctr, mi, mj], law.dt, law.lin_kn, law.vchar, law.kt_ratio)
+                tab[TAB.mu, mi, mj], tab[TAB.ctr, mi, mj], law.dt, law.lin_kn, law.vchar, law.kt_ratio, ton)
             hist[i, s, 0] = hx
             hist[i, s, 1] = hy
             hist[i, s, 2] = hz
@@ -540,7 +534,7 @@ def interact_rows(P, C, W, TB, prm, n, t, hon, xon, blk):
                 if rolling == 1:
                     mx, my, mz = constant_torque(wx, wy, wz, rstar, fn, mur)
                 else:
-                    qx, qy, qz = _rotate_history(rhist, i, s, nx, ny, nz, 1.0)
+                    qx, qy, qz = _rotate_history(rhist, i, s, nx, ny, nz, 1.0, None)
                     ii = 1.4 * m[i] * ri * ri
                     ij = 1.4 * m[j] * rj * rj
                     ir = 1.0 / (1.0 / ii + 1.0 / ij)
@@ -622,11 +616,11 @@ def interact_rows(P, C, W, TB, prm, n, t, hon, xon, blk):
             vtx = vrx - vn * nx
             vty = vry - vn * ny
             vtz = vrz - vn * nz
-            hx, hy, hz = _rotate_history(whist, i, wl, nx, ny, nz, 1.0)
+            hx, hy, hz = _rotate_history(whist, i, wl, nx, ny, nz, 1.0, ton)
             fn, ftx, fty, ftz, hx, hy, hz, kn = _pair_law(
                 law.model, delta, vn, vtx, vty, vtz, hx, hy, hz, ri, m[i],
                 tab[TAB.estar, mi, mw], tab[TAB.gstar, mi, mw], tab[TAB.damp, mi, mw],
-                tab[TAB.mu, mi, mw], tab[TAB.ctr, mi, mw], law.dt, law.lin_kn, law.vchar, law.kt_ratio)
+                tab[TAB.mu, mi, mw], tab[TAB.ctr, mi, mw], law.dt, law.lin_kn, law.vchar, law.kt_ratio, ton)
             whist[i, wl, 0] = hx
             whist[i, wl, 1] = hy
             whist[i, wl, 2] = hz
@@ -694,7 +688,7 @@ def interact_rows(P, C, W, TB, prm, n, t, hon, xon, blk):
                 if rolling == 1:
                     mx, my, mz = constant_torque(wx, wy, wz, ri, fn, mur)
                 else:
-                    qx, qy, qz = _rotate_history(wrhist, i, wl, nx, ny, nz, 1.0)
+                    qx, qy, qz = _rotate_history(wrhist, i, wl, nx, ny, nz, 1.0, None)
                     ir = 1.4 * m[i] * ri * ri
                     mx, my, mz, qx, qy, qz = epsd(wx, wy, wz, qx, qy, qz, ri, fn, kn,
                                                   mur, etar, ir, dt)
@@ -715,12 +709,14 @@ def blocks(ip):
 
 
 @njit(cache=True, error_model="numpy", parallel=True, no_cpython_wrapper=True, no_cfunc_wrapper=True)
-def interact_blocks(P, C, W, TB, prm, n, t, hon, xon, nblk, fused, fgen):
+def interact_blocks(P, C, W, TB, prm, n, t, hon, xon, ton, nblk, heat_flags):
     """The interact phase on ``nblk`` threads: the rows cut into blocks (:func:`block_bounds`),
     each block's pairs and walls by :func:`interact_rows` at once, then, in block order, what
     the pairs across two blocks give their other particle, and the blocks' wall heat. No two
     threads write the same row, and every sum runs in an order fixed by the block count: the
-    result depends on the thread count (the order of a row's sum), not on the timing."""
+    result depends on the thread count (the order of a row's sum), not on the timing.
+    ``heat_flags``: (fused conduction, frictional heating) of :func:`compute_forces`."""
+    fused, fgen = heat_flags
     nown = prm.ip[IP.nown]
     bounds = block_bounds(nown, n, nblk)
     nb, nnb = C.nb, C.nnb
@@ -738,7 +734,7 @@ def interact_blocks(P, C, W, TB, prm, n, t, hon, xon, nblk, fused, fgen):
     wg = np.zeros((nblk, W.wgap.shape[0]))
     res = np.empty((nblk, 8))
     for b in prange(nblk):
-        r = interact_rows(P, C, W, TB, prm, n, t, hon, xon,
+        r = interact_rows(P, C, W, TB, prm, n, t, hon, xon, ton,
                           Block(bounds[b], bounds[b + 1], cnt[b], xj, xv, wt[b], wg[b]))
         res[b, 0] = r[0]
         res[b, 1] = r[1]
@@ -791,7 +787,7 @@ def interact_blocks(P, C, W, TB, prm, n, t, hon, xon, nblk, fused, fgen):
 
 
 @njit(cache=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
-def compute_forces(P, C, W, TB, prm, n, t, hon, xon):
+def compute_forces(P, C, W, TB, prm, n, t, hon, xon, ton):
     """The interact phase (:func:`interact_rows`) of every row, on one thread (one block, the
     serial order) or on ip[IP.threads] blocks at once (:func:`interact_blocks`); adds the fused
     heat exchanged to the totals. Returns (max overlap ratio, i, j (-1-wall), 2 x contacts)."""
@@ -801,14 +797,17 @@ def compute_forces(P, C, W, TB, prm, n, t, hon, xon):
     if xon is None and full_form(prm.ip, thi, prm.periodic):
         raise ValueError("internal error: the lean form of the interact phase was called for a scene "
                          "that uses rolling, periodic images or heat models it leaves out (dem.step.full_form)")
+    if (ton is not None) != (prm.ip[IP.tangential] == TANGENTIAL_PROJECTED):
+        raise ValueError("internal error: the interact phase was compiled for the other tangential model "
+                         "than the scene's (ip[IP.tangential], dem.stepper.Stepper.ton)")
     nblk = blocks(prm.ip)
     if nblk == 1:
         maxov, who_i, who_j, ncont, e_dir, e_ind, e_wall, _ = interact_rows(
-            P, C, W, TB, prm, n, t, hon, xon,
+            P, C, W, TB, prm, n, t, hon, xon, ton,
             Block(np.int64(0), n, np.int64(0), np.empty(0, np.int64), np.empty((0, XV_SIZE)), W.wtot, W.wgap))
     else:
-        maxov, who_i, who_j, ncont, e_dir, e_ind, e_wall = interact_blocks(P, C, W, TB, prm, n, t, hon, xon, nblk,
-                                                                           fused, fgen)
+        maxov, who_i, who_j, ncont, e_dir, e_ind, e_wall = interact_blocks(P, C, W, TB, prm, n, t, hon, xon, ton, nblk,
+                                                                           (fused, fgen))
     if fused:
         dt = prm.fp[FP.dt]
         tot = prm.tot
@@ -1099,20 +1098,21 @@ def heat_phase(P, C, W, TB, prm, n, nown, t):
 
 
 @njit(cache=True, error_model="numpy")
-def advance(nsteps, s0, n, nown, P, C, W, TB, prm, hon, xon, phases):
+def advance(nsteps, s0, n, P, C, W, TB, prm, hon, xon, ton, phases):
     """Advance ``nsteps`` steps from step number s0, time s0 dt (the forces of that time are in
     P.force, P.torque), composing the phases of one step: drift (PH_DRIFT), rebuild when due
     (PH_REBUILD), interact (compute_forces, PH_FORCES), kick + guards (PH_KICK), heat (PH_HEAT).
     Step k ends at time (s0 + k) dt, computed from the step number alone, so that splitting a
     run into calls of any length gives the same arithmetic (bit-identical results).
 
-    Rows [0, nown) are owned, [nown, n) ghosts. A serial run asks for PH_STEP (every phase;
+    Rows [0, nown) are owned (nown = ip[IP.nown]), [nown, n) ghosts. A serial run asks for PH_STEP (every phase;
     mechanics off, a frozen packing: PH_HEAT only, on the conductances computed once). A run on
     several ranks calls one step with one group of phases at a time, the ghost messages between
     the calls: PH_DRIFT returns REBUILD_DUE (no step done) when the lists must be rebuilt,
     which the caller does around its exchange, ending with PH_AFTER_BUILD (after_build on the
     lists it built). Every caller goes through this one compiled function: the phases are
-    compiled once per heat switch ``hon`` and form ``xon`` (:func:`full_form`), and
+    compiled once per heat switch ``hon``, form ``xon`` (:func:`full_form`) and tangential model
+    ``ton`` (dem.contact.tangential; the set-up compiles the default's), and
     compute_forces, after_build and heat_step have no Python entry of their own (each costs
     about 1.5 s of compile to unpack the bundles).
 
@@ -1120,6 +1120,7 @@ def advance(nsteps, s0, n, nown, P, C, W, TB, prm, hon, xon, phases):
     Pairs): the neighbour arrays may have been reallocated. Without PH_KICK (a force evaluation
     alone) particle, other and value are the pair with the largest overlap ratio and that ratio.
     """
+    nown = prm.ip[IP.nown]
     nreb = 0
     ncont = 0
     maxov = 0.0
@@ -1143,7 +1144,7 @@ def advance(nsteps, s0, n, nown, P, C, W, TB, prm, hon, xon, phases):
                 C = rebuild(P, C, W, prm, n, t)
                 nreb += 1
         if phases & PH_FORCES:
-            maxov, wi_, wj_, ncont = compute_forces(P, C, W, TB, prm, n, t, hon, xon)
+            maxov, wi_, wj_, ncont = compute_forces(P, C, W, TB, prm, n, t, hon, xon, ton)
         if phases & PH_KICK:
             status, who, other, value = kick_guard(P, prm, nown, maxov, wi_, wj_)
             if status != OK:

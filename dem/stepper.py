@@ -15,6 +15,7 @@ import numpy as np
 
 from . import schema as S
 from . import step as K
+from .contact.tangential import TANGENTIAL_PROJECTED
 from .errors import SimulationError
 from .neighbors import Box, build_half_list, sort_permutation
 
@@ -29,7 +30,7 @@ class Stepper:
         self.forces_ready = False
         self.pair_count = 0      # contacts x 2 of the last force evaluation (a half list counts each twice)
         self.last_contacts = 0
-        self._entry = None       # (bundles, heat switch, form switch, compiled entry point) of the last call
+        self._entry = None       # (bundles, heat, form and tangential switches, compiled entry point) of the last call
 
     # ------------------------------------------------------------------ compiled calls
     @property
@@ -49,6 +50,15 @@ class Stepper:
         st = self.state
         return True if K.full_form(st.ip, st.thi, st.periodic) else None
 
+    @property
+    def ton(self):
+        """The kernels' tangential-spring switch as a type: None for the rescaled model (the
+        default), True for the projected one (dem.contact.tangential), so that Numba compiles
+        each model's code alone: as a run-time switch it made the pair loop 5-15 % slower
+        whichever model ran (docs/benchmarks.md). The set-up (dem.compile) compiles the
+        rescaled forms; a scene with the projected model compiles its own once."""
+        return True if self.state.ip[K.IP.tangential] == TANGENTIAL_PROJECTED else None
+
     def phases(self, phases, nsteps=1, s0=None):
         """dem.step.advance over ``nsteps`` steps from step number s0 (by default the step in
         progress: a force evaluation alone is at the current time), the given phases only."""
@@ -57,14 +67,16 @@ class Stepper:
         s0 = self.world.step_count - 1 if s0 is None else s0
         hon = self.hon
         xon = self.xon
+        ton = self.ton
+        st.ip[K.IP.nown] = st.n_owned   # the kernels' owned rows (dem.step.advance reads them there)
         ent = self._entry
-        if ent is not None and ent[0] is b and ent[1] is hon and ent[2] is xon:
+        if ent is not None and ent[0] is b and ent[1] is hon and ent[2] is xon and ent[3] is ton:
             # the compiled form found for these very bundles: called without the dispatcher's type
             # resolution of the ~60 arrays (25 us -> 12 us a call; an MPI step makes 2-3 calls)
-            return ent[3](nsteps, s0, st.n, st.n_owned, *b, hon, xon, phases)
-        args = (nsteps, s0, st.n, st.n_owned, *b, hon, xon, phases)
+            return ent[4](nsteps, s0, st.n, *b, hon, xon, ton, phases)
+        args = (nsteps, s0, st.n, *b, hon, xon, ton, phases)
         res = K.advance(*args)
-        self._entry = (b, hon, xon, K.advance.get_overload(tuple(K.advance.typeof_pyval(a) for a in args)))
+        self._entry = (b, hon, xon, ton, K.advance.get_overload(tuple(K.advance.typeof_pyval(a) for a in args)))
         return res
 
     def set_pairs(self, C):

@@ -12,7 +12,7 @@ import math
 import numpy as np
 
 from .contact.damping import damping_factor, mixed_tables
-from .contact.registry import CONTACT_MODELS, ROLLING_MODELS, DAMPING_MODELS
+from .contact.registry import CONTACT_MODELS, ROLLING_MODELS, DAMPING_MODELS, TANGENTIAL_MODELS
 from .contact import walls as W
 from .parcels import parcel_factors
 from .state import State
@@ -77,6 +77,7 @@ class World:
         ip = np.zeros(K.IP.SIZE, np.int64)
         ip[K.IP.contact] = CONTACT_MODELS[sc.contact["model"]]
         ip[K.IP.rolling] = ROLLING_MODELS[sc.contact["rolling"]]
+        ip[K.IP.tangential] = TANGENTIAL_MODELS[sc.contact["tangential"]]
         ip[K.IP.nwalls] = self.nwalls
         ip[K.IP.mech] = 1 if sc.simulation["mechanics"] else 0
         ip[K.IP.nown] = self.state.n_owned

@@ -60,7 +60,8 @@ def test_pair_elastic_duration_and_energy():
     assert abs(ke1 - ke0) / ke0 < 1e-6
 
 
-def wall_drop(e, vn, vt=0.0, mu=0.0, w0=0.0, radius=R, density=RHO, youngs=E, nu=NU, dt_frac=400):
+def wall_drop(e, vn, vt=0.0, mu=0.0, w0=0.0, radius=R, density=RHO, youngs=E, nu=NU, dt_frac=400,
+              tangential="rescaled"):
     m = 4 / 3 * math.pi * radius ** 3 * density
     estar = 1 / (2 * (1 - nu ** 2) / youngs)
     tc = 2.8682 * (m ** 2 / (radius * estar ** 2 * vn)) ** 0.2
@@ -72,6 +73,7 @@ def wall_drop(e, vn, vt=0.0, mu=0.0, w0=0.0, radius=R, density=RHO, youngs=E, nu
         "particles": [{"material": "m", "positions": [[0, 0, radius * 1.001]], "radius": radius,
                        "velocities": [[vt, 0, -vn]], "angular_velocities": [[0, w0, 0]]}],
         "walls": [{"type": "plane", "point": [0, 0, 0], "normal": [0, 0, 1], "material": "m"}],
+        "contact": {"tangential": tangential},
     }
     return Simulation.from_dict(scene), tc
 
@@ -98,15 +100,21 @@ MU = 0.4
 V = 3.9
 
 
+# both tangential models (dem.contact.tangential): they differ in how the spring turns with the
+# contact plane (flat here) and in what the Coulomb cap compares; each impact law below holds for both
+TANGENTIAL = ["rescaled", "projected"]
+
+
+@pytest.mark.parametrize("tangential", TANGENTIAL)
 @pytest.mark.parametrize("angle", [72.0, 76.0, 80.0, 85.0])
-def test_oblique_sliding_regime(angle):
+def test_oblique_sliding_regime(angle, tangential):
     """Gross sliding throughout the impact (tan(theta) > 7/2 mu (1+e)): Coulomb impulse
     gives v_t' = v_t - mu (1+e) v_n and omega R = 5/2 mu (1+e) v_n exactly."""
     e = 0.9
     th = math.radians(angle)
     vn, vt = V * math.cos(th), V * math.sin(th)
     assert math.tan(th) > 3.5 * MU * (1 + e)
-    sim, _ = wall_drop(e, vn, vt, mu=MU, **AL)
+    sim, _ = wall_drop(e, vn, vt, mu=MU, tangential=tangential, **AL)
     collide(sim)
     vt1 = sim.state.velocity[0, 0]
     wR = sim.state.angular_velocity[0, 1] * AL["radius"]
@@ -117,8 +125,9 @@ def test_oblique_sliding_regime(angle):
     assert rebound == pytest.approx(expected, rel=0.05)
 
 
+@pytest.mark.parametrize("tangential", TANGENTIAL)
 @pytest.mark.parametrize("angle", [5.0, 15.0, 30.0, 50.0])
-def test_oblique_sticking_regime(angle):
+def test_oblique_sticking_regime(angle, tangential):
     """Below the sliding limit (tan(theta) < 7/2 mu (1+e)) the tangential impulse stays
     under the Coulomb bound, angular momentum about the contact point is conserved, and
     the result has converged in the time step (5 %)."""
@@ -128,7 +137,7 @@ def test_oblique_sticking_regime(angle):
     assert math.tan(th) < 3.5 * MU * (1 + e)
     out = []
     for frac in (400, 4000):
-        sim, _ = wall_drop(e, vn, vt, mu=MU, dt_frac=frac, **AL)
+        sim, _ = wall_drop(e, vn, vt, mu=MU, dt_frac=frac, tangential=tangential, **AL)
         collide(sim, max_steps=10 ** 6)
         vt1 = sim.state.velocity[0, 0]
         wR = sim.state.angular_velocity[0, 1] * AL["radius"]
@@ -139,7 +148,8 @@ def test_oblique_sticking_regime(angle):
     assert out[0][1] == pytest.approx(out[1][1], rel=0.05)
 
 
-def test_oblique_no_slip_against_continuous_solution():
+@pytest.mark.parametrize("tangential", TANGENTIAL)
+def test_oblique_no_slip_against_continuous_solution(tangential):
     """Elastic (e = 1), no sliding (mu large): the spin after impact matches the
     continuous Hertz-Mindlin equations integrated independently with SciPy:
     m delta'' = -4/3 E* sqrt(R) delta^3/2,  u' = -(7 / 2m) 8 G* sqrt(R delta) xi,  xi' = u."""
@@ -164,7 +174,7 @@ def test_oblique_no_slip_against_continuous_solution():
     u_end = sol.y[3, -1]
     # contact point u = vt1 - wR and vt1 + 0.4 wR = vt  ->  wR = (vt - u) / 1.4
     wR_ref = (vt - u_end) / 1.4
-    sim, _ = wall_drop(1.0, vn, vt, mu=1e3, dt_frac=2000, **AL)
+    sim, _ = wall_drop(1.0, vn, vt, mu=1e3, dt_frac=2000, tangential=tangential, **AL)
     collide(sim, max_steps=10 ** 6)
     wR = sim.state.angular_velocity[0, 1] * r
     assert wR == pytest.approx(wR_ref, rel=0.05)

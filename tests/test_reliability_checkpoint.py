@@ -223,6 +223,20 @@ def test_doubled_density_is_applied_to_the_mass(base):
     assert np.allclose(R - z, hertz_rest_overlap(2 * RHO), rtol=0.01)
 
 
+def test_tangential_model_edit_is_applied_with_the_springs_kept(base):
+    """[contact] tangential changed at a restart: listed, the springs kept (both models store the
+    same spring in the tangent plane), the run goes on with the projected model's compiled form and
+    the beads stay at the Hertz overlap of their weight."""
+    d, sc, ck = base
+    edited = write(d / "proj.toml", scene_text() + '\n[contact]\ntangential = "projected"\n')
+    r = ok(dem(edited, "--out", str(d / "o_proj"), "--restart", str(ck)))
+    assert "restart: applied contact.tangential 'rescaled' -> 'projected'" in r.stdout
+    z = read_final(d / "o_proj" / "final.npz")["position"][:, 2]
+    assert np.allclose(R - z, hertz_rest_overlap(RHO), rtol=0.01)
+    r = ok(dem(sc, "--out", str(d / "o_same"), "--restart", str(ck)))
+    assert "contact.tangential" not in r.stdout      # unchanged: nothing listed
+
+
 def test_material_inserted_before_keeps_each_particles_properties(tmp_path):
     """steel inserted before glass (unused): the glass beads keep glass and the run equals
     the uninterrupted one to round-off (a swap of properties would change everything)."""

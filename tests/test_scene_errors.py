@@ -187,6 +187,8 @@ CASES = [
      ["unknown material 'steel'", "defined: glass"]),
     ("unknown-contact-model", _set("contact", "model", "hooke"), "contact.model",
      ["unknown value 'hooke'", "hertz_mindlin", "linear_spring_dashpot"]),
+    ("unknown-tangential-model", _set("contact", "tangential", "liggghts"), "contact.tangential",
+     ["unknown value 'liggghts'", "rescaled", "projected"]),
     ("duplicate-material", _add_material, "materials[1].name", ["duplicate material name 'glass'", "unique"]),
     # geometry
     ("particle-outside-domain", _set("particles", 1, "positions", [[0.002, 0.007, 0.005], [0.006, 0.007, 0.02]]),
@@ -312,6 +314,7 @@ def _cli(args, cwd):
 CLI_CASES = [
     ("restitution", _set("materials", 0, "restitution", 1.5), "materials[0].restitution", "must be in (0, 1]"),
     ("wall-normal", _del("walls", 0, "normal"), "walls[0].normal", "missing required key"),
+    ("tangential", _set("contact", "tangential", "rotated"), "contact.tangential", "valid: rescaled, projected"),
     ("time-step", lambda d: d["simulation"].update(time_step=1e-4, end_time=1e-3, output_interval=1e-4),
      "simulation.time_step", "simulation.force = true"),
 ]

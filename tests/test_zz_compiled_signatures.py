@@ -6,8 +6,8 @@ springs, contact age, friction heat, indirect conduction, radiation, group sourc
 exponential, implicit and TR-BDF2 integration, frozen packing, fluid forces, fluid torque and virtual
 mass, no walls, periodic axes) in this one
 process, then counts the compiled signatures of each kernel: at most two (heat on, heat off:
-the ``hon`` switch), four for the step and its interact phase (lean or full form too: the
-``xon`` switch, dem.step.full_form), whatever ran before in this test session (this file runs
+the ``hon`` switch), eight for the step and its interact phase (lean or full form too: the
+``xon`` switch, dem.step.full_form; and the tangential model, ``ton``), whatever ran before in this test session (this file runs
 last).
 """
 import glob
@@ -39,6 +39,7 @@ def _variants():
     heat = {"initial_temperature": 300.0, "direct": "batchelor_obrien"}
     yield "mechanics only", {}
     yield "epsd rolling", {"contact": {"rolling": "epsd"}}
+    yield "projected tangential spring", {"contact": {"tangential": "projected"}}
     yield "heat, euler fused", {"thermal": dict(heat)}
     yield "heat, exponential", {"thermal": dict(heat, integrator="exponential")}
     yield "heat, implicit", {"thermal": dict(heat, integrator="implicit")}
@@ -96,9 +97,10 @@ def test_every_scene_shares_one_kernel_per_heat_switch():
     assert len(K.advance.signatures) >= 1  # every run calls advance (its phases, serial or MPI)
     for k in KERNELS:  # (a phase called only inside advance has no signature of its own when
         # advance came from the cache, one per heat switch when it was compiled here; advance and
-        # compute_forces one per heat switch and form, lean or full: dem.step.full_form)
+        # compute_forces one per heat switch, form (lean or full: dem.step.full_form) and
+        # tangential model (dem.stepper.Stepper.ton))
         sigs = k.signatures
-        switches = 2 if k in (K.advance, K.compute_forces) else 1
+        switches = 3 if k in (K.advance, K.compute_forces) else 1
         assert len(sigs) <= 2 ** switches, (k.py_func.__name__, len(sigs), sigs)
         for a in sigs:  # any two differ in the switches alone (types none / bool)
             for b in sigs:

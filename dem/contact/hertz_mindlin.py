@@ -13,22 +13,25 @@ References
   for the damped Hertz oscillator with no attraction (solved once per material pair,
   see :mod:`dem.contact.damping`), or LIGGGHTS' approximation
   A = -2 sqrt(5/6) beta sqrt(2), beta = ln e / sqrt(ln^2 e + pi^2) (Tsuji et al. 1992 form).
-* Coulomb cap: |F_t| <= mu F_n; when exceeded F_t is rescaled and the history is
-  set back to the spring length that gives the capped force (Luding 2008).
+* The tangential spring's turn and Coulomb cap: dem.contact.tangential (``rescaled``, Luding
+  2008, the default; ``projected``, Silbert et al. 2001 as LAMMPS and LIGGGHTS).
 """
 import math
 from numba import njit
 
+from .tangential import tangential_force
+
 
 @njit(cache=True, error_model="numpy", fastmath={"nsz", "arcp", "contract", "afn", "reassoc"})
 def hertz_mindlin(delta, vn, vtx, vty, vtz, hx, hy, hz,
-                  rstar, mstar, estar, gstar, damp_a, mu, ctr, dt):
+                  rstar, mstar, estar, gstar, damp_a, mu, ctr, dt, ton):
     """Hertz-Mindlin pair force.
 
     delta: overlap (m, > 0); vn: normal approach speed (m/s, > 0 approaching);
     vt*: tangential relative velocity of the contact point; h*: tangential
     spring history (m) already in the tangent plane; ctr: sqrt(4 G* / E*), the ratio
     c_t / c_n of the material pair (dem.step TAB.ctr, tabulated once by dem.world.pair_tables).
+    ton: the tangential model as a type (None rescaled, True projected; dem.contact.tangential).
     Returns (F_n >= 0, Ft_x, Ft_y, Ft_z, new history x, y, z, k_n).
     """
     sq = math.sqrt(rstar * delta)
@@ -42,22 +45,5 @@ def hertz_mindlin(delta, vn, vtx, vty, vtz, hx, hy, hz,
     # c_t = c_n sqrt(S_t / S_n) = c_n sqrt(4 G* / E*)  (S_n = 2 E* sqrt(R* delta)): the root of
     # a material constant, from the table (the same rounding as computed here: sqrt and / are exact)
     ct = cn * ctr
-    hx += vtx * dt
-    hy += vty * dt
-    hz += vtz * dt
-    fx = -st * hx - ct * vtx
-    fy = -st * hy - ct * vty
-    fz = -st * hz - ct * vtz
-    ft2 = fx * fx + fy * fy + fz * fz
-    fmax = mu * fn
-    if ft2 > fmax * fmax:
-        ft = math.sqrt(ft2)
-        s = fmax / ft
-        fx *= s
-        fy *= s
-        fz *= s
-        if st > 0.0:
-            hx = -(fx + ct * vtx) / st
-            hy = -(fy + ct * vty) / st
-            hz = -(fz + ct * vtz) / st
+    fx, fy, fz, hx, hy, hz = tangential_force(ton, hx, hy, hz, vtx, vty, vtz, st, ct, fn, mu, dt)
     return fn, fx, fy, fz, hx, hy, hz, 2.0 * estar * sq
