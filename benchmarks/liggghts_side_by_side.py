@@ -138,7 +138,10 @@ def markdown(rows, cmd, total):
         L.append(f"| {r['size']} | {r['steps']} | {r['T_hot']:.10f} | {r['L_hot']:.10f} | {r['T_cold']:.10f} | "
                  f"{r['L_cold']:.10f} | {abs(d - ld) / ld:.2e} |")
     L.append("")
-    L.append("The scene, the conduction law and the LIGGGHTS inputs: ../shared/bench/README.md. Runs on this "
+    L.append("The scene, the conduction law and the LIGGGHTS inputs: ../shared/bench/README.md. Our scenes "
+             "(benchmarks/shared_bed_*.toml) run LIGGGHTS's own tangential law, `[contact] tangential = "
+             "\"projected\"` (docs/models.md; since 2026-12-05, before that the default `rescaled`: section "
+             "\"LIGGGHTS's own tangential law\"). Runs on this "
              "shared machine vary by up to 30 % from one period to the next; the ratios, measured side by side, "
              "vary much less (earlier periods: the sections below).")
     return "\n".join(L)
