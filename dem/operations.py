@@ -416,6 +416,7 @@ def execute(sim, operations, end_step):
     from .interrupt import StopRequested, StopSignals
     from .errors import SimulationError
     run = Run(sim, operations, end_step)
+    first = sim.step_count     # (a restart's step, its checkpoint loaded)
     for op in run.operations:
         op.start(run)
     sim.settle_writes()
@@ -437,7 +438,7 @@ def execute(sim, operations, end_step):
         run.fire(STOP)   # the series closed with the current state, then the checkpoint
         sim.settle_writes()
         stop.time, stop.step, stop.checkpoint = sim.time, sim.step_count, run.checkpoint
-        sim.wall_seconds = run.wall_seconds
+        sim.wall_seconds, sim.steps_run = run.wall_seconds, sim.step_count - first
         raise
     except SimulationError:
         run.fire(FAIL)
@@ -446,7 +447,7 @@ def execute(sim, operations, end_step):
     run.close()
     run.fire(END)
     sim.settle_writes()
-    sim.wall_seconds = run.wall_seconds
+    sim.wall_seconds, sim.steps_run = run.wall_seconds, sim.step_count - first
     return run
 
 

@@ -55,6 +55,7 @@ class Simulation:
         self.energy_guard = None   # set by the run's EnergyCheck operation
         self.compile_seconds = None
         self.wall_seconds = None
+        self.steps_run = 0         # steps of the last run() (a restarted run: from its checkpoint on)
         self.threads = 1
         self.stepper.init_neighbors()
         if self.par is not None and getattr(scene, "distributed", False):

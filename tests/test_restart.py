@@ -34,6 +34,8 @@ def test_restart_matches_single_run(tmp_path):
     second = Simulation.from_dict(scene())
     second.run(out_dir=str(tmp_path / "two"), restart=str(ck), progress=False)
     b = read_final(tmp_path / "two" / "final.npz")
+    # the steps each run did (the speed that `dem run` prints counts these, not the restart's step)
+    assert (one.steps_run, first.steps_run, second.steps_run) == (4000, 2000, 2000)
 
     assert np.array_equal(a["id"], b["id"])
     scale = np.abs(a["position"]).max()
