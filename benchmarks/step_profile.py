@@ -50,6 +50,10 @@ from dem import step as K  # noqa: E402
 # H = 2 k a, rate into both rows, energy tally): 14 more, one root.
 OPS_MECH, DIVSQRT_MECH = 156, 9
 OPS_HEAT, DIVSQRT_HEAT = 14, 1
+# The same with the projected tangential model ([contact] tangential = "projected", LIGGGHTS's law,
+# which the shared beds run: dem.contact.tangential): the spring's turn is 12 operations, no
+# division or root (15 and 2 fewer), and the cap tests |S_t xi|^2 (2 more): 143 operations, 7.
+OPS_MECH_PROJECTED, DIVSQRT_MECH_PROJECTED = 143, 7
 # The floor in cycles: 4 scalar floating-point operations per cycle (2 FMA/multiply + 2 add
 # pipes of an AMD Zen core, counting each operation as one), or the divider: about 5 cycles
 # per double-precision division or square root (reciprocal throughput, Agner Fog's tables for
@@ -57,9 +61,9 @@ OPS_HEAT, DIVSQRT_HEAT = 14, 1
 OPS_PER_CYCLE, DIVSQRT_CYCLES = 4.0, 5.0
 
 
-def floor_cycles(heat):
-    ops = OPS_MECH + (OPS_HEAT if heat else 0)
-    ds = DIVSQRT_MECH + (DIVSQRT_HEAT if heat else 0)
+def floor_cycles(heat, projected=False):
+    ops = (OPS_MECH_PROJECTED if projected else OPS_MECH) + (OPS_HEAT if heat else 0)
+    ds = (DIVSQRT_MECH_PROJECTED if projected else DIVSQRT_MECH) + (DIVSQRT_HEAT if heat else 0)
     return ops, ds, max(ops / OPS_PER_CYCLE, ds * DIVSQRT_CYCLES)
 
 
@@ -202,7 +206,7 @@ def profile(bed, heat, steps, repeats, threads):
     nontouch = c1 - contacts
     per_contact = (one - slope * nontouch) / max(contacts, 1)
     ghz = cpu_ghz()
-    ops, ds, floor = floor_cycles(heat)
+    ops, ds, floor = floor_cycles(heat, projected=sim.stepper.ton is not None)
     label = f"{bed} bed, heat {'on' if heat else 'off'}, {sim.threads} thread(s), {n} particles, {steps} steps"
     print(f"\n== {label} (kernels compile/load {compile_s:.1f} s)")
     print(f"whole step (Simulation.step)       {whole * ps:8.1f} ns/particle-step   "
