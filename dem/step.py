@@ -27,7 +27,7 @@ from numba import njit, prange
 from .contact.hertz_mindlin import hertz_mindlin
 from .contact.linear import linear_spring_dashpot
 from .contact.rolling import constant_torque, epsd
-from .contact.tangential import turn_spring, TANGENTIAL_PROJECTED
+from .contact.tangential import luding_2008_turn, silbert_2001_turn, TANGENTIAL_PROJECTED
 from .contact.walls import wall_distance, wall_velocity, WI
 from .blocks import block_bounds, block_count, cross_counts, keep_cross_counts, kept_cross_counts
 from .neighbors import build_half_list, Box
@@ -180,7 +180,9 @@ def _rotate_history(h, i, s, ux, uy, uz, inv_u2, ton):
     centre line and 1/d^2 (the turn then waits neither for the root of d^2 nor for a division by
     d); the walls and the rolling spring give the unit normal and 1. The rolling spring always
     keeps its length (None)."""
-    return turn_spring(ton, h[i, s, 0], h[i, s, 1], h[i, s, 2], ux, uy, uz, inv_u2)
+    if ton is not None:   # (removed before typing for the other model)
+        return silbert_2001_turn(h[i, s, 0], h[i, s, 1], h[i, s, 2], ux, uy, uz, inv_u2)
+    return luding_2008_turn(h[i, s, 0], h[i, s, 1], h[i, s, 2], ux, uy, uz, inv_u2)
 
 
 @njit(cache=True, error_model="numpy")

@@ -19,7 +19,7 @@ References
 import math
 from numba import njit
 
-from .tangential import tangential_force
+from .tangential import luding_2008_cap, silbert_2001_cap
 
 
 @njit(cache=True, error_model="numpy", fastmath={"nsz", "arcp", "contract", "afn", "reassoc"})
@@ -45,5 +45,9 @@ def hertz_mindlin(delta, vn, vtx, vty, vtz, hx, hy, hz,
     # c_t = c_n sqrt(S_t / S_n) = c_n sqrt(4 G* / E*)  (S_n = 2 E* sqrt(R* delta)): the root of
     # a material constant, from the table (the same rounding as computed here: sqrt and / are exact)
     ct = cn * ctr
-    fx, fy, fz, hx, hy, hz = tangential_force(ton, hx, hy, hz, vtx, vty, vtz, st, ct, fn, mu, dt)
+    # the model's branch on this function's own argument: Numba removes the other before typing
+    if ton is not None:
+        fx, fy, fz, hx, hy, hz = silbert_2001_cap(hx, hy, hz, vtx, vty, vtz, st, ct, fn, mu, dt)
+    else:
+        fx, fy, fz, hx, hy, hz = luding_2008_cap(hx, hy, hz, vtx, vty, vtz, st, ct, fn, mu, dt)
     return fn, fx, fy, fz, hx, hy, hz, 2.0 * estar * sq

@@ -11,7 +11,7 @@ from the Hertz stiffness at a characteristic impact velocity (see dem.contact.mi
 import math
 from numba import njit
 
-from .tangential import tangential_force
+from .tangential import luding_2008_cap, silbert_2001_cap
 
 
 @njit(cache=True, error_model="numpy")
@@ -25,5 +25,8 @@ def linear_spring_dashpot(delta, vn, vtx, vty, vtz, hx, hy, hz,
         fn = 0.0
     kt = kt_ratio * kn
     ct = cn * math.sqrt(kt_ratio)
-    fx, fy, fz, hx, hy, hz = tangential_force(ton, hx, hy, hz, vtx, vty, vtz, kt, ct, fn, mu, dt)
+    if ton is not None:   # (removed before typing for the other model)
+        fx, fy, fz, hx, hy, hz = silbert_2001_cap(hx, hy, hz, vtx, vty, vtz, kt, ct, fn, mu, dt)
+    else:
+        fx, fy, fz, hx, hy, hz = luding_2008_cap(hx, hy, hz, vtx, vty, vtz, kt, ct, fn, mu, dt)
     return fn, fx, fy, fz, hx, hy, hz, kn

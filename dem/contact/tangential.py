@@ -23,7 +23,11 @@ stored spring (m), ``v_t`` the tangential velocity of the contact point:
   clip it at 0 in both models.
 
 The rescaled turn costs a division and a root per contact that the projection does not: on the
-shared beds the projected model's step is 4-8 % shorter (docs/benchmarks.md).
+shared beds the projected model's step is 7-9 % shorter (docs/benchmarks.md). The laws
+(dem.contact.hertz_mindlin, dem.contact.linear) and dem.step._rotate_history choose between the
+functions below on their argument ``ton``, the model as a type (None rescaled, True projected),
+so that Numba removes the other model's code before typing: as a run-time switch the model made
+the pair loop 5-15 % slower whichever model ran.
 """
 import math
 from numba import njit
@@ -100,24 +104,3 @@ def silbert_2001_cap(hx, hy, hz, vtx, vty, vtz, st, ct, fn, mu, dt):
         hz *= s
         return -st * hx, -st * hy, -st * hz, hx, hy, hz
     return -st * hx - ct * vtx, -st * hy - ct * vty, -st * hz - ct * vtz, hx, hy, hz
-
-
-@njit(cache=True, error_model="numpy", inline="always")
-def tangential_force(ton, hx, hy, hz, vtx, vty, vtz, st, ct, fn, mu, dt):
-    """The tangential force and spring of the run's model from the turned spring (hx, hy, hz),
-    this step's v_t dt added. ``ton``: the model as a type, like the kernels' heat switch: None
-    for the rescaled model, True for the projected one (dem.stepper.Stepper.ton). Numba compiles
-    each model's own code alone: the model as a run-time switch made the pair loop 5-15 % slower
-    on the shared beds, whichever model ran (docs/benchmarks.md)."""
-    if ton is not None:
-        return silbert_2001_cap(hx, hy, hz, vtx, vty, vtz, st, ct, fn, mu, dt)
-    return luding_2008_cap(hx, hy, hz, vtx, vty, vtz, st, ct, fn, mu, dt)
-
-
-@njit(cache=True, error_model="numpy", inline="always")
-def turn_spring(ton, hx, hy, hz, ux, uy, uz, inv_u2):
-    """The stored spring onto the new tangent plane by the run's model (``ton``: None rescaled,
-    True projected, as in :func:`tangential_force`)."""
-    if ton is not None:
-        return silbert_2001_turn(hx, hy, hz, ux, uy, uz, inv_u2)
-    return luding_2008_turn(hx, hy, hz, ux, uy, uz, inv_u2)
