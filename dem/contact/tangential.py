@@ -32,8 +32,10 @@ the pair loop 5-15 % slower whichever model ran.
 import math
 from numba import njit
 
-TANGENTIAL_RESCALED = 0   # dem.contact.registry.TANGENTIAL_MODELS
-TANGENTIAL_PROJECTED = 1
+from .registry import TANGENTIAL_MODELS
+
+# the projected model's id in ip[IP.tangential] (a module constant, as compiled code reads it)
+TANGENTIAL_PROJECTED = TANGENTIAL_MODELS["projected"]
 
 
 @njit(cache=True, error_model="numpy", inline="always")
