@@ -152,6 +152,8 @@ FIELDS = (
     _f("gas", "table", F8, doc="gas and model parameters (dem.thermal.registry)"),
     _f("ereal", "table", F8, (None,), doc="real effective modulus per material pair (Pa)"),
     _f("keff", "table", F8, (None,), doc="series conductivity per material pair (W/(m K))"),
+    _f("rcf", "table", F8, (None,), doc="contact-radius factor per material pair of a correction: rc = rcf sqrt(R* delta) "
+       "(dem.thermal.contact_radius.hertz_radius_factor)"),
     # ---------------------------------------------------------------- parameters
     _f("ip", "param", I8, doc="integer switches (slots: dem.step IP)"),
     _f("fp", "param", F8, doc="float parameters (slots: dem.step FP)"),

@@ -33,7 +33,7 @@ from .blocks import block_bounds, block_count, cross_counts, keep_cross_counts, 
 from .neighbors import build_half_list, Box
 from .schema import Pairs, XC, slots
 from .thermal.contact_radius import (contact_radius_pw, hertz_force, hertz_overlap, geometric_pp_inv,
-                                     apply_correction, HERTZ_FORCE, HERTZ_OVERLAP)
+                                     apply_correction, lean_radius, HERTZ_FORCE, HERTZ_OVERLAP, GEOMETRIC)
 from .thermal.direct import direct_pp, direct_pw, direct_cg_pp, direct_cg_pw, batchelor_obrien_keff
 from .thermal.registry import DIRECT_BATCHELOR_OBRIEN
 from .thermal.indirect import indirect_pp, indirect_pw
@@ -189,7 +189,11 @@ def _rotate_history(h, i, s, ux, uy, uz, inv_u2, ton):
 def full_form(ip, thi, periodic):
     """Whether a scene needs the full form of the interact phase (``xon`` = True): rolling
     resistance, a periodic direction, or with heat the models the lean form (``xon`` = None)
-    leaves out: indirect conduction, radiation, frictional heating, contact age. Like ``hon``,
+    leaves out: indirect conduction, radiation, frictional heating, contact age, a direct
+    conduction law other than Batchelor & O'Brien (the default), and the contact radii that are
+    not a pair constant times sqrt(R* delta) or the geometric radius
+    (dem.thermal.contact_radius.lean_radius: under the linear law the force-based radii, and a
+    geometric radius with a force-based correction). Like ``hon``,
     ``xon`` is a type, so that Numba compiles the lean form without that code and without
     its run-time switches: the shared heat beds, whose scene uses none of them, run their
     interact phase about 10 % faster (docs/benchmarks.md, "The lean form of the contact loops").
@@ -197,8 +201,13 @@ def full_form(ip, thi, periodic):
     scene that needs the full one."""
     if ip[IP.rolling] != 0 or periodic[0] or periodic[1] or periodic[2]:
         return True
-    return thi[TI.heat] != 0 and (thi[TI.indirect] >= 0 or thi[TI.rad] >= 0 or thi[TI.fric] >= 0
-                                  or thi[TI.age] != 0)
+    if thi[TI.heat] == 0:
+        return False
+    if thi[TI.indirect] >= 0 or thi[TI.rad] >= 0 or thi[TI.fric] >= 0 or thi[TI.age] != 0:
+        return True
+    if thi[TI.direct] < 0:
+        return False
+    return thi[TI.direct] != DIRECT_BATCHELOR_OBRIEN or not lean_radius(thi[TI.cr], thi[TI.corr], ip[IP.contact])
 
 
 @njit(cache=True, error_model="numpy", fastmath={"nsz", "arcp", "contract", "afn", "reassoc"},
@@ -284,7 +293,11 @@ def interact_rows(P, C, W, TB, prm, n, t, hon, xon, ton, blk):
     Q = P.heat_rate
     wtab = W.wtab
     keff = TB.keff
+    rcf = TB.rcf
     bo = dmodel == DIRECT_BATCHELOR_OBRIEN
+    # a contact's heat terms: in the lean form only Batchelor & O'Brien conduction (full_form),
+    # and the conductance of the slot for the heat step when not fused (0 without conduction)
+    pheat = heat and (xon is not None or bo or not fused)
     e_dir = 0.0
     e_ind = 0.0
     e_wall = 0.0
@@ -434,55 +447,74 @@ def interact_rows(P, C, W, TB, prm, n, t, hon, xon, ton, blk):
             hist[i, s, 0] = hx
             hist[i, s, 1] = hy
             hist[i, s, 2] = hz
-            if hon is not None and heat:
+            if hon is not None and pheat:
                 tc = 0.0
                 vimp = 0.0
                 if xon is not None and use_age:
                     tc, vimp = _contact_age(age, i, s, vn, dt)
-                fel = (2.0 / 3.0) * kn * delta if model == 0 else kn * delta
-                # contact radius (the dispatcher of dem.thermal.contact_radius, with R* at hand)
-                if crm == HERTZ_OVERLAP:
-                    rc = hertz_overlap(rstar, delta)
-                elif crm == HERTZ_FORCE:
-                    rc = hertz_force(fel, rstar, tab[TAB.estar, mi, mj])
-                else:
-                    rc = geometric_pp_inv(ri, rj, d, invd)
-                if crc != 0:
-                    rc = apply_correction(crm, crc, rc, rstar, fel, tab[TAB.estar, mi, mj], ereal[mi, mj])
-                if bo:  # Batchelor & O'Brien with the tabulated series conductivity (linear in
-                    # r_c: the same for a parcel as its real law times cg)
-                    hdir = dfac * batchelor_obrien_keff(rc, keff[mi, mj])
-                elif dmodel >= 0:
-                    if has_cg:   # the real particles' law at the real size and age, scaled
-                        c = cgv[i]
-                        hdir = dfac * direct_cg_pp(dmodel, c, ri / c, rj / c, d / c, rc / c, mi, mj, tmat, gas,
-                                                   tc / c, vimp) \
-                            * direct_pp(dmodel, ri / c, rj / c, d / c, rc / c, mi, mj, tmat, gas, tc / c, vimp)
-                    else:
-                        hdir = dfac * direct_pp(dmodel, ri, rj, d, rc, mi, mj, tmat, gas, tc, vimp)
-                else:
+                if xon is None:
+                    # the lean form (full_form): Batchelor & O'Brien conduction or none, the
+                    # radius sqrt(R* delta) or the geometric one, times the pair's constant of a
+                    # correction (dem.thermal.contact_radius.hertz_radius_factor): no call in the
+                    # loop (a cube root or a dispatcher made the shared heat beds 4-6 % slower)
                     hdir = 0.0
-                if xon is None or imodel < 0:
+                    if bo:
+                        if crm == GEOMETRIC:
+                            rc = geometric_pp_inv(ri, rj, d, invd)
+                        else:
+                            rc = math.sqrt(rstar * delta)
+                        if crc != 0:
+                            rc *= rcf[mi, mj]
+                        hdir = dfac * batchelor_obrien_keff(rc, keff[mi, mj])
                     hind = 0.0
-                elif has_cg:
-                    c = cgv[i]
-                    hind = c * indirect_pp(imodel, ri / c, rj / c, d / c, rc / c, mi, mj, por[i], por[j], tmat, gas)
                 else:
-                    hind = indirect_pp(imodel, ri, rj, d, rc, mi, mj, por[i], por[j], tmat, gas)
+                    fel = (2.0 / 3.0) * kn * delta if model == 0 else kn * delta
+                    # contact radius (the dispatcher of dem.thermal.contact_radius, with R* at hand)
+                    if crm == HERTZ_OVERLAP:
+                        rc = hertz_overlap(rstar, delta)
+                    elif crm == HERTZ_FORCE:
+                        rc = hertz_force(fel, rstar, tab[TAB.estar, mi, mj])
+                    else:
+                        rc = geometric_pp_inv(ri, rj, d, invd)
+                    if crc != 0:
+                        rc = apply_correction(crm, crc, rc, rstar, fel, tab[TAB.estar, mi, mj], ereal[mi, mj])
+                    if bo:  # Batchelor & O'Brien with the tabulated series conductivity (linear in
+                        # r_c: the same for a parcel as its real law times cg)
+                        hdir = dfac * batchelor_obrien_keff(rc, keff[mi, mj])
+                    elif dmodel >= 0:
+                        if has_cg:   # the real particles' law at the real size and age, scaled
+                            c = cgv[i]
+                            hdir = dfac * direct_cg_pp(dmodel, c, ri / c, rj / c, d / c, rc / c, mi, mj, tmat, gas,
+                                                       tc / c, vimp) \
+                                * direct_pp(dmodel, ri / c, rj / c, d / c, rc / c, mi, mj, tmat, gas, tc / c, vimp)
+                        else:
+                            hdir = dfac * direct_pp(dmodel, ri, rj, d, rc, mi, mj, tmat, gas, tc, vimp)
+                    else:
+                        hdir = 0.0
+                    if xon is None or imodel < 0:
+                        hind = 0.0
+                    elif has_cg:
+                        c = cgv[i]
+                        hind = c * indirect_pp(imodel, ri / c, rj / c, d / c, rc / c, mi, mj, por[i], por[j], tmat, gas)
+                    else:
+                        hind = indirect_pp(imodel, ri, rj, d, rc, mi, mj, por[i], por[j], tmat, gas)
                 if fused:
                     dtij = T[j] - T[i]
                     qd = hdir * dtij
-                    qi = hind * dtij
-                    Q[i] += qd + qi
+                    qsum = qd
+                    if xon is not None:
+                        qi = hind * dtij
+                        qsum = qd + qi
+                        e_ind += wgt * abs(qi)
+                    Q[i] += qsum
                     if loc:
-                        Q[j] -= qd + qi
+                        Q[j] -= qsum
                     else:
-                        xv[kx, XV.q] = -(qd + qi)
+                        xv[kx, XV.q] = -qsum
                     e_dir += wgt * abs(qd)
-                    e_ind += wgt * abs(qi)
                 else:
                     Hd[i, s] = hdir
-                    if imodel >= 0:
+                    if xon is not None and imodel >= 0:
                         Hi[i, s] = hind
                 if xon is not None and radon:
                     rnear[i, s] = 1

@@ -164,6 +164,48 @@ def morris_2016_time_factor(Estar, Estar_real):
     return (Estar / Estar_real) ** (4.0 / 15.0)
 
 
+def hertz_radius_factor(correction, Estar, Estar_real):
+    """The factor c of a contact radius rc = c sqrt(R* delta) of a Hertz contact, for every
+    method and correction whose radius follows from the elastic force (issue 28).
+
+    Under the Hertz law the elastic normal force is Fn = 4/3 E* sqrt(R*) delta^(3/2)
+    (dem.contact.hertz_mindlin), so the force-based forms reduce to the overlap form times a
+    constant of the material pair (no cube root per contact):
+
+    * ``hertz_force``: (3 Fn R* / (4 E*))^(1/3) = sqrt(R* delta), c = 1;
+    * ``zhou_2010``: rc (E*/E*_real)^(1/5) of any method: c = (E*/E*_real)^(1/5);
+    * ``lu_2017``: (3 Fn R* / (4 E*_real))^(1/3) = (E*/E*_real)^(1/3) sqrt(R* delta);
+    * ``morris_2016_area``: (Fn R* / E*_real)^(1/3) = (4/3 E*/E*_real)^(1/3) sqrt(R* delta);
+    * ``morris_2016_area_time``: that times (E*/E*_real)^(4/15).
+
+    With E*_real <= 0 (unknown) a correction is the identity (:func:`apply_correction`): c = 1.
+    A geometric radius takes c only for ``zhou_2010`` (the others do not follow from it:
+    dem.step.full_form sends those to the full form of the contact loops)."""
+    if correction == NONE or Estar_real <= 0.0 or Estar <= 0.0:
+        return 1.0
+    a = Estar / Estar_real
+    if correction == ZHOU_2010:
+        return a ** 0.2
+    if correction == LU_2017:
+        return a ** (1.0 / 3.0)
+    if correction == MORRIS_2016_AREA:
+        return (4.0 / 3.0 * a) ** (1.0 / 3.0)
+    if correction == MORRIS_2016_AREA_TIME:
+        return (4.0 / 3.0 * a) ** (1.0 / 3.0) * a ** (4.0 / 15.0)
+    raise ValueError(f"unknown contact-radius correction id {correction}")
+
+
+@numba.njit(cache=True, error_model="numpy")
+def lean_radius(method, correction, contact_model):
+    """Whether the lean contact loops (dem.step, xon None) compute this contact radius: the
+    overlap form sqrt(R* delta) or the geometric one, times the pair factor of
+    :func:`hertz_radius_factor`. ``contact_model``: 0 Hertz-Mindlin, 1 linear (under the
+    linear law the force-based forms are a cube root of the overlap: the full form)."""
+    if method == GEOMETRIC or contact_model != 0:
+        return method != HERTZ_FORCE and (correction == NONE or correction == ZHOU_2010)
+    return True
+
+
 @numba.njit(cache=True, error_model="numpy")
 def apply_correction(method, correction, rc, Rstar, Fn, Estar, Estar_real):
     """Softened-stiffness correction of a contact radius (ids of CORRECTIONS)."""

@@ -8,6 +8,7 @@ import math
 import numpy as np
 
 from . import registry as R
+from .contact_radius import hertz_radius_factor
 from .convection import BIOT_LUMPED
 from .heat import TI, TF, TOT, WT, local_porosity
 
@@ -32,7 +33,7 @@ def no_heat_tables(st):
     thi = np.full(TI.SIZE, -1, np.int64)
     thi[TI.heat] = 0
     st.thi, st.thf, st.tmat, st.gas = thi, np.zeros(TF.SIZE), np.zeros((1, R.N_TPROP)), np.zeros(R.N_GAS)
-    st.ereal, st.keff = np.zeros((1, 1)), np.zeros((1, 1))
+    st.ereal, st.keff, st.rcf = np.zeros((1, 1)), np.zeros((1, 1)), np.ones((1, 1))
     st.wth, st.wtab = np.zeros((nw, WT.SIZE)), np.zeros((nw, 1, 2))
     zero_wall_totals(st, nw)
     st.srcbox, st.tot = np.zeros((0, 7)), np.zeros(TOT.SIZE)
@@ -91,11 +92,15 @@ class ThermalModel:
         nu = np.array([m["poisson_ratio"] for m in sc.materials])
         Er = np.array([m.get("real_youngs_modulus", m["youngs_modulus"]) for m in sc.materials])
         self.ereal = np.ascontiguousarray(1.0 / ((1 - nu[:, None] ** 2) / Er[:, None] + (1 - nu[None, :] ** 2) / Er[None, :]))
-        del E
         from .direct import series_conductivity
         k = self.tmat[:, R.K_COND]
         nm = len(k)
         self.keff = np.array([[series_conductivity(k[a], k[b]) for b in range(nm)] for a in range(nm)]).reshape(nm, nm)
+        # the pair constant of a contact-radius correction, rc = rcf sqrt(R* delta) under the Hertz
+        # law (the lean contact loops: no cube root per contact; dem.step.full_form)
+        estar = 1.0 / ((1 - nu[:, None] ** 2) / E[:, None] + (1 - nu[None, :] ** 2) / E[None, :])
+        self.rcf = np.array([[hertz_radius_factor(thi[TI.corr], estar[a, b], self.ereal[a, b]) for b in range(nm)]
+                             for a in range(nm)]).reshape(nm, nm)
         # reach of the neighbour list: the largest of the selected models' records (indirect
         # cut-off, radiation range, in radii), and one radius for the local porosity
         selected = {m: th[m] for m in ("direct", "indirect", "convection", "radiation")}
@@ -133,6 +138,7 @@ class ThermalModel:
         st.wth, st.wtab = wth, wtab
         zero_wall_totals(st, nw)
         st.thi, st.thf, st.tmat, st.gas, st.ereal, st.keff = thi, thf, self.tmat, self.gas, self.ereal, self.keff
+        st.rcf = self.rcf
         st.srcbox, st.tot = np.array(boxes, float).reshape(-1, 7), np.zeros(TOT.SIZE)
         st.por[:] = self.gas[R.POROSITY_GLOBAL]
         st.tf[:] = self.gas[R.T_F] if math.isfinite(self.gas[R.T_F]) else 0.0
