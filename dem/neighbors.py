@@ -1,7 +1,10 @@
 """Cell-linked lists and a Verlet half list with per-pair history slots.
 
-Each pair (i, j), i < j, is stored once, in row i of ``nb`` (fixed ``slots`` per particle,
-grown automatically on overflow). Contact history (tangential spring, rolling spring,
+Each pair (i, j) is stored once, in row i or row j of ``nb`` (fixed ``slots`` per particle,
+grown automatically on overflow): the rows of the pairs j > i are scanned first, then each pair
+goes to the row of the two that holds fewer so far (:func:`balance_rows`), which halves the
+longest row and so the slots every row carries (issue 28: a shorter row of the contact history
+made the shared 50k bed 7-10 % faster). Contact history (tangential spring, rolling spring,
 contact age) lives in arrays aligned with ``nb`` and is carried over at every rebuild by
 looking the pair up in the previous list (row i, or row j with the sign of vectors
 flipped), so a contact keeps its history through rebuilds and reorderings.
@@ -283,6 +286,63 @@ def _carry_threaded(n, nthreads, nb, nnb, hist, rhist, age, old):
 
 
 @njit(cache=True, error_model="numpy")
+def balance_rows(raw, nraw, n, nown, slots):
+    """The half list with each pair in the shorter of its two rows: the pairs of ``raw`` (row i
+    holding the j > i of :func:`_row_neighbours`, ``nraw`` of them), taken in row order, each
+    into row j when j is owned (a ghost has no row) and row j holds fewer pairs so far than row
+    i, else into row i; then each row sorted by the other particle's row. One serial pass over
+    the pairs, the same on any number of threads (the raw rows are). The rows of a settled bed
+    hold 2-6 pairs instead of 0-11, so the contact history (3 doubles a slot) and the list take
+    half the memory that the pair loop streams through at every step.
+
+    Returns (nb, nnb, the longest row); a row longer than ``slots`` is counted, not stored (the
+    caller builds again with more slots)."""
+    cnt = np.zeros(n, np.int32)
+    total = 0
+    for i in range(nown):
+        total += nraw[i]
+    to_j = np.zeros(total, np.bool_)
+    p = 0
+    for i in range(nown):
+        for s in range(nraw[i]):
+            j = raw[i, s]
+            if j < nown and cnt[j] < cnt[i]:
+                cnt[j] += 1
+                to_j[p] = True
+            else:
+                cnt[i] += 1
+            p += 1
+    maxc = 0
+    for i in range(nown):
+        if cnt[i] > maxc:
+            maxc = cnt[i]
+    nb = np.empty((n, max(slots, 1)), np.int32)
+    nnb = np.zeros(n, np.int32)
+    if maxc > slots:
+        return nb, nnb, maxc
+    p = 0
+    for i in range(nown):
+        for s in range(nraw[i]):
+            j = raw[i, s]
+            if to_j[p]:
+                nb[j, nnb[j]] = i
+                nnb[j] += 1
+            else:
+                nb[i, nnb[i]] = j
+                nnb[i] += 1
+            p += 1
+    for i in range(nown):   # each row by the other's row (insertion sort: rows of a few pairs)
+        for a in range(1, nnb[i]):
+            v = nb[i, a]
+            b = a - 1
+            while b >= 0 and nb[i, b] > v:
+                nb[i, b + 1] = nb[i, b]
+                b -= 1
+            nb[i, b + 1] = v
+    return nb, nnb, maxc
+
+
+@njit(cache=True, error_model="numpy")
 def build_half_list(x, r, n, nown, dom, grid, reach, skin, slots, old, nthreads):
     """Build the half list and carry the history over from ``old`` (dem.schema Pairs: its
     nb, nnb, hist, rhist, age; empty arrays for none).
@@ -313,22 +373,29 @@ def build_half_list(x, r, n, nown, dom, grid, reach, skin, slots, old, nthreads)
     grid = (cc, ncell, gwrap, cmin, ext, table, dense, order)
     box = (length, periodic)
     cutoff = (reach, skin)
+    # the rows of the pairs j > i, in a buffer about twice as wide as the balanced rows
+    width = 2 * slots + 2
     while True:
-        nb = np.empty((n, slots), np.int32)
-        nnb = np.zeros(n, np.int32)
-        maxc = 0
+        raw = np.empty((n, width), np.int32)
+        nraw = np.zeros(n, np.int32)
+        maxr = 0
         if threaded:
             rowc = np.zeros(nown, np.int64)
-            _rows_threaded(nown, nthreads, grid, x, r, box, cutoff, nb, nnb, rowc)
+            _rows_threaded(nown, nthreads, grid, x, r, box, cutoff, raw, nraw, rowc)
             for i in range(nown):
-                if rowc[i] > maxc:
-                    maxc = rowc[i]
+                if rowc[i] > maxr:
+                    maxr = rowc[i]
         else:
             for i in range(nown):
-                cnt = _row_neighbours(i, grid, x, r, box, cutoff, nb, zc)
-                if cnt > maxc:
-                    maxc = cnt
-                nnb[i] = min(cnt, slots)
+                cnt = _row_neighbours(i, grid, x, r, box, cutoff, raw, zc)
+                if cnt > maxr:
+                    maxr = cnt
+                nraw[i] = min(cnt, width)
+        if maxr <= width:
+            break
+        width = maxr + 2
+    while True:
+        nb, nnb, maxc = balance_rows(raw, nraw, n, nown, slots)
         if maxc <= slots:
             break
         slots = maxc + 2
@@ -363,3 +430,9 @@ def grid_bytes(x, r, n, glo, ghi, gwrap, reach, skin):
     """Bytes of the transient arrays of one neighbour build (cells, keys, order, table)."""
     ncell, cc, cmin, ext, order, table, dense = cell_grid(x, r, n, glo, ghi, gwrap, reach, skin)
     return int(cc.nbytes + order.nbytes + table.nbytes + 8 * n)  # + the keys (int64 per particle)
+
+
+def raw_rows_bytes(n, slots):
+    """Bytes of the rows of the pairs j > i that a build fills before :func:`balance_rows`
+    (about twice the balanced rows' width) and its pass's flags (a byte a pair)."""
+    return int(n * (2 * slots + 2) * (4 + 1) + 4 * n)

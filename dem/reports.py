@@ -10,7 +10,7 @@ from . import schema as S
 from . import step as K
 from .contact.damping import rayleigh_time, hertz_collision_time
 from .errors import SceneError
-from .neighbors import grid_bytes
+from .neighbors import grid_bytes, raw_rows_bytes
 from .parcels import parcel_factors
 
 # a periodic length below this many parcel diameters orders a coarse-grained packing through its
@@ -148,8 +148,9 @@ def memory_estimate(world, par):
     """(peak bytes of this process's particle arrays, bytes of one neighbour build).
 
     Peak = the per-particle arrays + the neighbour list and its history slots + during a
-    rebuild, the new list beside the old one and the cell grid of the build (the box of
-    occupied cells or sorted keys: O(n), independent of the domain size)."""
+    rebuild, the new list beside the old one, the cell grid of the build (the box of
+    occupied cells or sorted keys: O(n), independent of the domain size) and the rows of the
+    pairs j > i before they are balanced (dem.neighbors.balance_rows)."""
     st = world.state
     lists = sum(getattr(st, f.name).nbytes for f in S.of("pair") if f.name in ("nb", "nnb") or f.record)
     if par is None:
@@ -157,6 +158,7 @@ def memory_estimate(world, par):
     else:
         glo, ghi, gwrap = par.grid_box(world)
     grid = grid_bytes(st.position, st.radius, st.n, glo, ghi, gwrap, world.reach, st.fp[K.FP.skin])
+    grid += raw_rows_bytes(st.n, st.nb.shape[1])
     mem = st.memory_bytes("particle") + st.memory_bytes("pair")
     return mem + lists + grid, lists + grid
 
