@@ -1,7 +1,7 @@
 """Cell-linked lists and a Verlet half list with per-pair history slots.
 
-Each pair (i, j) is stored once, in row i or row j of ``nb`` (fixed ``slots`` per particle,
-grown automatically on overflow): the rows of the pairs j > i are scanned first, then each pair
+Each pair (i, j) is stored once, in row i or row j of ``nb`` (as many slots per particle as
+the longest row of the build holds): the rows of the pairs j > i are scanned first, then each pair
 goes to the row of the two that holds fewer so far (:func:`balance_rows`), which halves the
 longest row and so the slots every row carries (issue 28: a shorter row of the contact history
 made the shared 50k bed 7-10 % faster). Contact history (tangential spring, rolling spring,
@@ -286,7 +286,7 @@ def _carry_threaded(n, nthreads, nb, nnb, hist, rhist, age, old):
 
 
 @njit(cache=True, error_model="numpy")
-def balance_rows(raw, nraw, n, nown, slots):
+def balance_rows(raw, nraw, n, nown):
     """The half list with each pair in the shorter of its two rows: the pairs of ``raw`` (row i
     holding the j > i of :func:`_row_neighbours`, ``nraw`` of them), taken in row order, each
     into row j when j is owned (a ghost has no row) and row j holds fewer pairs so far than row
@@ -295,8 +295,8 @@ def balance_rows(raw, nraw, n, nown, slots):
     hold 2-6 pairs instead of 0-11, so the contact history (3 doubles a slot) and the list take
     half the memory that the pair loop streams through at every step.
 
-    Returns (nb, nnb, the longest row); a row longer than ``slots`` is counted, not stored (the
-    caller builds again with more slots)."""
+    Returns (nb, nnb, the longest row): the rows as wide as the longest (no spare slots: a row
+    that grows at the next build widens the next list, which is allocated anew anyway)."""
     cnt = np.zeros(n, np.int32)
     total = 0
     for i in range(nown):
@@ -316,10 +316,8 @@ def balance_rows(raw, nraw, n, nown, slots):
     for i in range(nown):
         if cnt[i] > maxc:
             maxc = cnt[i]
-    nb = np.empty((n, max(slots, 1)), np.int32)
+    nb = np.empty((n, max(maxc, 1)), np.int32)
     nnb = np.zeros(n, np.int32)
-    if maxc > slots:
-        return nb, nnb, maxc
     p = 0
     for i in range(nown):
         for s in range(nraw[i]):
@@ -352,8 +350,9 @@ def build_half_list(x, r, n, nown, dom, grid, reach, skin, slots, old, nthreads)
     ``dom`` (a :class:`Box`); the cell grid covers the box ``grid`` and wraps on its periodic
     axes (in a serial run the grid is the domain; a rank's grid is its box plus the halo); only
     the box of occupied cells is stored (``cell_grid``), so memory grows with n, not with
-    the domain. Returns (nb, nnb, hist, rhist, age, max_count). When a row overflows the
-    slots the build is redone with more slots (the arrays returned are then larger).
+    the domain. Returns (nb, nnb, hist, rhist, age, max_count): the rows as wide as the longest
+    balanced row (:func:`balance_rows`); ``slots``, the last list's width, sizes the buffer of
+    the pairs j > i (twice as wide plus 2, grown and scanned again when a row does not fit).
 
     ``nthreads`` > 1: the rows and their history on that many threads (the binning stays
     serial); every row is written by one thread only, so the list and the history are the same
@@ -373,7 +372,8 @@ def build_half_list(x, r, n, nown, dom, grid, reach, skin, slots, old, nthreads)
     grid = (cc, ncell, gwrap, cmin, ext, table, dense, order)
     box = (length, periodic)
     cutoff = (reach, skin)
-    # the rows of the pairs j > i, in a buffer about twice as wide as the balanced rows
+    # the rows of the pairs j > i, in a buffer about twice as wide as the balanced rows (``slots``:
+    # the width of the last list; grown and scanned again when a row does not fit)
     width = 2 * slots + 2
     while True:
         raw = np.empty((n, width), np.int32)
@@ -394,11 +394,8 @@ def build_half_list(x, r, n, nown, dom, grid, reach, skin, slots, old, nthreads)
         if maxr <= width:
             break
         width = maxr + 2
-    while True:
-        nb, nnb, maxc = balance_rows(raw, nraw, n, nown, slots)
-        if maxc <= slots:
-            break
-        slots = maxc + 2
+    nb, nnb, maxc = balance_rows(raw, nraw, n, nown)
+    slots = nb.shape[1]
     # carry the history over
     hist = np.zeros((n, slots, 3))
     if rolling:

@@ -122,17 +122,14 @@ class Stepper:
         """The rebuild phase (dem.step.rebuild) from Python at the time of step number
         ``step``, with the history starting empty (restored by the caller): the half list over
         the cell grid [glo, ghi] (wrapped on ``gwrap``), then dem.step.after_build (advance's
-        PH_AFTER_BUILD). A first build sizes the slots tightly (the largest count + 2)."""
+        PH_AFTER_BUILD). The rows are as wide as the longest (dem.neighbors.balance_rows); the
+        last list's width (6 before the first) sizes the build's buffer."""
         st = self.state
-        slots = 12 if initial else st.nb.shape[1]
+        slots = 6 if initial or st.nb.shape[0] == 0 else st.nb.shape[1]
         empty = S.Pairs(*[f.empty() for f in S.of("pair", kernel_only=True)])
-        for _ in range(2):
-            nb, nnb, hist, rhist, age, maxc = build_half_list(
-                st.position, st.radius, st.n, st.n_owned, Box(st.lo, st.hi, st.periodic), Box(glo, ghi, gwrap),
-                self.world.reach, st.fp[K.FP.skin], slots, empty, st.ip[K.IP.threads])
-            if not initial or maxc + 2 >= slots:
-                break
-            slots = maxc + 2
+        nb, nnb, hist, rhist, age, _ = build_half_list(
+            st.position, st.radius, st.n, st.n_owned, Box(st.lo, st.hi, st.periodic), Box(glo, ghi, gwrap),
+            self.world.reach, st.fp[K.FP.skin], slots, empty, st.ip[K.IP.threads])
         self.set_pairs(S.Pairs(nb, nnb, hist, rhist, age, st.Hd, st.Hi, st.rnear))
         self.set_pairs(self.phases(K.PH_AFTER_BUILD, s0=step - 1)[-1])
 
