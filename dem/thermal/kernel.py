@@ -8,6 +8,7 @@ import math
 import numpy as np
 
 from . import registry as R
+from ..contact.damping import mixed_tables
 from .contact_radius import hertz_radius_factor
 from .convection import BIOT_LUMPED
 from .heat import TI, TF, TOT, WT, local_porosity
@@ -88,7 +89,6 @@ class ThermalModel:
         thf[TF.chi] = th["chi"]
         self.thf = thf
         # real effective modulus per material pair (softened-stiffness corrections)
-        E = np.array([m["youngs_modulus"] for m in sc.materials])
         nu = np.array([m["poisson_ratio"] for m in sc.materials])
         Er = np.array([m.get("real_youngs_modulus", m["youngs_modulus"]) for m in sc.materials])
         self.ereal = np.ascontiguousarray(1.0 / ((1 - nu[:, None] ** 2) / Er[:, None] + (1 - nu[None, :] ** 2) / Er[None, :]))
@@ -98,7 +98,7 @@ class ThermalModel:
         self.keff = np.array([[series_conductivity(k[a], k[b]) for b in range(nm)] for a in range(nm)]).reshape(nm, nm)
         # the pair constant of a contact-radius correction, rc = rcf sqrt(R* delta) under the Hertz
         # law (the lean contact loops: no cube root per contact; dem.step.full_form)
-        estar = 1.0 / ((1 - nu[:, None] ** 2) / E[:, None] + (1 - nu[None, :] ** 2) / E[None, :])
+        estar = mixed_tables(sc.materials)["estar"]   # the contact law's E* (dem.world.pair_tables)
         self.rcf = np.array([[hertz_radius_factor(thi[TI.corr], estar[a, b], self.ereal[a, b]) for b in range(nm)]
                              for a in range(nm)]).reshape(nm, nm)
         # reach of the neighbour list: the largest of the selected models' records (indirect
