@@ -293,9 +293,9 @@ def balance_rows(raw, nraw, n, nown):
     i, else into row i; then, while it shortens the longest rows, a pair of a longest row moves
     to its other row when that one holds at least 2 fewer; then each row sorted by the other
     particle's row. Serial passes over the pairs, the same on any number of threads (the raw
-    rows are). The rows of a settled bed
-    hold 2-6 pairs instead of 0-11, so the contact history (3 doubles a slot) and the list take
-    half the memory that the pair loop streams through at every step.
+    rows are). The rows of the shared 50k bed hold 1-5 pairs instead of 0-11, so the contact
+    history (3 doubles a slot) and the list take 5 slots instead of 13: less memory for the pair
+    loop to stream through at every step.
 
     Returns (nb, nnb, the longest row): the rows as wide as the longest (no spare slots: a row
     that grows at the next build widens the next list, which is allocated anew anyway)."""
@@ -314,10 +314,7 @@ def balance_rows(raw, nraw, n, nown):
             else:
                 cnt[i] += 1
             p += 1
-    maxc = 0
-    for i in range(nown):
-        if cnt[i] > maxc:
-            maxc = cnt[i]
+    maxc = cnt[:nown].max() if nown > 0 else 0
     # then, while it shortens the longest rows: each pair of a longest row moves to its other
     # row when that one holds at least 2 fewer (the greedy pass leaves a few dozen rows one
     # longer than needed on the shared 50k bed)
@@ -333,10 +330,7 @@ def balance_rows(raw, nraw, n, nown):
                         cnt[b] += 1
                         to_j[p] = not to_j[p]
                 p += 1
-        longest = 0
-        for i in range(nown):
-            if cnt[i] > longest:
-                longest = cnt[i]
+        longest = cnt[:nown].max()
         if longest == maxc:
             break
         maxc = longest

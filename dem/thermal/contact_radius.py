@@ -178,21 +178,16 @@ def hertz_radius_factor(correction, Estar, Estar_real):
     * ``morris_2016_area``: (Fn R* / E*_real)^(1/3) = (4/3 E*/E*_real)^(1/3) sqrt(R* delta);
     * ``morris_2016_area_time``: that times (E*/E*_real)^(4/15).
 
-    With E*_real <= 0 (unknown) a correction is the identity (:func:`apply_correction`): c = 1.
+    Each is the radius :func:`apply_correction` gives a Hertz contact with R* = delta = 1
+    (sqrt(R* delta) = 1, Fn = 4/3 E*), which is how c is computed here: the correction laws
+    stay written once. With E*_real <= 0 (unknown) a correction is the identity: c = 1.
     A geometric radius takes c only for ``zhou_2010`` (the others do not follow from it:
     dem.step.full_form sends those to the full form of the contact loops)."""
-    if correction == NONE or Estar_real <= 0.0 or Estar <= 0.0:
-        return 1.0
-    a = Estar / Estar_real
-    if correction == ZHOU_2010:
-        return a ** 0.2
-    if correction == LU_2017:
-        return a ** (1.0 / 3.0)
-    if correction == MORRIS_2016_AREA:
-        return (4.0 / 3.0 * a) ** (1.0 / 3.0)
-    if correction == MORRIS_2016_AREA_TIME:
-        return (4.0 / 3.0 * a) ** (1.0 / 3.0) * a ** (4.0 / 15.0)
-    raise ValueError(f"unknown contact-radius correction id {correction}")
+    c = apply_correction(HERTZ_OVERLAP, correction, 1.0, 1.0, 4.0 / 3.0 * Estar, Estar, Estar_real)
+    if not c > 0.0:
+        raise ValueError(f"contact-radius correction id {correction}: no factor for E* = {Estar}, "
+                         f"E*_real = {Estar_real}")
+    return c
 
 
 @numba.njit(cache=True, error_model="numpy")
