@@ -20,6 +20,10 @@ reads the last gas time and separates what the pressure drop is made of:
   cell averaging of the loose floor layer and the rough top loses against a uniform bed;
 * **in-bed gradient**: the pressure difference between two cells 3 d_p apart in the bed,
   against the drag law at their mean void fraction.
+
+--verbose adds each layer's void fraction, its gas velocity against u_s/eps and the viscous
+stress of the inlet cell (the gas enters at u_s and moves at u_s/eps inside it), which slows
+that cell's gas by the fraction printed.
 """
 from __future__ import annotations
 
@@ -104,7 +108,16 @@ def analyse(out: Path, u_s: float, bed_top: float, eps_bulk: float, floor: float
     # layer-pair pressure differences against the exact ones: where the solver's error sits
     pair = (pl[:-1] - pl[1:] - hyd * dz) - 0.5 * (Gs[:-1] + Gs[1:]) * dz
     top_layer = int(np.searchsorted(levels, bed_top))
-    return dict(time=float(t), dz=dz, dp_solver=dp_solver, dp_cells=dp_cells, dp_sent=dp_sent, dp_bulk=dp_bulk,
+    # the viscous stress of the volume-averaged momentum equation, div(eps nu grad U), on the
+    # inlet cell: the gas enters at u_s with eps = 1 (free gas below the distributor) and moves
+    # at u_s/eps inside the cell, a jump over half a cell that slows the cell's gas by this
+    # fraction of its drag K u_s/eps (the Brinkman term: part of the equations the solver
+    # solves, left out of the 1-D answer u_s/eps; the next face weighted by eps_f as the
+    # solver's laplacian(eps nu, U))
+    ef = 0.5 * (el[0] + el[1])
+    lap = cd.NU_G * (ef * (ul[1] - ul[0]) / dz - 1.0 * (ul[0] - u_s) / (0.5 * dz)) / dz
+    inlet_viscous = float(lap / (kl[0] / cd.RHO_G * u_s / el[0]))
+    return dict(inlet_viscous=inlet_viscous, time=float(t), dz=dz, dp_solver=dp_solver, dp_cells=dp_cells, dp_sent=dp_sent, dp_bulk=dp_bulk,
                 grad=grad, grad_ref=grad_ref, taps=(levels[i0], levels[i1]), pair=pair, eps=el,
                 u_ratio=ul * el / u_s, top_layer=top_layer, levels=levels)
 
@@ -166,8 +179,10 @@ def main(argv=None):
               f"{100 * (r['grad'] / r['grad_ref'] - 1):+.2f} % |", flush=True)
         if a.verbose:
             for i, lv in enumerate(r["levels"][:-1]):
-                print(f"    z {lv * 1e3:6.2f} mm  eps {r['eps'][i]:.3f}  U eps/u_s {r['u_ratio'][i]:.3f}  "
+                print(f"    z {lv * 1e3:6.2f} mm  eps {r['eps'][i]:.3f}  U eps/u_s {r['u_ratio'][i]:.4f}  "
                       f"dp to next layer - exact {r['pair'][i]:+.3f} Pa")
+            print(f"    inlet cell: viscous stress against the inlet's free gas {100 * r['inlet_viscous']:+.2f} % "
+                  f"of its drag (U eps/u_s - 1 = {100 * (r['u_ratio'][0] - 1):+.2f} %)")
     return rows
 
 

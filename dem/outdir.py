@@ -247,7 +247,10 @@ def claim_folder(out, *, overwrite=False, restart=False, protect=(), keep=(), co
             listed = set()
         os.makedirs(out, exist_ok=True)
         folder = _Folder(real, listed, command)
-        folder.save(merge=False)
+        # merged unless the listed entries were just removed: another process (dem render
+        # beside a running dem run) may have added an entry since ``listed`` was read, and
+        # writing ``listed`` alone would drop it (that file then counts as foreign)
+        folder.save(merge=not (state == "output" and overwrite))
     except OSError as exc:
         raise OutputFolderError(f"{what} {out}: cannot prepare the output folder: {exc.strerror or exc}") from None
     _claimed[real] = folder

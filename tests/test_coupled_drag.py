@@ -95,7 +95,8 @@ def test_settled_bed_pressure_drop_at_its_jumps(tmp_path, solver, bed):
     bed's floor and top: its pressure drop is the exact series integral of what the DEM sent
     (Ksl u_s/eps^2 per layer) within 0.1 %, and the drag law at the cells' void fraction within
     2 %; the gradient 3 d_p apart inside the bed is the law's within 1 %, and the gas of every
-    cell of the bed moves at u_s/eps within 1 %. Before the face treatment the solver lost 5.4 %
+    cell of the bed above the inlet cell moves at u_s/eps within 1 % (the inlet cell's as much
+    slower as the viscous stress against the inlet's free gas makes it, within 0.2 %). Before the face treatment the solver lost 5.4 %
     (1 mm) and 10.7 % (3 mm) of the drop, and its top bed cell's gas was 38 % slow."""
     import bed_surface as BS
     rows = BS.main(["--layers", "1e-3,3e-3", "--work", str(tmp_path / "work")])
@@ -104,5 +105,13 @@ def test_settled_bed_pressure_drop_at_its_jumps(tmp_path, solver, bed):
         assert r["dp_solver"] == pytest.approx(r["dp_sent"], rel=1e-3), r["layer"]
         assert r["dp_solver"] == pytest.approx(r["dp_cells"], rel=0.02), r["layer"]
         assert r["grad"] == pytest.approx(r["grad_ref"], rel=0.01), r["layer"]
-        bed_cells = r["eps"] < 0.99
-        assert np.abs(r["u_ratio"][bed_cells] - 1).max() < 0.01, (r["layer"], r["u_ratio"][bed_cells])
+        bed_cells = np.flatnonzero(r["eps"] < 0.99)
+        assert bed_cells[0] == 0
+        # the inlet cell's gas is slowed by the viscous stress of the averaged equations against
+        # the inlet's free gas (u_s at eps = 1 below, u_s/eps inside): -1.10 % of its drag
+        # estimated, -1.09 % measured on 1 mm layers whose floor cell holds eps 0.60; -0.11 and
+        # -0.12 % on 3 mm layers (eps 0.46). The rest of it within 0.2 %:
+        assert abs(r["u_ratio"][0] - 1 - r["inlet_viscous"]) < 0.002, (r["layer"], r["u_ratio"][0],
+                                                                      r["inlet_viscous"])
+        inner = r["u_ratio"][bed_cells[1:]]
+        assert np.abs(inner - 1).max() < 0.01, (r["layer"], inner)
