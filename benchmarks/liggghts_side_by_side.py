@@ -4,8 +4,11 @@ hot and cold halves after the thermal run, with our relative difference.
 
     python benchmarks/liggghts_side_by_side.py [--quick] [--no-docs]
 
-* one core: ours in this process pinned to core 0, LIGGGHTS pinned to core 1 at the same time
-  (`taskset`), so both see the same machine state;
+* one core: ours in this process pinned to one core, LIGGGHTS pinned to the other at the same
+  time (`taskset`), so both see the same machine state; --pairs such pairs (default 4), the cores
+  swapped from one pair to the next, reported as each pair's ratio and their geometric mean (a
+  core slowed by a factor c by the machine's other tenants scales half the pairs by c and half by
+  1/c: it drops out of the mean);
 * two processes: ours on 2 MPI ranks, then LIGGGHTS on 2 MPI processes, then ours as one
   process on 2 threads (`--threads 2`; one after the other, each uses both cores);
 * temperatures: after the thermal run (LIGGGHTS `fix heat/gran/conduction contact_area overlap`,
@@ -77,41 +80,73 @@ def liggghts_result(proc):
     return res
 
 
-def measure(size, steps, log=print):
-    out = []
-    for heat in (False, True):
-        # one core each, at the same time
-        p = liggghts_run(size, heat, steps, 1, pin=1)
-        os.sched_setaffinity(0, {0})
+def one_core_pairs(size, heat, steps, pairs):
+    """``pairs`` runs of ours and LIGGGHTS on one core each at the same time, the cores swapped
+    from one pair to the next (ours on core 0 then 1, ...), so that a core slowed by the machine's
+    other tenants weighs on both sides alike. Returns the pairs' (ours, LIGGGHTS) results."""
+    runs = []
+    ncpu = os.cpu_count() or 1
+    for k in range(pairs):
+        mine, theirs = (0, 1) if k % 2 == 0 or ncpu < 2 else (1, 0)
+        p = liggghts_run(size, heat, steps, 1, pin=theirs if ncpu > 1 else None)
+        os.sched_setaffinity(0, {mine})
         try:
             o1 = ours_serial(size, heat, steps)
         finally:
-            os.sched_setaffinity(0, set(range(os.cpu_count())))
-        l1 = liggghts_result(p)
+            os.sched_setaffinity(0, set(range(ncpu)))
+        runs.append((o1, liggghts_result(p)))
+    return runs
+
+
+def _median(v):
+    v = sorted(v)
+    h = len(v) // 2
+    return v[h] if len(v) % 2 else 0.5 * (v[h - 1] + v[h])
+
+
+def _gmean(v):
+    """Geometric mean: with as many pairs on each core, a core slowed by a factor c (the
+    machine's other tenants) scales the ratio by c in half the pairs and by 1/c in the other
+    half, and drops out."""
+    import math
+    return math.exp(sum(math.log(q) for q in v) / len(v))
+
+
+def measure(size, steps, pairs=4, log=print):
+    out = []
+    n = N[size] * steps
+    for heat in (False, True):
+        # one core each, at the same time, several pairs
+        runs = one_core_pairs(size, heat, steps, pairs)
+        ratios = [o["pps"] / (n / lg["loop"]) for o, lg in runs]
+        o1, l1 = runs[0]
         # two processes, one after the other
         o2 = ours_mpi(size, heat, steps, 2)
         o2t = ours_mpi(size, heat, steps, 1, threads=2)
         l2 = liggghts_result(liggghts_run(size, heat, steps, 2))
-        n = N[size] * steps
-        r = dict(size=size, heat=heat, steps=steps, ours1=o1["pps"], lig1=n / l1["loop"], ours2=o2["pps"],
-                 ours2t=o2t["pps"],
-                 lig2=n / l2["loop"], mem=o1["mem"])
+        r = dict(size=size, heat=heat, steps=steps, ours1=_median([o["pps"] for o, _ in runs]),
+                 lig1=_median([n / lg["loop"] for _, lg in runs]), ratios=ratios, ratio1=_gmean(ratios),
+                 ours2=o2["pps"], ours2t=o2t["pps"], lig2=n / l2["loop"], mem=o1["mem"])
         if heat:
             r.update(T_hot=o1["T_hot"], T_cold=o1["T_cold"], L_hot=l1.get("T_hot"), L_cold=l1.get("T_cold"))
         log(f"{size} heat {'on ' if heat else 'off'}: 1 core ours {r['ours1']:.3g} LIGGGHTS {r['lig1']:.3g} "
-            f"({r['ours1'] / r['lig1']:.2f}); 2 processes ours {r['ours2']:.3g} LIGGGHTS {r['lig2']:.3g} "
+            f"(pairs {', '.join(f'{q:.2f}' for q in ratios)}: geometric mean {r['ratio1']:.2f}); "
+            f"2 processes ours {r['ours2']:.3g} LIGGGHTS {r['lig2']:.3g} "
             f"({r['ours2'] / r['lig2']:.2f}); ours 1 process x 2 threads {r['ours2t']:.3g} "
-            f"({r['ours2t'] / r['ours2']:.2f} of 2 ranks, {r['ours2t'] / r['ours1']:.2f} of 1 thread)"
+            f"({r['ours2t'] / r['ours2']:.2f} of 2 ranks, {r['ours2t'] / r['ours1']:.2f} of 1 thread, median)"
             + (f"; T_hot {r['T_hot']:.10f}/{r['L_hot']} T_cold {r['T_cold']:.10f}/{r['L_cold']}" if heat else ""))
         out.append(r)
     return out
 
 
-def markdown(rows, cmd, total):
+def markdown(rows, cmd, total, pairs):
     L = [f"```\n{cmd}\n```\n",
          f"Measured {time.strftime('%Y-%m-%d')} on {platform.machine()} ({os.cpu_count()} cores, a shared "
          f"virtual machine), {total:.0f} s in all. Loop time only on both sides (particle-steps per second). "
-         f"One core: ours pinned to core 0 and LIGGGHTS to core 1, running at the same time. Two processes: "
+         f"One core: ours pinned to one core and LIGGGHTS to the other, running at the same time, {pairs} "
+         f"pairs with the cores swapped from one pair to the next; the speeds are the pairs' medians, the "
+         f"ratio the geometric mean of the pairs' ratios (each pair's in brackets: with as many pairs on each "
+         f"core, a core slowed by the machine's other tenants drops out). Two processes (once): "
          f"our 2 MPI ranks of 1 thread, then LIGGGHTS on 2 MPI processes, then ours as one process "
          f"on 2 threads (`--threads 2`). Ratios > 1: ours faster.\n",
          "| N | steps | heat | ours, 1 core | LIGGGHTS, 1 core | ratio | ours, 2 ranks | LIGGGHTS, 2 processes "
@@ -119,7 +154,8 @@ def markdown(rows, cmd, total):
          "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         L.append(f"| {r['size']} | {r['steps']} | {'on' if r['heat'] else 'off'} | {r['ours1']:.3g} | "
-                 f"{r['lig1']:.3g} | **{r['ours1'] / r['lig1']:.2f}** | {r['ours2']:.3g} | {r['lig2']:.3g} | "
+                 f"{r['lig1']:.3g} | **{r['ratio1']:.2f}** ({', '.join(f'{q:.2f}' for q in r['ratios'])}) | "
+                 f"{r['ours2']:.3g} | {r['lig2']:.3g} | "
                  f"**{r['ours2'] / r['lig2']:.2f}** | {r['ours2'] / r['ours1']:.2f} | {r['lig2'] / r['lig1']:.2f} | "
                  f"{r['ours2t']:.3g} | **{r['ours2t'] / r['ours2']:.2f}** | **{r['ours2t'] / r['ours1']:.2f}** |")
     L.append("")
@@ -151,6 +187,9 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="10k bed, 3,000 steps")
     ap.add_argument("--no-docs", action="store_true")
+    ap.add_argument("--pairs", type=int, default=4,
+                    help="one-core runs of each side at the same time, cores swapped between pairs (default 4; "
+                         "even: as many on each core)")
     a = ap.parse_args(argv)
     if not os.path.isdir(SHARED):
         print(f"no shared scene at {SHARED}", file=sys.stderr)
@@ -163,9 +202,10 @@ def main(argv=None):
     plan = [("10k", 3000)] if a.quick else [("10k", 10000), ("50k", 3000)]
     rows = []
     for size, steps in plan:
-        rows += measure(size, steps)
+        rows += measure(size, steps, max(1, a.pairs))
     total = time.perf_counter() - t0
-    md = markdown(rows, "python benchmarks/liggghts_side_by_side.py" + (" --quick" if a.quick else ""), total)
+    md = markdown(rows, "python benchmarks/liggghts_side_by_side.py" + (" --quick" if a.quick else "")
+                  + (f" --pairs {a.pairs}" if a.pairs != 4 else ""), total, max(1, a.pairs))
     print(md)
     if not a.no_docs:
         from benchmarks.accuracy.common import replace_section
