@@ -195,6 +195,13 @@ def test_bad_thermal_input():
     with pytest.raises(SceneError) as e:
         Simulation.from_dict(bad)
     assert "thermal.direct" in str(e.value) and "batchelor_obrien" in str(e.value) and "valid" in str(e.value)
+    # every valid name once: the correction registry has a record named "none" of its own
+    for key in ("direct", "correction"):
+        bad["thermal"] = dict(good["thermal"], **{key: "bogus"})
+        with pytest.raises(SceneError) as e:
+            Simulation.from_dict(bad)
+        names = str(e.value).split("valid: ")[1].split(", ")
+        assert f"thermal.{key}" in str(e.value) and names[0] == "none" and len(names) == len(set(names)), names
     m = dict(MAT)
     del m["thermal_conductivity"]
     bad = dict(good, materials=[m])

@@ -52,7 +52,8 @@ def _model(v, t, key, mech, default):
     try:
         rec = R.record(mech, name)
     except ValueError:
-        v.err(f"thermal.{key}", f"unknown {mech} model {name!r}; valid: none, {', '.join(R.valid_names(mech))}")
+        v.err(f"thermal.{key}", f"unknown {mech} model {name!r}; valid: none, "
+              f"{', '.join(n for n in R.valid_names(mech) if n != 'none')}")
     return rec.name, rec.id
 
 
