@@ -117,8 +117,8 @@ def analyse(out: Path, u_s: float, bed_top: float, eps_bulk: float, floor: float
     ef = 0.5 * (el[0] + el[1])
     lap = cd.NU_G * (ef * (ul[1] - ul[0]) / dz - 1.0 * (ul[0] - u_s) / (0.5 * dz)) / dz
     inlet_viscous = float(lap / (kl[0] / cd.RHO_G * u_s / el[0]))
-    return dict(inlet_viscous=inlet_viscous, time=float(t), dz=dz, dp_solver=dp_solver, dp_cells=dp_cells, dp_sent=dp_sent, dp_bulk=dp_bulk,
-                grad=grad, grad_ref=grad_ref, taps=(levels[i0], levels[i1]), pair=pair, eps=el,
+    return dict(time=float(t), dz=dz, dp_solver=dp_solver, dp_cells=dp_cells, dp_sent=dp_sent, dp_bulk=dp_bulk,
+                inlet_viscous=inlet_viscous, grad=grad, grad_ref=grad_ref, taps=(levels[i0], levels[i1]), pair=pair, eps=el,
                 u_ratio=ul * el / u_s, top_layer=top_layer, levels=levels)
 
 

@@ -96,8 +96,9 @@ def test_settled_bed_pressure_drop_at_its_jumps(tmp_path, solver, bed):
     (Ksl u_s/eps^2 per layer) within 0.1 %, and the drag law at the cells' void fraction within
     2 %; the gradient 3 d_p apart inside the bed is the law's within 1 %, and the gas of every
     cell of the bed above the inlet cell moves at u_s/eps within 1 % (the inlet cell's as much
-    slower as the viscous stress against the inlet's free gas makes it, within 0.2 %). Before the face treatment the solver lost 5.4 %
-    (1 mm) and 10.7 % (3 mm) of the drop, and its top bed cell's gas was 38 % slow."""
+    slower as the viscous stress against the inlet's free gas makes it, within 0.2 %). Before
+    the face treatment the solver lost 5.4 % (1 mm) and 10.7 % (3 mm) of the drop, and its top
+    bed cell's gas was 38 % slow."""
     import bed_surface as BS
     rows = BS.main(["--layers", "1e-3,3e-3", "--work", str(tmp_path / "work")])
     assert [r["layer"] for r in rows] == [1e-3, 3e-3]
