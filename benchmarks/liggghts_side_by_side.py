@@ -22,6 +22,7 @@ without it the script says so and exits with status 2. Writes the section
 "## Side by side with LIGGGHTS" of docs/benchmarks.md unless --no-docs.
 """
 import argparse
+import math
 import os
 import platform
 import re
@@ -108,7 +109,6 @@ def _gmean(v):
     """Geometric mean: with as many pairs on each core, a core slowed by a factor c (the
     machine's other tenants) scales the ratio by c in half the pairs and by 1/c in the other
     half, and drops out."""
-    import math
     return math.exp(sum(math.log(q) for q in v) / len(v))
 
 

@@ -88,10 +88,10 @@ class ThermalModel:
         thf[TF.cn] = th["impact_cn"]
         thf[TF.chi] = th["chi"]
         self.thf = thf
-        # real effective modulus per material pair (softened-stiffness corrections)
-        nu = np.array([m["poisson_ratio"] for m in sc.materials])
-        Er = np.array([m.get("real_youngs_modulus", m["youngs_modulus"]) for m in sc.materials])
-        self.ereal = np.ascontiguousarray(1.0 / ((1 - nu[:, None] ** 2) / Er[:, None] + (1 - nu[None, :] ** 2) / Er[None, :]))
+        # real effective modulus per material pair (softened-stiffness corrections): the contact
+        # law's E* formula on the real Young's moduli
+        self.ereal = mixed_tables([dict(m, youngs_modulus=m.get("real_youngs_modulus", m["youngs_modulus"]))
+                                   for m in sc.materials])["estar"]
         from .direct import series_conductivity
         k = self.tmat[:, R.K_COND]
         nm = len(k)
