@@ -2,7 +2,7 @@
 ../shared/bench: speed per core, speed on 2 processes, and the mean temperatures of the initially
 hot and cold halves after the thermal run, with our relative difference.
 
-    python benchmarks/liggghts_side_by_side.py [--quick] [--no-docs]
+    python benchmarks/liggghts_side_by_side.py [--quick] [--no-docs] [--pairs N] [--beds 10k-heat ...]
 
 * one core: ours in this process pinned to one core, LIGGGHTS pinned to the other at the same
   time (`taskset`), so both see the same machine state; --pairs such pairs (default 4), the cores
@@ -14,6 +14,10 @@ hot and cold halves after the thermal run, with our relative difference.
 * temperatures: after the thermal run (LIGGGHTS `fix heat/gran/conduction contact_area overlap`,
   ours `batchelor_obrien` with the geometric contact radius and direct_factor = sqrt(pi), the
   same conductance), read from LIGGGHTS's last thermo line (c_Thot, c_Tcold) and from ours.
+
+`--beds` (10k, 10k-heat, 50k, 50k-heat) runs the one-core pairs of those beds only and prints
+them with a 90 % interval of the geometric mean (Student's t on the logarithms of the pairs'
+ratios); it leaves docs/benchmarks.md alone.
 
 Sizes: 10k at 10,000 steps (the scene's timed run) and 50k at 3,000 steps (--quick: 10k at
 3,000 steps only). Loop times only: start-up (reading, Numba cache, LIGGGHTS set-up) is
@@ -112,6 +116,37 @@ def _gmean(v):
     return math.exp(sum(math.log(q) for q in v) / len(v))
 
 
+def _interval(v, level=0.90):
+    """(low, high): the ``level`` interval of the geometric mean of the ratios ``v`` (Student's t
+    on their logarithms; the pairs' spread, not a bound on the machine's)."""
+    if len(v) < 2:
+        return float("nan"), float("nan")
+    from scipy.stats import t as student
+    lg = [math.log(q) for q in v]
+    m = sum(lg) / len(lg)
+    sd = math.sqrt(sum((x - m) ** 2 for x in lg) / (len(lg) - 1))
+    h = student.ppf(0.5 + level / 2, len(lg) - 1) * sd / math.sqrt(len(lg))
+    return math.exp(m - h), math.exp(m + h)
+
+
+def one_core_only(beds, pairs, log=print):
+    """The one-core pairs of ``beds`` (e.g. "10k-heat"), each bed's ratios, geometric mean and
+    its 90 % interval; returns the rows."""
+    rows = []
+    for bed in beds:
+        size, _, heat = bed.partition("-")
+        steps = 10000 if size == "10k" else 3000
+        n = N[size] * steps
+        runs = one_core_pairs(size, heat == "heat", steps, pairs)
+        ratios = [o["pps"] / (n / lg["loop"]) for o, lg in runs]
+        lo, hi = _interval(ratios)
+        log(f"{bed}: {steps} steps, ours / LIGGGHTS per core, {pairs} pairs: {', '.join(f'{q:.2f}' for q in ratios)}; "
+            f"geometric mean {_gmean(ratios):.3f}, 90 % interval {lo:.3f}-{hi:.3f}; ours {_median([o['pps'] for o, _ in runs]):.3g}, "
+            f"LIGGGHTS {_median([n / lg['loop'] for _, lg in runs]):.3g} particle-steps/s (medians)")
+        rows.append(dict(bed=bed, ratios=ratios, gmean=_gmean(ratios), interval=(lo, hi)))
+    return rows
+
+
 def measure(size, steps, pairs=4, log=print):
     out = []
     n = N[size] * steps
@@ -190,6 +225,8 @@ def main(argv=None):
     ap.add_argument("--pairs", type=int, default=4,
                     help="one-core runs of each side at the same time, cores swapped between pairs (default 4; "
                          "even: as many on each core)")
+    ap.add_argument("--beds", nargs="+", choices=("10k", "10k-heat", "50k", "50k-heat"),
+                    help="only the one-core pairs of these beds, with a 90 %% interval (docs left alone)")
     a = ap.parse_args(argv)
     if not os.path.isdir(SHARED):
         print(f"no shared scene at {SHARED}", file=sys.stderr)
@@ -198,6 +235,9 @@ def main(argv=None):
         print("LIGGGHTS is not installed and could not be installed (apt-get install liggghts needs root): "
               "skipped", file=sys.stderr)
         return 2
+    if a.beds:
+        one_core_only(a.beds, max(1, a.pairs))
+        return 0
     t0 = time.perf_counter()
     plan = [("10k", 3000)] if a.quick else [("10k", 10000), ("50k", 3000)]
     rows = []

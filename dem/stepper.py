@@ -11,6 +11,10 @@ messages between them), the spatial sort, the instability messages, and the cont
 of the last step. The coupled inputs (dem.fluid) are one more set of declared arrays that the
 step reads like any other.
 """
+import os
+import sys
+import threading
+
 import numpy as np
 
 from . import schema as S
@@ -18,6 +22,44 @@ from . import step as K
 from .contact.tangential import TANGENTIAL_PROJECTED
 from .errors import SimulationError
 from .neighbors import Box, build_half_list, sort_permutation
+
+
+def compile_notice_delay():
+    """Seconds a call of the step kernel for a new combination of the scene's switches may take
+    before the run says that it is compiling (THERMODEM_COMPILE_NOTICE_AFTER, default 4 s: a
+    kernel found in the cache loads in 1-2 s; a form that the set-up did not compile takes 10-20
+    s the first time). A negative value turns the notice off."""
+    try:
+        return float(os.environ.get("THERMODEM_COMPILE_NOTICE_AFTER", "4"))
+    except ValueError:
+        return 4.0
+
+
+COMPILE_NOTICE = ("note: compiling the step for this scene's options (heat {heat}, {form} form, tangential "
+                  "{tangential}), once: later runs load it from Numba's cache in a second or two (`dem compile` "
+                  "fills the cache for the default options)")
+
+
+class _CompileNotice:
+    """Prints COMPILE_NOTICE on stderr when the call it wraps is still running after
+    compile_notice_delay() seconds (a timer thread; cancelled when the call returns)."""
+
+    def __init__(self, text):
+        delay = compile_notice_delay()
+        self.timer = None
+        if delay >= 0.0:
+            self.timer = threading.Timer(delay, lambda: print(text, file=sys.stderr, flush=True))
+            self.timer.daemon = True
+
+    def __enter__(self):
+        if self.timer is not None:
+            self.timer.start()
+        return self
+
+    def __exit__(self, *exc):
+        if self.timer is not None:
+            self.timer.cancel()
+        return False
 
 
 class Stepper:
@@ -75,8 +117,15 @@ class Stepper:
             # resolution of the ~60 arrays (25 us -> 12 us a call; an MPI step makes 2-3 calls)
             return ent[4](nsteps, s0, st.n, *b, hon, xon, ton, phases)
         args = (nsteps, s0, st.n, *b, hon, xon, ton, phases)
-        res = K.advance(*args)
-        self._entry = (b, hon, xon, ton, K.advance.get_overload(tuple(K.advance.typeof_pyval(a) for a in args)))
+        types = tuple(K.advance.typeof_pyval(a) for a in args)
+        if types in K.advance.overloads or (self.par is not None and self.par.rank != 0):
+            res = K.advance(*args)
+        else:  # a form this process has not loaded: from the cache, or compiled now (said if it takes long)
+            text = COMPILE_NOTICE.format(heat="on" if hon else "off", form="full" if xon else "lean",
+                                         tangential="projected" if ton else "rescaled")
+            with _CompileNotice(text):
+                res = K.advance(*args)
+        self._entry = (b, hon, xon, ton, K.advance.get_overload(types))
         return res
 
     def set_pairs(self, C):

@@ -189,8 +189,28 @@ def test_compile_fills_the_cache_and_the_examples_then_compile_nothing(tmp_path)
     for scene, end in (("settle_box", "0.002"), ("rotating_drum", "0.002"), ("packed_bed_heating", "2")):
         r = subprocess.run([sys.executable, "-m", "dem.cli", "run", os.path.join("examples", f"{scene}.toml"),
                             "--end-time", end, "--out", str(tmp_path / "out" / scene), "--quiet"],
-                           capture_output=True, text=True, env=dict(env, NUMBA_DEBUG_CACHE="1"), cwd=ROOT,
-                           timeout=600)
+                           capture_output=True, text=True, cwd=ROOT, timeout=600,
+                           env=dict(env, NUMBA_DEBUG_CACHE="1", THERMODEM_COMPILE_NOTICE_AFTER="8"))
         assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-3000:]
         assert "data saved" not in r.stdout, (scene, [ln for ln in r.stdout.splitlines() if "data saved" in ln])
         assert _cache_files(tmp_path) == before, scene
+        # loaded from the cache in a second or two: no notice of a compile
+        assert "note: compiling the step" not in r.stderr, (scene, r.stderr[-2000:])
+
+    # a form the set-up does not compile (the projected tangential spring): the first run says
+    # that it compiles, once, on stderr, and runs; the next run loads it and says nothing
+    scene = tmp_path / "projected.toml"
+    with open(os.path.join(ROOT, "examples", "settle_box.toml")) as fh:
+        text = fh.read()
+    text = text.replace('rolling = "epsd"', 'rolling = "epsd"\ntangential = "projected"')
+    assert 'tangential = "projected"' in text
+    scene.write_text(text)
+    for k, (delay, said) in enumerate((("1", True), ("8", False))):
+        r = subprocess.run([sys.executable, "-m", "dem.cli", "run", str(scene), "--end-time", "0.002",
+                            "--out", str(tmp_path / "out" / f"projected{k}"), "--quiet"], capture_output=True,
+                           text=True, env=dict(env, THERMODEM_COMPILE_NOTICE_AFTER=delay), cwd=ROOT, timeout=900)
+        assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-3000:]
+        notes = [ln for ln in r.stderr.splitlines() if ln.startswith("note: compiling the step")]
+        assert len(notes) == (1 if said else 0), r.stderr[-3000:]
+        if said:
+            assert "tangential projected" in notes[0] and "full form" in notes[0] and "once" in notes[0]
