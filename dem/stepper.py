@@ -28,10 +28,14 @@ def compile_notice_delay():
     """Seconds a call of the step kernel for a new combination of the scene's switches may take
     before the run says that it is compiling (THERMODEM_COMPILE_NOTICE_AFTER, default 4 s: a
     kernel found in the cache loads in 1-2 s; a form that the set-up did not compile takes 10-20
-    s the first time). A negative value turns the notice off."""
+    s the first time). A negative value turns the notice off; a value that is not a number is
+    said on stderr and the default taken."""
+    text = os.environ.get("THERMODEM_COMPILE_NOTICE_AFTER", "4")
     try:
-        return float(os.environ.get("THERMODEM_COMPILE_NOTICE_AFTER", "4"))
+        return float(text)
     except ValueError:
+        print(f"note: THERMODEM_COMPILE_NOTICE_AFTER={text!r} is not a number of seconds; the compile notice "
+              f"waits 4 s (a negative number turns it off)", file=sys.stderr, flush=True)
         return 4.0
 
 

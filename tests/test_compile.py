@@ -205,7 +205,7 @@ def test_compile_fills_the_cache_and_the_examples_then_compile_nothing(tmp_path)
     text = text.replace('rolling = "epsd"', 'rolling = "epsd"\ntangential = "projected"')
     assert 'tangential = "projected"' in text
     scene.write_text(text)
-    for k, (delay, said) in enumerate((("1", True), ("8", False))):
+    for k, (delay, said) in enumerate((("1", True), ("8", False), ("soon", False))):
         r = subprocess.run([sys.executable, "-m", "dem.cli", "run", str(scene), "--end-time", "0.002",
                             "--out", str(tmp_path / "out" / f"projected{k}"), "--quiet"], capture_output=True,
                            text=True, env=dict(env, THERMODEM_COMPILE_NOTICE_AFTER=delay), cwd=ROOT, timeout=900)
@@ -214,3 +214,6 @@ def test_compile_fills_the_cache_and_the_examples_then_compile_nothing(tmp_path)
         assert len(notes) == (1 if said else 0), r.stderr[-3000:]
         if said:
             assert "tangential projected" in notes[0] and "full form" in notes[0] and "once" in notes[0]
+        # a value that is not a number: said in one line, the default taken, the run goes on
+        assert ("THERMODEM_COMPILE_NOTICE_AFTER='soon' is not a number" in r.stderr) == (delay == "soon")
+        assert "Traceback" not in r.stderr
