@@ -44,6 +44,7 @@ from scaling import ours as ours_mpi  # noqa: E402
 
 SECTION = "## Side by side with LIGGGHTS"
 N = {"10k": 10000, "50k": 50000}
+STEPS = {"10k": 10000, "50k": 3000}   # each bed's timed run (--quick: 10k at 3,000)
 
 
 def ensure_liggghts():
@@ -103,6 +104,12 @@ def one_core_pairs(size, heat, steps, pairs):
     return runs
 
 
+def pair_ratios(runs, n):
+    """Ours / LIGGGHTS (particle-steps per second) of each pair of :func:`one_core_pairs`, for
+    ``n`` particle-steps."""
+    return [o["pps"] / (n / lg["loop"]) for o, lg in runs]
+
+
 def _median(v):
     v = sorted(v)
     h = len(v) // 2
@@ -135,15 +142,16 @@ def one_core_only(beds, pairs, log=print):
     rows = []
     for bed in beds:
         size, _, heat = bed.partition("-")
-        steps = 10000 if size == "10k" else 3000
+        steps = STEPS[size]
         n = N[size] * steps
         runs = one_core_pairs(size, heat == "heat", steps, pairs)
-        ratios = [o["pps"] / (n / lg["loop"]) for o, lg in runs]
-        lo, hi = _interval(ratios)
-        log(f"{bed}: {steps} steps, ours / LIGGGHTS per core, {pairs} pairs: {', '.join(f'{q:.2f}' for q in ratios)}; "
-            f"geometric mean {_gmean(ratios):.3f}, 90 % interval {lo:.3f}-{hi:.3f}; ours {_median([o['pps'] for o, _ in runs]):.3g}, "
+        row = dict(bed=bed, ratios=pair_ratios(runs, n))
+        row.update(gmean=_gmean(row["ratios"]), interval=_interval(row["ratios"]))
+        log(f"{bed}: {steps} steps, ours / LIGGGHTS per core, {pairs} pairs: "
+            f"{', '.join(f'{q:.2f}' for q in row['ratios'])}; geometric mean {row['gmean']:.3f}, 90 % interval "
+            f"{row['interval'][0]:.3f}-{row['interval'][1]:.3f}; ours {_median([o['pps'] for o, _ in runs]):.3g}, "
             f"LIGGGHTS {_median([n / lg['loop'] for _, lg in runs]):.3g} particle-steps/s (medians)")
-        rows.append(dict(bed=bed, ratios=ratios, gmean=_gmean(ratios), interval=(lo, hi)))
+        rows.append(row)
     return rows
 
 
@@ -153,7 +161,7 @@ def measure(size, steps, pairs=4, log=print):
     for heat in (False, True):
         # one core each, at the same time, several pairs
         runs = one_core_pairs(size, heat, steps, pairs)
-        ratios = [o["pps"] / (n / lg["loop"]) for o, lg in runs]
+        ratios = pair_ratios(runs, n)
         o1, l1 = runs[0]
         # two processes, one after the other
         o2 = ours_mpi(size, heat, steps, 2)
@@ -239,7 +247,7 @@ def main(argv=None):
         one_core_only(a.beds, max(1, a.pairs))
         return 0
     t0 = time.perf_counter()
-    plan = [("10k", 3000)] if a.quick else [("10k", 10000), ("50k", 3000)]
+    plan = [("10k", 3000)] if a.quick else list(STEPS.items())
     rows = []
     for size, steps in plan:
         rows += measure(size, steps, max(1, a.pairs))
