@@ -351,7 +351,7 @@ def interact_rows(P, C, W, TB, prm, n, t, hon, xon, ton, blk):
         xi1 = x[i, 1]
         xi2 = x[i, 2]
         ri = r[i]
-        mi = mat[i]
+        mi = np.uint32(mat[i])
         for s in range(nnb[i]):
             j = np.uint32(nb[i, s])
             wgt = 1.0 if j < nown else 0.5
@@ -420,7 +420,7 @@ def interact_rows(P, C, W, TB, prm, n, t, hon, xon, ton, blk):
             ny = dy * invd
             nz = dz * invd
             rj = r[j]
-            mj = mat[j]
+            mj = np.uint32(mat[j])
             ov = delta / min(ri, rj)
             if ov > maxov:
                 maxov = ov
@@ -592,7 +592,7 @@ def interact_rows(P, C, W, TB, prm, n, t, hon, xon, ton, blk):
     for iu in range(i0, i1):
         i = np.uint32(iu)
         ri = r[i]
-        mi = mat[i]
+        mi = np.uint32(mat[i])
         for q in range(wnn[i]):
             wl = np.uint32(wnb[i, q])
             dist, nx, ny, nz = wall_distance(wf, wi, wl, x[i, 0], x[i, 1], x[i, 2], t)
@@ -926,6 +926,9 @@ def kick_drift_rows(P, prm, i0, i1, dt):
     drag = beta.shape[0] >= n
     rdrag = kr.shape[0] >= n
     im = inv_me if inv_me.shape[0] >= n else inv_m
+    p0 = periodic[0]  # (read once: the stores to x below could alias the flags for the compiler)
+    p1 = periodic[1]
+    p2 = periodic[2]
     for i in range(i0, i1):
         if drag:
             half_kick_implicit(v, f, im, beta, i, half)
@@ -939,20 +942,20 @@ def kick_drift_rows(P, prm, i0, i1, dt):
                 w[i, k] += half * tq[i, k] * inv_i[i]
         for k in range(3):
             x[i, k] += dt * v[i, k]
-        if periodic[0]:
+        if p0:
             x[i, 0] -= L0 * math.floor((x[i, 0] - lo[0]) / L0)
-        if periodic[1]:
+        if p1:
             x[i, 1] -= L1 * math.floor((x[i, 1] - lo[1]) / L1)
-        if periodic[2]:
+        if p2:
             x[i, 2] -= L2 * math.floor((x[i, 2] - lo[2]) / L2)
         ddx = x[i, 0] - xb[i, 0]
         ddy = x[i, 1] - xb[i, 1]
         ddz = x[i, 2] - xb[i, 2]
-        if periodic[0]:
+        if p0:
             ddx -= L0 * math.floor(ddx / L0 + 0.5)
-        if periodic[1]:
+        if p1:
             ddy -= L1 * math.floor(ddy / L1 + 0.5)
-        if periodic[2]:
+        if p2:
             ddz -= L2 * math.floor(ddz / L2 + 0.5)
         d2 = ddx * ddx + ddy * ddy + ddz * ddz
         if d2 > maxd2:

@@ -172,12 +172,13 @@ def test_contact_law_is_inlined_into_the_contact_loops():
 
 
 @pytest.mark.parametrize("path, name, expected, loops", [
-    ("dem/step.py", "interact_rows", {"i": 2, "j": 1, "wl": 1}, 2),
+    ("dem/step.py", "interact_rows", {"i": 2, "j": 1, "wl": 1, "mi": 2, "mj": 1}, 2),
     ("dem/thermal/implicit.py", "_apply_rows", {"i": 1, "j": 1}, 1),
 ])
 def test_pair_loops_index_rows_unsigned(path, name, expected, loops):
     """The pair and wall loops of ``interact_rows`` and the implicit solvers' product with the
-    matrix (``_apply_rows``) take their row indices (i, j, wall) as uint32 (issue 28). A signed
+    matrix (``_apply_rows``) take their row indices (i, j, wall) as uint32 (issue 28), and the
+    pair loops their material indices into the pair tables (mi, mj) too. A signed
     index makes Numba wrap a negative value around the array's length at every access: a test,
     a conditional move and a reload of the length per array, and the pair loop is bound by the
     instructions it issues (about 1,100 per particle-step on the shared 10k bed), not by its
