@@ -24,19 +24,24 @@ from .errors import SimulationError
 from .neighbors import Box, build_half_list, sort_permutation
 
 
+COMPILE_NOTICE_AFTER = 4.0   # seconds, unless THERMODEM_COMPILE_NOTICE_AFTER says otherwise
+
+
 def compile_notice_delay():
     """Seconds a call of the step kernel for a new combination of the scene's switches may take
     before the run says that it is compiling (THERMODEM_COMPILE_NOTICE_AFTER, default 4 s: a
     kernel found in the cache loads in 1-2 s; a form that the set-up did not compile takes 10-20
     s the first time). A negative value turns the notice off; a value that is not a number is
     said on stderr and the default taken."""
-    text = os.environ.get("THERMODEM_COMPILE_NOTICE_AFTER", "4")
+    text = os.environ.get("THERMODEM_COMPILE_NOTICE_AFTER")
+    if text is None:
+        return COMPILE_NOTICE_AFTER
     try:
         return float(text)
     except ValueError:
         print(f"note: THERMODEM_COMPILE_NOTICE_AFTER={text!r} is not a number of seconds; the compile notice "
-              f"waits 4 s (a negative number turns it off)", file=sys.stderr, flush=True)
-        return 4.0
+              f"waits {COMPILE_NOTICE_AFTER:g} s (a negative number turns it off)", file=sys.stderr, flush=True)
+        return COMPILE_NOTICE_AFTER
 
 
 COMPILE_NOTICE = ("note: compiling the step for this scene's options (heat {heat}, {form} form, tangential "
