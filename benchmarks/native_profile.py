@@ -28,7 +28,6 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 def _child(scene, steps, out):
     """The profiled process: load, warm up, 5 steps, copy the step's code, then ``steps`` steps."""
-    sys.path.insert(0, ROOT)
     from dem import Simulation
     import dem.step as K
     sim = Simulation.from_file(scene)
@@ -67,7 +66,13 @@ def main(argv=None):
     ap.add_argument("--child", help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
     if a.child:
-        _child(a.scene, a.steps, a.child)
+        sys.path.insert(0, ROOT)
+        from dem.errors import SceneError, SimulationError
+        try:
+            _child(a.scene, a.steps, a.child)
+        except (SceneError, SimulationError) as e:   # the scene's own message, without a traceback
+            print(e, file=sys.stderr)
+            return 2
         return 0
     missing = [t for t in ("perf", "objdump") if shutil.which(t) is None]
     if missing:
@@ -90,9 +95,9 @@ def main(argv=None):
                               "--steps", str(a.steps), "--child", tmp], capture_output=True, text=True)
         codes = [f for f in os.listdir(tmp) if f.startswith("code_")]
         if run.returncode != 0 or not codes:
-            print(f"native_profile: the profiled run failed (exit {run.returncode}):\n{run.stderr[-2000:]}",
+            print(f"native_profile: the profiled run failed (exit {run.returncode}):\n{run.stderr.strip()[-2000:]}",
                   file=sys.stderr)
-            return 1
+            return 2 if run.returncode == 2 else 1
         ips = subprocess.run(["perf", "script", "-i", data, "-F", "ip"], capture_output=True, text=True,
                              check=True).stdout.split()
         count = collections.Counter(int(s, 16) for s in ips)

@@ -55,3 +55,13 @@ def test_out_never_replaces_a_file(tmp_path):
     else:
         assert r.returncode == 2 and "not overwritten" in r.stderr
     assert mine.read_text() == "a user's file\n"
+
+
+@needs_perf
+def test_a_bad_scene_is_named_without_a_traceback(tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text('[simulation]\ntime_step = 1e-5\n')
+    r = subprocess.run([sys.executable, SCRIPT, str(bad), "--steps", "10"], capture_output=True, text=True,
+                       timeout=120)
+    assert r.returncode == 2
+    assert str(bad) in r.stderr and "domain" in r.stderr and "Traceback" not in r.stderr
