@@ -18,6 +18,10 @@ hot and cold halves after the thermal run, with our relative difference.
 `--beds` (10k, 10k-heat, 50k, 50k-heat) runs the one-core pairs of those beds only and prints
 them with a 90 % interval of the geometric mean (Student's t on the logarithms of the pairs'
 ratios); it leaves docs/benchmarks.md alone.
+`--liggghts-skin S` (with --beds) runs LIGGGHTS with `neighbor S bin` instead of the shared
+inputs' 0.0002 (a copy of them in a temporary folder): LIGGGHTS at the skin ours chose itself
+(ours: `neighbor_skin = "auto"`, the scenes' default, docs/benchmarks.md "The skin chosen from
+the measured motion").
 
 Sizes: 10k at 10,000 steps (the scene's timed run) and 50k at 3,000 steps (--quick: 10k at
 3,000 steps only). Loop times only: start-up (reading, Numba cache, LIGGGHTS set-up) is
@@ -26,11 +30,13 @@ without it the script says so and exits with status 2. Writes the section
 "## Side by side with LIGGGHTS" of docs/benchmarks.md unless --no-docs.
 """
 import argparse
+import glob
 import math
 import os
 import platform
 import re
 import shutil
+import tempfile
 import subprocess
 import sys
 import time
@@ -39,6 +45,7 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(HERE)
 sys.path.insert(0, HERE)
 sys.path.insert(0, ROOT)
+import shared_scene  # noqa: E402
 from shared_scene import SHARED, liggghts_cmd, ours as ours_serial, parse_loop  # noqa: E402
 from scaling import ours as ours_mpi  # noqa: E402
 
@@ -59,6 +66,23 @@ def ensure_liggghts():
     subprocess.run(sudo + ["apt-get", "install", "-y", "-qq", "--no-install-recommends", "liggghts"], env=env,
                    check=False)
     return shutil.which("liggghts") is not None
+
+
+def liggghts_with_skin(tmp, skin):
+    """A copy of the shared LIGGGHTS inputs in ``tmp`` whose `neighbor` line has ``skin`` (m);
+    the packings are linked. Returns the copy's liggghts folder."""
+    lig = os.path.join(tmp, "liggghts")
+    os.makedirs(lig)
+    for f in glob.glob(os.path.join(SHARED, "liggghts", "*")):
+        shutil.copy(f, lig)
+    os.symlink(os.path.join(SHARED, "packings"), os.path.join(tmp, "packings"))
+    path = os.path.join(lig, "common.lig")
+    text, n = re.subn(r"(?m)^neighbor\s+\S+\s+bin", f"neighbor        {skin!r} bin", open(path).read())
+    if n != 1:
+        raise SystemExit(f"{path}: no `neighbor <skin> bin` line to change")
+    with open(path, "w") as fh:
+        fh.write(text)
+    return lig
 
 
 def liggghts_run(size, heat, steps, nproc, pin=None):
@@ -235,7 +259,11 @@ def main(argv=None):
                          "even: as many on each core)")
     ap.add_argument("--beds", nargs="+", choices=("10k", "10k-heat", "50k", "50k-heat"),
                     help="only the one-core pairs of these beds, with a 90 %% interval (docs left alone)")
+    ap.add_argument("--liggghts-skin", type=float, metavar="S",
+                    help="with --beds: LIGGGHTS runs `neighbor S bin` (m) instead of the shared inputs' 0.0002")
     a = ap.parse_args(argv)
+    if a.liggghts_skin is not None and not (a.beds and a.liggghts_skin > 0):
+        ap.error("--liggghts-skin needs --beds and a skin > 0 (m)")
     if not os.path.isdir(SHARED):
         print(f"no shared scene at {SHARED}", file=sys.stderr)
         return 2
@@ -244,7 +272,11 @@ def main(argv=None):
               "skipped", file=sys.stderr)
         return 2
     if a.beds:
-        one_core_only(a.beds, max(1, a.pairs))
+        with tempfile.TemporaryDirectory() as tmp:
+            if a.liggghts_skin is not None:
+                shared_scene.LIGGGHTS_DIR = liggghts_with_skin(tmp, a.liggghts_skin)
+                print(f"LIGGGHTS: neighbor {a.liggghts_skin:g} bin (the shared inputs: 0.0002)")
+            one_core_only(a.beds, max(1, a.pairs))
         return 0
     t0 = time.perf_counter()
     plan = [("10k", 3000)] if a.quick else list(STEPS.items())

@@ -49,8 +49,13 @@ def ours(size, heat, steps):
     return out
 
 
+# the LIGGGHTS inputs run: the shared ones, or a copy with another skin (liggghts_side_by_side.py
+# --liggghts-skin)
+LIGGGHTS_DIR = os.path.join(SHARED, "liggghts")
+
+
 def liggghts_cmd(size, heat, steps, nproc=1):
-    return ["bash", os.path.join(SHARED, "liggghts", "run_lig.sh"), size, "heat" if heat else "noheat",
+    return ["bash", os.path.join(LIGGGHTS_DIR, "run_lig.sh"), size, "heat" if heat else "noheat",
             str(nproc), str(steps)]
 
 

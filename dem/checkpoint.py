@@ -23,6 +23,7 @@ checkpoint's arrays for the new scene, and the change is listed) or refused with
 :class:`dem.scene.SceneError` naming the key. docs/reliability/checkpoint.md lists which.
 """
 import hashlib
+import math
 import json
 import os
 import re
@@ -387,6 +388,11 @@ def validate(path, arrays, record, subset=False):
     need("forces_ready", np.dtype(np.bool_), ())
     if int(arrays["step_count"]) < 0:
         raise CheckpointError(path, "checkpoint is damaged: negative step_count")
+    # the adaptive skin and its gap density (checkpoints before it ran the scene's fixed skin)
+    for k, lo in (("fp_skin", 0.0), ("fp_gapd", -1.0)):
+        a = need(k, F8, (), required=False)
+        if a is not None and not (math.isfinite(float(a)) and float(a) > lo):
+            raise CheckpointError(path, f"checkpoint is damaged: {k} = {float(a)!r}")
 
     def declared(owner, rows, slots=1):
         for f in S.of(owner):
@@ -576,7 +582,10 @@ def _refuse(sim, ck_path, key, old, new, why):
 
 SIM_APPLIED = {"end_time": "", "output_interval": "", "checkpoint_interval": "", "sort_interval": "",
                "force": "", "max_overlap_ratio": "", "initial_overlap_ratio": "(no effect after the start)",
-               "seed": "(no effect after the start)", "gravity": "", "neighbor_skin": "(lists rebuilt)"}
+               "seed": "(no effect after the start)", "gravity": "", "neighbor_skin": "(lists rebuilt)",
+               "neighbor_skin_auto": "(lists rebuilt)"}
+# [simulation] entries newer than some checkpoints: what a checkpoint without them ran
+SIM_ADDED = {"neighbor_skin_auto": False}
 SIM_REFUSED = {"time_step": "the contact history and every integrated quantity assume one step",
                "mechanics": "frozen and moving packings keep different arrays"}
 CONTACT_REFUSED = {"model": "the contact history holds the springs of the former model",
@@ -637,14 +646,14 @@ def _plan_simulation(sim, ck_path, record, now, plan):
         key = "thermal.time_step" if (sim.scene.thermal or {}).get("time_step") else "simulation.time_step"
         _refuse(sim, ck_path, key, record["dt"], now["dt"], SIM_REFUSED["time_step"])
     for k, new in new_s.items():
-        old = old_s.get(k)
+        old = old_s.get(k, SIM_ADDED.get(k))
         if old == new:
             continue
         if k in SIM_REFUSED:
             _refuse(sim, ck_path, f"simulation.{k}", old, new, SIM_REFUSED[k])
         note = SIM_APPLIED.get(k, "")
         plan.applied.append(f"simulation.{k} {_fmt(old)} -> {_fmt(new)}" + (f" {note}" if note else ""))
-        if k == "neighbor_skin":
+        if k in ("neighbor_skin", "neighbor_skin_auto"):
             plan.rebuild = True
         if k == "gravity":
             plan.recompute_forces = True

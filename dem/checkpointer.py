@@ -40,7 +40,8 @@ class Checkpointer:
         """The run's scalars a checkpoint holds beside the arrays."""
         st = self.state
         w = self.world
-        return dict(fp_tbuild=np.float64(st.fp[K.FP.tbuild]), step_count=np.int64(w.step_count),
+        return dict(fp_tbuild=np.float64(st.fp[K.FP.tbuild]), fp_skin=np.float64(st.fp[K.FP.skin]),
+                    fp_gapd=np.float64(st.fp[K.FP.gapd]), step_count=np.int64(w.step_count),
                     dt=np.float64(w.dt), forces_ready=np.bool_(self.stepper.forces_ready),
                     scene_file=np.str_(os.path.abspath(w.scene.file)),
                     ranks=np.int64(1 if self.par is None else self.par.size))
@@ -217,7 +218,19 @@ class Checkpointer:
         st.allocate()  # what an older checkpoint lacks (dem.checkpoint.ADDED_LATER)
         self._load_totals(z, root=True)
         st.fp[K.FP.tbuild] = float(z["fp_tbuild"])
+        self._load_skin(z)
         self._load_clock(z)
+
+    def _load_skin(self, z):
+        """An adaptive skin (neighbor_skin = "auto") continues with the checkpoint's skin and gap
+        density (a fixed skin is the scene's). A checkpoint from before the adaptive skin ran
+        the largest; its gap density is measured at the next build."""
+        st = self.state
+        if not st.ip[K.IP.autoskin]:
+            return
+        skin = float(z["fp_skin"]) if "fp_skin" in z.files else st.fp[K.FP.skinmax]
+        st.fp[K.FP.skin] = min(skin, st.fp[K.FP.skinmax])
+        st.fp[K.FP.gapd] = float(z["fp_gapd"]) if "fp_gapd" in z.files else 0.0
 
     def _load_totals(self, z, root):
         """Run totals (heat per mechanism and per wall): on the root only, zero elsewhere."""
@@ -254,6 +267,7 @@ class Checkpointer:
         self._load_totals(z, root=self.writers.is_root)
         if subset:   # the boxes are cut for the checkpoint's particles, then each goes to its owner
             self.par.recut_pending = True
+        self._load_skin(z)
         self.stepper.restore_neighbors(rec)
         th = w.thermal
         if th is not None:

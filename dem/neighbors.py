@@ -9,7 +9,9 @@ contact age) lives in arrays aligned with ``nb`` and is carried over at every re
 looking the pair up in the previous list (row i, or row j with the sign of vectors
 flipped), so a contact keeps its history through rebuilds and reorderings.
 The list covers pairs with surface gap < ``reach`` + skin; it is rebuilt when the
-largest displacement since the last build exceeds half the skin.
+largest displacement since the last build exceeds half the skin. The skin is the scene's, or
+(``neighbor_skin = "auto"``, the default) chosen at each build by :func:`adaptive_skin` from
+the displacement measured since the last build and the pairs the list held beyond contact.
 """
 import math
 from collections import namedtuple
@@ -22,6 +24,59 @@ from .blocks import block_bounds
 # a box: lower and upper corner and its periodic (wrapped) axes: the domain of the minimum
 # image, or the region a cell grid covers
 Box = namedtuple("Box", "lo hi periodic")
+
+# The adaptive skin (neighbor_skin = "auto"). A rebuild costs about as much per particle as
+# SKIN_REBUILD_COST listed pairs that do not touch: 404-1,145 ns per particle against 7-11 ns
+# per such pair on the shared 10k and 50k beds, heat off and on (docs/benchmarks.md, "Where a
+# step goes": 46-104); the optimum below moves with the square root of it, and a cost 1.4x off
+# puts a step's list overhead only 6 % above its least. The skin stays within
+# [SKIN_MIN_FRACTION, 1] x the largest, 0.2 r_max (the fixed default it replaced: never a wider
+# list or ghost halo than before).
+SKIN_REBUILD_COST = 70.0
+SKIN_MIN_FRACTION = 0.05
+
+
+@njit(cache=True, error_model="numpy")
+def adaptive_skin(rate, gap_density, skin_max):
+    """The skin that costs a step least: listed pairs that do not touch cost g s per particle
+    (g = ``gap_density``: such pairs per particle and per metre of skin, measured at the last
+    build), and a rebuild, every s / (2 v) steps (v = ``rate``: the largest displacement per
+    step, m), costs K of them per particle (K = SKIN_REBUILD_COST). The cost per step and
+    particle, in units of one such pair, g s + 2 K v / s, is least at
+
+        s* = sqrt(2 K v / g)
+
+    (the Verlet buffer as a balance of list length against rebuild frequency, chosen from the
+    measured motion rather than from a timed trial, so that a run's results never depend on the
+    machine's load).
+    Clamped to [SKIN_MIN_FRACTION skin_max, skin_max]; ``skin_max`` when nothing was measured."""
+    lo = SKIN_MIN_FRACTION * skin_max
+    if not gap_density > 0.0:
+        return skin_max
+    s = math.sqrt(2.0 * SKIN_REBUILD_COST * max(rate, 0.0) / gap_density)
+    return min(max(s, lo), skin_max)
+
+
+@njit(cache=True, error_model="numpy")
+def pairs_beyond(x, r, nb, nnb, nown, lo, hi, periodic, reach):
+    """The listed pairs of rows [0, nown) whose surface gap is at least ``reach`` (beyond every
+    interaction: what the skin alone brought into the list). A pair with a ghost (j >= nown)
+    counts one half: the rank that owns the ghost lists it too, so that the sum over the ranks
+    counts each pair once, as a serial run does."""
+    length = np.empty(3)
+    for k in range(3):
+        length[k] = hi[k] - lo[k]
+    far = 0.0
+    for i in range(nown):
+        for q in range(nnb[i]):
+            j = nb[i, q]
+            dx = _min_image(x[j, 0] - x[i, 0], length[0], periodic[0])
+            dy = _min_image(x[j, 1] - x[i, 1], length[1], periodic[1])
+            dz = _min_image(x[j, 2] - x[i, 2], length[2], periodic[2])
+            rc = r[i] + r[j] + reach
+            if dx * dx + dy * dy + dz * dz >= rc * rc:
+                far += 1.0 if j < nown else 0.5
+    return far
 
 
 @njit(cache=True, error_model="numpy")

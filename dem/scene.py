@@ -302,7 +302,7 @@ def parse(data, file="<dict>", base_dir=".", end_time=None, comm="auto"):
         mechanics=v.boolean(s, "mechanics", "simulation", default=True),
         max_overlap_ratio=v.num(s, "max_overlap_ratio", "simulation", default=0.1, lo=0, lo_open=True, hi=1),
         initial_overlap_ratio=v.num(s, "initial_overlap_ratio", "simulation", default=0.05, lo=0, hi=1),
-        neighbor_skin=v.num(s, "neighbor_skin", "simulation", default=None, lo=0, lo_open=True),
+        neighbor_skin=_skin(v, s),
         sort_interval=v.integer(s, "sort_interval", "simulation", default=1000, lo=0),
     )
     sim["output_interval"] = v.num(s, "output_interval", "simulation", default=sim["end_time"] / 10 or 1.0,
@@ -619,6 +619,8 @@ def parse(data, file="<dict>", base_dir=".", end_time=None, comm="auto"):
         slab_axis=v.string(pa, "slab_axis", "parallel", default="auto", choices=("auto", "x", "y", "z")),
         balance_threshold=v.num(pa, "balance_threshold", "parallel", default=1.1, lo=1.0),
         pair_weight=v.num(pa, "pair_weight", "parallel", default=1.0, lo=0.0))
+    # "auto" (the default): chosen at each build up to 0.2 r_max (dem.neighbors.adaptive_skin)
+    sim["neighbor_skin_auto"] = sim["neighbor_skin"] is None
     if sim["neighbor_skin"] is None:
         sim["neighbor_skin"] = 0.2 * rmax
     sc = Scene(file=file, base_dir=base_dir, simulation=sim, domain=dict(min=lo, max=hi, periodic=periodic),
@@ -638,6 +640,16 @@ def parse(data, file="<dict>", base_dir=".", end_time=None, comm="auto"):
         from .parallel.setup import particle_digests
         particle_digests(sc, part)
     return sc
+
+
+def _skin(v, s):
+    """simulation.neighbor_skin: a length (m), fixed; or "auto" (also when absent): None, the
+    skin then chosen at each neighbour build (dem.neighbors.adaptive_skin)."""
+    if s.get("neighbor_skin") == "auto":
+        return None
+    if isinstance(s.get("neighbor_skin"), str):
+        v.err("simulation.neighbor_skin", f"must be a length in m (> 0) or \"auto\", got {s['neighbor_skin']!r}")
+    return v.num(s, "neighbor_skin", "simulation", default=None, lo=0, lo_open=True)
 
 
 def _check_periodic_length(v, lo, hi, periodic, r):

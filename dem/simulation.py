@@ -60,6 +60,7 @@ class Simulation:
         t0 = time.perf_counter()
         self.stepper.init_neighbors()   # the first call of the step kernel: compiled or loaded here
         self._first_call = time.perf_counter() - t0
+        self.stepper.start_skin()       # neighbor_skin = "auto": from the first build and the speeds
         if self.par is not None and getattr(scene, "distributed", False):
             from .parallel.setup import check_overlaps
             check_overlaps(world, self.par)   # needs the neighbours' particles: after the first exchange

@@ -30,7 +30,7 @@ from .contact.rolling import constant_torque, epsd
 from .contact.tangential import luding_2008_turn, silbert_2001_turn, TANGENTIAL_PROJECTED
 from .contact.walls import wall_distance, wall_velocity, WI
 from .blocks import block_bounds, block_count, cross_counts, keep_cross_counts, kept_cross_counts
-from .neighbors import build_half_list, Box
+from .neighbors import build_half_list, Box, adaptive_skin, pairs_beyond
 from .schema import Pairs, XC, slots
 from .thermal.contact_radius import (contact_radius_pw, hertz_force, hertz_overlap, geometric_pp_inv,
                                      apply_correction, lean_radius, HERTZ_FORCE, HERTZ_OVERLAP, GEOMETRIC)
@@ -50,6 +50,8 @@ IP = slots("IP", (
     ("threads", "threads of this process: blocks of rows the kernels run at once (1: one block, serial order)"),
     ("tangential", "tangential spring (TANGENTIAL_MODELS: 0 rescaled, Luding 2008; 1 projected, Silbert 2001 as "
                    "LAMMPS / LIGGGHTS; dem.contact.tangential)"),
+    ("autoskin", "1: the skin chosen at each build (neighbor_skin = \"auto\", dem.neighbors.adaptive_skin); "
+                 "0: the scene's"),
 ), size=8)
 # float parameters (Params.fp)
 FP = slots("FP", (
@@ -66,6 +68,10 @@ FP = slots("FP", (
     ("maxov", "largest overlap ratio before the overlap guard stops the run"),
     ("vwall", "fastest wall speed (m/s, the rebuild test)"),
     ("tbuild", "time of the last neighbour build (s; checkpointed as fp_tbuild)"),
+    ("skinmax", "largest skin (m): the scene's fixed skin, or the adaptive skin's bound"),
+    ("gapd", "listed pairs beyond contact per owned particle and metre of skin at the last build, over "
+             "every rank (the adaptive skin's measure; checkpointed as fp_gapd)"),
+    ("nfar", "this rank's listed pairs beyond contact at the last build"),
 ), size=16)
 # pair tables (Tables.tab[slot, material, material])
 TAB = slots("TAB", (
@@ -1082,6 +1088,11 @@ def after_build(P, C, W, prm, n, nown, t, carry):
             age = np.zeros((nb.shape[0], nb.shape[1], 2))
     build_wall_list(x, P.radius, nown, W.wf, W.wi, ip[IP.nwalls], fp[FP.reach] + fp[FP.skin], t, P.wnb, P.wnn,
                     P.whist, P.wrhist)
+    if ip[IP.autoskin] != 0:  # what the skin alone brought into the list (a serial run's gap density;
+        # a run on several ranks sums nfar and the owned rows over the ranks: dem.stepper)
+        nfar = pairs_beyond(x, P.radius, nb, nnb, nown, prm.lo, prm.hi, prm.periodic, fp[FP.reach])
+        fp[FP.nfar] = nfar
+        fp[FP.gapd] = nfar / (max(nown, 1) * fp[FP.skin])
     for i in range(nown, n):
         P.wnn[i] = 0
     Hd, Hi, rnear = _slot_arrays(n, nb.shape[1], C, heat, thi)
@@ -1096,12 +1107,23 @@ def after_build(P, C, W, prm, n, nown, t, carry):
     return C
 
 
+@njit(cache=True, error_model="numpy")
+def skin_rate(fp, t):
+    """The largest displacement per step at a rebuild the displacement test asked for at time t:
+    half the skin over the steps since the last build (what dem.neighbors.adaptive_skin weighs
+    against the last build's gap density). An MPI run calls this and the law from Python, their
+    ``py_func``: the same IEEE operations, the same skin, and nothing compiled for it."""
+    return 0.5 * fp[FP.skin] * fp[FP.dt] / max(t - fp[FP.tbuild], fp[FP.dt])
+
+
 @njit(cache=True, error_model="numpy", inline="always")
 def rebuild(P, C, W, prm, n, t):
     """Phase "rebuild" of a serial run: the half list with the history carried over
     (dem.neighbors.build_half_list), then :func:`after_build`. A run on several ranks, and the
     first build, call the same two functions from dem.simulation around the exchange."""
     fp = prm.fp
+    if prm.ip[IP.autoskin] != 0:
+        fp[FP.skin] = adaptive_skin(skin_rate(fp, t), fp[FP.gapd], fp[FP.skinmax])
     dom = Box(prm.lo, prm.hi, prm.periodic)
     nb, nnb, hist, rhist, age, _ = build_half_list(P.position, P.radius, n, n, dom, dom, fp[FP.reach], fp[FP.skin],
                                                    C.nb.shape[1], C, prm.ip[IP.threads])

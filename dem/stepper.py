@@ -21,7 +21,7 @@ from . import schema as S
 from . import step as K
 from .contact.tangential import TANGENTIAL_PROJECTED
 from .errors import SimulationError
-from .neighbors import Box, build_half_list, sort_permutation
+from .neighbors import Box, adaptive_skin, build_half_list, sort_permutation
 
 
 COMPILE_NOTICE_AFTER = 4.0   # seconds, unless THERMODEM_COMPILE_NOTICE_AFTER says otherwise
@@ -196,6 +196,24 @@ class Stepper:
         st = self.state
         self.rebuild(self.world.step_count, st.lo, st.hi, st.periodic, initial=True)
 
+    def start_skin(self):
+        """neighbor_skin = "auto", at the start of a run (not a restart, which continues with its
+        checkpoint's skin): the skin from the gap density of the first build and the fastest
+        particle's displacement per step (its speed, plus the walls', times dt). The first
+        list, built with the largest skin, holds every pair the chosen one would, so it serves
+        until the first rebuild."""
+        st = self.state
+        if not st.ip[K.IP.autoskin]:
+            return
+        fp = st.fp
+        v = st.velocity[:st.n_owned]
+        vmax = self._max(float(np.sqrt(np.max(np.einsum("ij,ij->i", v, v), initial=0.0))))
+        fp[K.FP.skin] = adaptive_skin.py_func((vmax + fp[K.FP.vwall]) * fp[K.FP.dt], fp[K.FP.gapd],
+                                              fp[K.FP.skinmax])
+
+    def _max(self, x):
+        return x
+
     def restore_neighbors(self, rec):
         """Neighbours built here and the contact history restored from its id-keyed records
         (a checkpoint written on any number of ranks)."""
@@ -211,7 +229,8 @@ class Stepper:
         follows (neighbour rows renumbered), so the physics is unchanged."""
         st = self.state
         w = self.world
-        cell = 2 * float(st.radius.max()) + w.reach + st.fp[K.FP.skin]
+        cell = 2 * float(st.radius.max()) + w.reach + st.fp[K.FP.skinmax]   # (not the adaptive skin: the same
+        # cells whatever the motion chose)
         st.permute(sort_permutation(st.position, st.lo, st.hi, cell))
         if w.thermal is not None and w.thermal.voronoi and w.scene.simulation["mechanics"]:
             w.thermal.update_porosity(w.time)
@@ -278,19 +297,29 @@ class ParallelStepper(Stepper):
     def forward_porosity(self):
         self.par.forward(self.world, motion=False, porosity=True)
 
+    def _max(self, x):
+        return self.par.allmax(x)
+
     def sort(self):
         self.par.sort_pending = True  # done at the next exchange with the other ranks
 
-    def _exchange_rebuild(self, step, initial=False, rec=None, weights_from_list=True):
+    def _exchange_rebuild(self, step, initial=False, rec=None, weights_from_list=True, due=False):
         """Exchange particles and ghosts with the other ranks, then the rebuild phase
         (dem.step.rebuild, the same as a serial run's) and the contact history brought back
-        from its id-keyed records (dem.parallel.records)."""
+        from its id-keyed records (dem.parallel.records). ``due``: the rebuild the displacement
+        test asked for, where an adaptive skin is chosen again (before the exchange: it sets the
+        ghost halo)."""
         from .parallel import records
         par = self.par
         st = self.state
         w = self.world
         th = w.thermal
         weights = None
+        auto = st.ip[K.IP.autoskin] != 0
+        if due and auto:   # every rank holds the same skin, build time and (summed) gap density
+            fp = st.fp
+            fp[K.FP.skin] = adaptive_skin.py_func(K.skin_rate.py_func(fp, step * w.dt), fp[K.FP.gapd],
+                                                  fp[K.FP.skinmax])
         if not initial:
             nown = st.n_owned
             i, k = K.outside(st.position, st.lo, st.hi, st.periodic, nown)
@@ -305,6 +334,9 @@ class ParallelStepper(Stepper):
         rec = par.exchange(w, rec, weights)
         glo, ghi, gwrap = par.grid_box(w)
         self.rebuild(step, glo, ghi, gwrap, initial=initial)
+        if auto:   # the gap density over every rank (each counted its own rows' pairs)
+            far, nown = par.allsum(np.array([st.fp[K.FP.nfar], float(st.n_owned)]))
+            st.fp[K.FP.gapd] = far / (max(nown, 1.0) * st.fp[K.FP.skin])
         records.restore(rec, st, par.key_base)
         st.ip[K.IP.nown] = st.n_owned
         if th is not None and not initial:
@@ -348,7 +380,7 @@ class ParallelStepper(Stepper):
             fused = False
             if mech:
                 if need:
-                    self._exchange_rebuild(w.step_count + 1)
+                    self._exchange_rebuild(w.step_count + 1, due=True)
                 else:
                     par.forward(w, motion=True, temperature=heat)
                 # without the exponential update's cross-rank rates the heat phase needs no message

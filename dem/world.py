@@ -86,6 +86,8 @@ class World:
         fp[K.FP.dt] = self.dt
         fp[K.FP.gx:K.FP.gz + 1] = sc.simulation["gravity"]
         fp[K.FP.skin] = sc.simulation["neighbor_skin"]
+        fp[K.FP.skinmax] = sc.simulation["neighbor_skin"]
+        ip[K.IP.autoskin] = 1 if sc.simulation.get("neighbor_skin_auto") else 0
         fp[K.FP.vchar] = self.characteristic_velocity()
         fp[K.FP.ktratio] = sc.contact["tangential_stiffness_ratio"]
         fp[K.FP.linkn] = sc.contact["normal_stiffness"]
