@@ -244,7 +244,10 @@ def markdown(rows, cmd, total, pairs):
     L.append("The scene, the conduction law and the LIGGGHTS inputs: ../shared/bench/README.md. Our scenes "
              "(benchmarks/shared_bed_*.toml) run LIGGGHTS's own tangential law, `[contact] tangential = "
              "\"projected\"` (docs/models.md; since 2026-12-05, before that the default `rescaled`: section "
-             "\"LIGGGHTS's own tangential law\"). Runs on this "
+             "\"LIGGGHTS's own tangential law\"), and the default neighbour skin, `\"auto\"`: chosen at each "
+             "build from the measured motion, at most LIGGGHTS's 0.2 mm (0.018 mm on the 10k bed; since "
+             "2026-12-05, before that 0.2 mm fixed: section \"The skin chosen from the measured motion\", which "
+             "also runs LIGGGHTS at our skin). Runs on this "
              "shared machine vary by up to 30 % from one period to the next; the ratios, measured side by side, "
              "vary much less (earlier periods: the sections below).")
     return "\n".join(L)

@@ -335,7 +335,7 @@ class ParallelStepper(Stepper):
         glo, ghi, gwrap = par.grid_box(w)
         self.rebuild(step, glo, ghi, gwrap, initial=initial)
         if auto:   # the gap density over every rank (each counted its own rows' pairs)
-            far, nown = par.allsum(np.array([st.fp[K.FP.nfar], float(st.n_owned)]))
+            far, nown = par.sums(st.fp[K.FP.nfar], float(st.n_owned))
             st.fp[K.FP.gapd] = far / (max(nown, 1.0) * st.fp[K.FP.skin])
         records.restore(rec, st, par.key_base)
         st.ip[K.IP.nown] = st.n_owned
