@@ -144,7 +144,7 @@ class CouplingInterface:
         # serial: the whole mesh); every per-cell array here is of the local mesh
         from .cells import CellShare
         self.cells = CellShare(self.mesh, self.sim.par, source=self.mesh_source,
-                               halo=self.sim.world.halo() if self.sim.par is not None else 0.0)
+                               halo=self.sim.world.halo(bound=True) if self.sim.par is not None else 0.0)
         self.mesh = self.cells.mesh
         self.V = self.mesh.cell_volumes
         self._layout = self.cells.layout
@@ -188,7 +188,7 @@ class CouplingInterface:
         the DEM interval, while the gas solver is still busy); ``prepare`` reuses it if
         the DEM has not moved since. After a re-cut of the DEM boxes ``prepare`` does it (the
         cells a rank sees change there, with the gas frame it is given)."""
-        if self.cells.needs_refresh(self.sim.world.halo() if self.sim.par is not None else 0.0):
+        if self.cells.needs_refresh(self.sim.world.halo(bound=True) if self.sim.par is not None else 0.0):
             return
         pw, eps = self._stencil()
         self._mapped = (self.sim.step_count, pw, eps)
@@ -237,7 +237,7 @@ class CouplingInterface:
                 and np.array_equal(prev[1], rad))
         if par is not None:
             same = bool(self.cells.allmin(int(same)))   # the sums below are collective: every rank agrees
-            if self.cells.refresh(self.sim.world.halo()):   # the DEM boxes were re-cut: who sees what
+            if self.cells.refresh(self.sim.world.halo(bound=True)):   # the DEM boxes were re-cut: who sees what
                 self._moved(fluid)
                 same, prev = False, None
         if same:

@@ -193,7 +193,7 @@ def _pieces_mesh(out, par, sim, cfg):
     """(PieceTable, the mesh of the pieces this rank needs) (coupling.pieces)."""
     from .cells import CellShare
     table = pieces.PieceTable(out, par.comm, par.dec, par.rank, par.size)
-    reach = sim.world.halo() + table.cell_diag * CellShare.REACH_CELLS
+    reach = sim.world.halo(bound=True) + table.cell_diag * CellShare.REACH_CELLS
     mesh = table.local_mesh((par.dec.blo[par.rank], par.dec.bhi[par.rank]), reach, par.dec)
     return table, mesh
 

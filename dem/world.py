@@ -116,10 +116,14 @@ class World:
                 vw = max(vw, om * (w.get("radius") or float(np.max(st.hi - st.lo))))
         return max(v0, vw, math.sqrt(2 * g * h), 1e-3)
 
-    def halo(self):
+    def halo(self, bound=False):
         """Ghost layer width: the longest pair reach 2 r_max + reach + skin, or further when
-        a coupled run's particle void fraction searches further (``ghost_reach``)."""
-        return 2.0 * self.rmax + max(self.reach, self.ghost_reach) + self.state.fp[K.FP.skin]
+        a coupled run's particle void fraction searches further (``ghost_reach``). ``bound``:
+        with the largest skin (an adaptive skin's bound): what the cuts of the boxes, the
+        neighbour ranks and the gas cells a coupled rank sees are sized for, so that they stay
+        valid whatever skin the motion chooses; the ghosts sent use the skin of the moment."""
+        skin = self.state.fp[K.FP.skinmax] if bound else self.state.fp[K.FP.skin]
+        return 2.0 * self.rmax + max(self.reach, self.ghost_reach) + skin
 
     def set_step(self, step_count):
         """Set the clock to step number ``step_count`` (the time follows: step_count x dt)."""

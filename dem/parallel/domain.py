@@ -183,7 +183,7 @@ class ParallelDomain:
         cut them on a disjoint split (row % size) and keep the owned rows (possibly none)."""
         st = world.state
         if getattr(world.scene, "distributed", False):
-            halo = world.halo()
+            halo = world.halo(bound=True)
             self.dec.build(self.comm, st.position, np.ones(st.n_owned), halo)
             self.neigh = self.dec.neighbours(self.rank, halo)
             st.n_ghost = 0
@@ -193,7 +193,7 @@ class ParallelDomain:
             return
         x = st.position
         part = np.arange(self.rank, st.n, self.size)
-        halo = world.halo()
+        halo = world.halo(bound=True)
         self.dec.build(self.comm, x[part], np.ones(part.size), halo)
         own = np.nonzero(self.dec.owner(x) == self.rank)[0]
         self._take(st, own)
@@ -224,7 +224,9 @@ class ParallelDomain:
         self.comm.Allgather(np.array([cost, 1.0 if err else 0.0]), costs)
         if np.any(costs[:, 1] != 0.0):
             _raise_shared(self.comm.allgather(err))
-        self._rebalance(world, np.ascontiguousarray(costs[:, 0]), weights, halo)
+        # the cuts and the neighbour ranks for the largest skin (an adaptive skin may grow back
+        # between two re-cuts), the ghosts for the skin of this build
+        self._rebalance(world, np.ascontiguousarray(costs[:, 0]), weights, world.halo(bound=True))
         rec = self._migrate(world, rec)
         self._send_ghosts(world, halo)
         self.exchanges += 1
@@ -321,7 +323,7 @@ class ParallelDomain:
         st.n_owned = st.id.shape[0]
         if self.sort_pending:  # spatial sort of the owned rows (cache locality)
             from ..neighbors import sort_permutation
-            self._take(st, sort_permutation(st.position, world.state.lo, world.state.hi, world.halo()))
+            self._take(st, sort_permutation(st.position, world.state.lo, world.state.hi, world.halo(bound=True)))
             self.sort_pending = False
         return rec
 
