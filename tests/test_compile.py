@@ -152,14 +152,41 @@ def test_index_lock_keeps_every_entry_of_concurrent_saves(tmp_path):
 
 # --------------------------------------------------------------------------- the whole compile
 
+def _as_from_a_shell():
+    """In the child before exec: SIGINT delivered and handled by default, as for a command typed
+    in a shell (a child inherits ignored signals and the blocked mask of the test runner's
+    thread: twice in the full suite, the child ignored the SIGINT below)."""
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, [signal.SIGINT])
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
+def _children(pid):
+    """The processes whose parent is ``pid`` (from /proc)."""
+    out = []
+    for d in glob.glob("/proc/[0-9]*/stat"):
+        try:
+            with open(d) as fh:
+                fields = fh.read().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[1]) == pid:
+            out.append(int(d.split("/")[2]))
+    return out
+
+
 def test_compile_fills_the_cache_and_the_examples_then_compile_nothing(tmp_path):
     """An interrupted `dem compile` (SIGINT) exits 130 with one line and no traceback; then
     `dem compile --jobs 2` into the same cache fills it, and a first `dem run` of each example
     loads every kernel from it (no cache file added, no kernel saved)."""
     env = _env(tmp_path)
     p = subprocess.Popen([sys.executable, "-m", "dem.cli", "compile", "--jobs", "2"], env=env, cwd=ROOT,
-                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    time.sleep(8.0)   # compiling (imports done)
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, preexec_fn=_as_from_a_shell)
+    # compiling: the parent's imports are done once it has started its workers (a fixed delay
+    # could fall in the imports of a loaded machine, where the suite once saw the signal lost)
+    t0 = time.monotonic()
+    while len(_children(p.pid)) < 2 and p.poll() is None and time.monotonic() - t0 < 120:
+        time.sleep(0.2)
+    time.sleep(3.0)
     p.send_signal(signal.SIGINT)
     out, err = p.communicate(timeout=120)
     assert p.returncode == 130, out + err
