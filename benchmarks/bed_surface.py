@@ -21,7 +21,9 @@ reads the last gas time and separates what the pressure drop is made of:
 * **in-bed gradient**: the pressure difference between two cells 3 d_p apart in the bed,
   against the drag law at their mean void fraction.
 
---verbose adds each layer's void fraction, its gas velocity against u_s/eps and the viscous
+--verbose adds each layer's void fraction, its gas velocity against u_s/eps, the drag's
+resistance against the gas's own (|U|/d + nu/d^2: the velocity is the drag law's where the drag
+dominates), and the viscous
 stress of the inlet cell (the gas enters at u_s and moves at u_s/eps inside it), which slows
 that cell's gas by the fraction printed.
 """
@@ -117,9 +119,14 @@ def analyse(out: Path, u_s: float, bed_top: float, eps_bulk: float, floor: float
     ef = 0.5 * (el[0] + el[1])
     lap = cd.NU_G * (ef * (ul[1] - ul[0]) / dz - 1.0 * (ul[0] - u_s) / (0.5 * dz)) / dz
     inlet_viscous = float(lap / (kl[0] / cd.RHO_G * u_s / el[0]))
+    # the drag's resistance per unit superficial velocity, R = K/eps^2 (model A), against the
+    # gas's own, |U|/d + nu/d^2 (dragFaces.H): a cell's velocity is the drag law's u_s/eps
+    # where R dominates; in the bed's fringe above the top (a few bead caps, eps 0.98-0.99,
+    # R about the gas's own) it is set by the gas leaving the bed as much as by its drag
+    drag_ratio = (kl / cd.RHO_G / el ** 2) / (np.abs(ul) / dz + cd.NU_G / dz ** 2)
     return dict(time=float(t), dz=dz, dp_solver=dp_solver, dp_cells=dp_cells, dp_sent=dp_sent, dp_bulk=dp_bulk,
                 inlet_viscous=inlet_viscous, grad=grad, grad_ref=grad_ref, taps=(levels[i0], levels[i1]), pair=pair, eps=el,
-                u_ratio=ul * el / u_s, top_layer=top_layer, levels=levels)
+                u_ratio=ul * el / u_s, drag_ratio=drag_ratio, top_layer=top_layer, levels=levels)
 
 
 def main(argv=None):
@@ -180,7 +187,7 @@ def main(argv=None):
         if a.verbose:
             for i, lv in enumerate(r["levels"][:-1]):
                 print(f"    z {lv * 1e3:6.2f} mm  eps {r['eps'][i]:.3f}  U eps/u_s {r['u_ratio'][i]:.4f}  "
-                      f"dp to next layer - exact {r['pair'][i]:+.3f} Pa")
+                      f"drag / gas resistance {r['drag_ratio'][i]:8.3g}  dp to next layer - exact {r['pair'][i]:+.3f} Pa")
             print(f"    inlet cell: viscous stress against the inlet's free gas {100 * r['inlet_viscous']:+.2f} % "
                   f"of its drag (U eps/u_s - 1 = {100 * (r['u_ratio'][0] - 1):+.2f} %)")
     return rows

@@ -64,13 +64,13 @@ T_SETTLE_MAX = 1.0   # s: the longest settling of settled_bed
 def settled_bed(n=600, seed=3, log=print):
     """n beads poured into the periodic column and settled on a floor until at rest: at least
     0.25 s, then in steps of 0.05 s until no bead moves faster than V_REST (at most T_SETTLE_MAX;
-    DEM only, cached in out/bench_cache). Returns the positions.
+    DEM only, cached in out/bench_cache, keyed on the DEM's sources). Returns the positions.
 
     A fixed 0.25 s was not enough for every packing: the last beads still rolled into place at
     25-58 mm/s there, and whether they were done depended on the realization (the seed, or the
     rounding of the contact law), which a bed meant to be at rest must not."""
-    from benchmarks.accuracy.common import claim_cache, claim
-    path = os.path.join(claim_cache(), f"settled_bed_{n}_{seed}.npz")
+    from benchmarks.accuracy.common import cache_path, claim
+    path = cache_path(f"settled_bed_{n}_{seed}")
     if os.path.exists(path):
         return np.load(path)["x"]
     from dem import Simulation

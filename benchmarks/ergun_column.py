@@ -2,6 +2,7 @@
 
     python benchmarks/ergun_column.py [--cells 1e-3,2e-3,3e-3,4e-3] [--methods cell,voronoi,kernel]
                                       [--speeds 0.2,0.45,0.7] [--fluidized 1.5,2.0] [--n 680]
+    python benchmarks/ergun_column.py --seeds 3-10 [--cells 1e-3,3e-3] [--methods voronoi]
 
 A settled bed of n glass beads of 1 mm (2500 kg/m3; 680: about 16 mm deep) in a periodic
 6 x 6 mm column 36 mm high, meshed with one cell per layer of each --cells height (a 1-D
@@ -24,6 +25,9 @@ whole bed's pressure drop. Every run goes through `coupling run` as a user runs 
 * **Fluidized** (`--fluidized`, fractions of U_mf, beads free): the pressure drop averaged
   over the second half of --fluid-end seconds against the bed's buoyant weight per area,
   N V_p (rho_p - rho_g) g / A.
+* **Packings** (`--seeds a-b`): the held bed at 0.45 U_mf on the packing of each seed (the same
+  pour, another realization), each against Ergun over its own profile, with the mean and the
+  standard deviation over the packings: how much of a method's departure is the packing's.
 """
 from __future__ import annotations
 
@@ -178,8 +182,12 @@ def main(argv=None):
     ap.add_argument("--n", type=int, default=680)
     ap.add_argument("--averaging", type=float, default=None,
                     help="coupling.toml drag_averaging_length (m) of the kernel runs (default: 3 diameters)")
+    ap.add_argument("--seeds", default="", help="a-b: the held bed on the packing of each seed (--cells, "
+                                                "--methods; 0.45 U_mf)")
     ap.add_argument("--work", default=str(ROOT / "out" / "ergun_column"))
     a = ap.parse_args(argv)
+    if a.seeds:
+        return packings(a)
     from dem import outdir
     global AVERAGING
     AVERAGING = a.averaging
@@ -219,6 +227,42 @@ def main(argv=None):
                     rows.append(dict(kind="fluidized", dz=dz, method=meth, frac=frac, dp=dp, ref=w, rms=rms))
                     print(f"| {dz * 1e3:g} mm | {meth} | {frac:g} | {dp:.3f} | {rms:.2g} | {w:.3f} | "
                           f"{100 * (dp / w - 1):+.2f} % |", flush=True)
+    return rows
+
+
+def packings(a):
+    """--seeds: the held bed at 0.45 U_mf on the packing of each seed, against Ergun over its
+    own profile; the mean and the standard deviation over the packings."""
+    from dem import outdir
+    lo, _, hi = a.seeds.partition("-")
+    seeds = range(int(lo), int(hi or lo) + 1)
+    cells = [float(v) for v in a.cells.split(",")]
+    methods = a.methods.split(",")
+    work = Path(a.work)
+    outdir.claim_folder(work, overwrite=True, command="benchmarks/ergun_column.py", what="work folder")
+    print("| seed | core eps | " + " | ".join(f"{m} {dz * 1e3:g} mm: dp / Ergun over the profile - 1"
+                                              for m in methods for dz in cells) + " |")
+    print("|---|---|" + "---|" * (len(methods) * len(cells)))
+    rows = []
+    for seed in seeds:
+        x = cd.settled_bed(a.n, seed=seed, log=lambda *_: None)
+        m = measure(x, a.n)
+        w = work / f"seed_{seed}"
+        outdir.claim(w)
+        w.mkdir(exist_ok=True)
+        dev = []
+        for meth in methods:
+            for dz in cells:
+                dp, e_ser, *_ = held(w, x, a.n, dz, 0.45, meth, m)
+                dev.append(dp / e_ser - 1)
+                rows.append(dict(kind="packing", seed=seed, dz=dz, method=meth, dp=dp, ref=e_ser))
+        print(f"| {seed} | {m['eps_core']:.4f} | " + " | ".join(f"{100 * d:+.2f} %" for d in dev) + " |", flush=True)
+    for meth in methods:
+        for dz in cells:
+            d = np.array([r["dp"] / r["ref"] - 1 for r in rows if r["method"] == meth and r["dz"] == dz])
+            print(f"{meth}, {dz * 1e3:g} mm cells, {len(d)} packings: mean {100 * d.mean():+.2f} %, standard "
+                  f"deviation {100 * d.std(ddof=1) if len(d) > 1 else 0.0:.2f} %, {100 * d.min():+.2f} to "
+                  f"{100 * d.max():+.2f} %")
     return rows
 
 

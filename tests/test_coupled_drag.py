@@ -95,7 +95,8 @@ def test_settled_bed_pressure_drop_at_its_jumps(tmp_path, solver, bed):
     bed's floor and top: its pressure drop is the exact series integral of what the DEM sent
     (Ksl u_s/eps^2 per layer) within 0.1 %, and the drag law at the cells' void fraction within
     2 %; the gradient 3 d_p apart inside the bed is the law's within 1 %, and the gas of every
-    cell of the bed above the inlet cell moves at u_s/eps within 1 % (the inlet cell's as much
+    cell of the bed (the drag at least 20 times the gas's own resistance) above the inlet cell
+    moves at u_s/eps within 1 % (the inlet cell's as much
     slower as the viscous stress against the inlet's free gas makes it, within 0.2 %). Before
     the face treatment the solver lost 5.4 % (1 mm) and 10.7 % (3 mm) of the drop, and its top
     bed cell's gas was 38 % slow."""
@@ -106,8 +107,16 @@ def test_settled_bed_pressure_drop_at_its_jumps(tmp_path, solver, bed):
         assert r["dp_solver"] == pytest.approx(r["dp_sent"], rel=1e-3), r["layer"]
         assert r["dp_solver"] == pytest.approx(r["dp_cells"], rel=0.02), r["layer"]
         assert r["grad"] == pytest.approx(r["grad_ref"], rel=0.01), r["layer"]
-        bed_cells = np.flatnonzero(r["eps"] < 0.99)
+        # the bed's cells: where the drag carries at least 95 % of the resistance (20 times the
+        # gas's own, |U|/d + nu/d^2), so that the drag law sets the velocity. Measured: 114 and
+        # more in every cell holding bead centres, 0.9-4.1 in the fringe above the top that only
+        # bead caps reach (eps 0.98-0.99), whose gas the bed's exit sets (10-23 % fast: that cell
+        # and the free cell above carry the jets of the top layer; docs/benchmarks.md)
+        bed_cells = np.flatnonzero(r["drag_ratio"] > 20.0)
         assert bed_cells[0] == 0
+        assert np.all(np.diff(bed_cells) == 1), (r["layer"], bed_cells)     # one bed, no holes
+        assert r["eps"][bed_cells].max() < 0.7, (r["layer"], r["eps"][bed_cells])
+        assert bed_cells[-1] >= r["top_layer"] - 1, (r["layer"], bed_cells)   # up to the bed's top
         # the inlet cell's gas is slowed by the viscous stress of the averaged equations against
         # the inlet's free gas (u_s at eps = 1 below, u_s/eps inside): -1.10 % of its drag
         # estimated, -1.09 % measured on 1 mm layers whose floor cell holds eps 0.60; -0.11 and

@@ -4,9 +4,11 @@
 * A settled column of 680 beads of 1 mm (about 16 mm deep) held in a steady upflow at 0.2 and
   0.7 U_mf: with ``drag_void_fraction = "voronoi"`` the whole bed's pressure drop, ends
   included, is Ergun over the bed's measured void fraction profile (slabs of one diameter,
-  exact sphere-slab volumes, layers in series) within 2 % on cells of 1 and of 3 diameters,
-  and the same on both to 0.1 % (measured +1.67 % on both; the cells' void fraction gives
-  -0.4 % and -7.1 %: benchmarks/ergun_column.py, docs/benchmarks.md).
+  exact sphere-slab volumes, layers in series) within 3 % on cells of 1 and of 3 diameters,
+  and the same on both to 0.1 % (measured +0.85 to +2.27 % over the packings of seeds 3-10,
+  mean +1.56 %, standard deviation 0.50 %: 3 % is the mean plus 2.9 deviations; the same on
+  both cell sizes to 0.02 % on every packing; the cells' void fraction gives -0.4 % and -7.1 %:
+  benchmarks/ergun_column.py --seeds, docs/benchmarks.md).
 * The same bed free at 1.5 U_mf: the pressure drop is the bed's buoyant weight per area
   within 2 % (measured -0.5 %).
 * The summed drag on the particles equals the gas's momentum loss to round-off, and a
@@ -49,7 +51,11 @@ def test_held_column_is_ergun_over_its_profile_on_any_cells(tmp_path, solver, co
     dp = {}
     for dz in (1e-3, 3e-3):
         dp[dz], ref, _bulk, _g, _gref = EC.held(tmp_path, x, N_BED, dz, frac, "voronoi", m)
-        assert dp[dz] == pytest.approx(ref, rel=0.02), (dz, dp[dz], ref)
+        # above Ergun over the profile on every packing measured, by a packing's own amount
+        # (+0.85 to +2.27 %, module doc): Ergun is convex in eps, and the beads' own void
+        # fractions spread around their slab's mean
+        assert dp[dz] == pytest.approx(ref, rel=0.03), (dz, dp[dz], ref)
+        assert dp[dz] > ref, (dz, dp[dz], ref)
     # the drag does not depend on where the cell faces cut the bed
     assert dp[3e-3] == pytest.approx(dp[1e-3], rel=1e-3)
 

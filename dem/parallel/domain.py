@@ -145,18 +145,21 @@ class ParallelDomain:
     def allsum(self, x):
         return self.comm.allreduce(x, op=_mpi().SUM)
 
-    def sums(self, *values):
-        """Element-wise sum over ranks of a few float64 (one buffer message, nothing pickled)."""
+    def _reduce(self, values, op):
+        """Element-wise reduction over ranks of a few float64 in one buffer message (nothing
+        pickled): what a step or a rebuild needs agreed by every rank."""
         buf = np.array(values, float)
-        out = np.empty(len(values))
-        self.comm.Allreduce(buf, out, op=_mpi().SUM)
+        out = np.empty(len(buf))
+        self.comm.Allreduce(buf, out, op=op)
         return out
+
+    def sums(self, *values):
+        """Element-wise sum over ranks of a few float64 (one buffer message)."""
+        return self._reduce(values, _mpi().SUM)
 
     def flags(self, a, b):
         """Element-wise max over ranks of two numbers (one message per step)."""
-        buf = np.array([a, b], float)
-        out = np.empty(2)
-        self.comm.Allreduce(buf, out, op=_mpi().MAX)
+        out = self._reduce((a, b), _mpi().MAX)
         return out[0], out[1]
 
     def gather(self, obj):
