@@ -187,6 +187,9 @@ def main(argv=None):
     ap.add_argument("--work", default=str(ROOT / "out" / "ergun_column"))
     a = ap.parse_args(argv)
     if a.seeds:
+        lo, _, hi = a.seeds.partition("-")
+        if not (lo.isdigit() and (hi.isdigit() or not hi)) or int(hi or lo) < int(lo):
+            ap.error(f"--seeds: a seed or a range a-b of seeds (a <= b), got {a.seeds!r}")
         return packings(a)
     from dem import outdir
     global AVERAGING
