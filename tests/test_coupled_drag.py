@@ -125,3 +125,22 @@ def test_settled_bed_pressure_drop_at_its_jumps(tmp_path, solver, bed):
                                                                       r["inlet_viscous"])
         inner = r["u_ratio"][bed_cells[1:]]
         assert np.abs(inner - 1).max() < 0.01, (r["layer"], inner)
+
+
+def test_a_bed_is_settled_at_rest_or_when_only_steady_rolls_are_left():
+    """benchmarks/coupled_drag.settled: done when no bead is faster than V_REST (0.1 mm/s), or
+    when the beads still moving move steadily (no speed changed by V_STEADY, 1 um/s, over the
+    last 0.05 s; none faster than 1 mm/s): a bead rolling on the floor or spinning about the
+    vertical, which Hertz-Mindlin without rolling or twisting resistance never stops (seed 4 of
+    600 beads stopped with "not at rest" before). A bead still speeding up or slowing down is
+    still settling."""
+    rest = np.full(600, 2e-5)
+    assert CD.settled(rest, None)
+    roll = rest.copy()
+    roll[9] = 1.6e-4                        # rolls on the floor at a constant speed
+    assert not CD.settled(roll, None)       # one check is not enough to call it steady
+    assert CD.settled(roll, roll + 5e-7)
+    assert not CD.settled(roll, roll + 2e-6)                    # still slowing down
+    fast = roll.copy()
+    fast[9] = 2e-3
+    assert not CD.settled(fast, fast)                           # too fast to call a bed at rest
