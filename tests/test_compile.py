@@ -160,24 +160,11 @@ def _as_from_a_shell():
     signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
-def _children(pid):
-    """The processes whose parent is ``pid`` (from /proc)."""
-    out = []
-    for d in glob.glob("/proc/[0-9]*/stat"):
-        try:
-            with open(d) as fh:
-                fields = fh.read().rsplit(")", 1)[1].split()
-        except OSError:
-            continue
-        if int(fields[1]) == pid:
-            out.append(int(d.split("/")[2]))
-    return out
-
-
 def test_compile_fills_the_cache_and_the_examples_then_compile_nothing(tmp_path):
     """An interrupted `dem compile` (SIGINT) exits 130 with one line and no traceback; then
     `dem compile --jobs 2` into the same cache fills it, and a first `dem run` of each example
     loads every kernel from it (no cache file added, no kernel saved)."""
+    from test_reliability_coupled_restart import _children   # (the tests' folder is on the path under pytest)
     env = _env(tmp_path)
     p = subprocess.Popen([sys.executable, "-m", "dem.cli", "compile", "--jobs", "2"], env=env, cwd=ROOT,
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, preexec_fn=_as_from_a_shell)
