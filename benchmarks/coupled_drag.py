@@ -83,7 +83,7 @@ def settled_bed(n=600, seed=3, log=print):
     """n beads poured into the periodic column and settled on a floor until at rest: at least
     0.25 s, then in steps of 0.05 s until no bead moves faster than V_REST, or the last moving
     beads move steadily (V_STEADY: rolling or spinning, not settling) (at most T_SETTLE_MAX;
-    DEM only, cached in out/bench_cache, keyed on the DEM's sources). Returns the positions.
+    DEM only, cached in out/bench_cache, keyed on the sources: accuracy.common.cache_path). Returns the positions.
 
     A fixed 0.25 s was not enough for every packing: the last beads still rolled into place at
     25-58 mm/s there, and whether they were done depended on the realization (the seed, or the

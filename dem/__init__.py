@@ -16,18 +16,11 @@ import os as _os
 _os.environ.setdefault("NUMBA_DISABLE_ERROR_MESSAGE_HIGHLIGHTING", "1")
 
 
-def _numba_cache_dir():
-    """Numba's on-disk cache keyed by a hash of this package's sources.
-
-    Numba invalidates a cached kernel only when the file defining it changes, not when a
-    function it calls (in another file) does; keying the cache folder on all sources
-    makes any edit or upgrade recompile once, and never run stale machine code.
-    """
+def source_digest():
+    """SHA-256 (hex) over the sources of this package and of ``coupling`` (every ``*.py``, in
+    path order): what the compiled kernels, and anything a run of them made, depend on."""
     import hashlib
     import os
-    import numba
-    if os.environ.get("NUMBA_CACHE_DIR"):
-        return
     root = os.path.dirname(os.path.abspath(__file__))
     h = hashlib.sha256()
     for base in (root, os.path.join(os.path.dirname(root), "coupling")):
@@ -37,8 +30,22 @@ def _numba_cache_dir():
                 if f.endswith(".py"):
                     with open(os.path.join(dirpath, f), "rb") as fh:
                         h.update(f.encode() + fh.read())
+    return h.hexdigest()
+
+
+def _numba_cache_dir():
+    """Numba's on-disk cache keyed by a hash of this package's sources (source_digest).
+
+    Numba invalidates a cached kernel only when the file defining it changes, not when a
+    function it calls (in another file) does; keying the cache folder on all sources
+    makes any edit or upgrade recompile once, and never run stale machine code.
+    """
+    import os
+    import numba
+    if os.environ.get("NUMBA_CACHE_DIR"):
+        return
     cache = os.path.join(os.environ.get("XDG_CACHE_HOME", os.path.expanduser("~/.cache")),
-                         "thermodem", "numba", h.hexdigest()[:16])
+                         "thermodem", "numba", source_digest()[:16])
     numba.config.CACHE_DIR = cache
 
 

@@ -68,27 +68,15 @@ def claim(path):
     _claim(path)
 
 
-def dem_digest():
-    """Twelve hex digits of a SHA-1 over the DEM's sources (dem/**/*.py, in path order): the key
-    of a cached settled bed. A settling is chaotic (any change of the contact law's or the
-    neighbour list's rounding gives another packing of the same statistics), so a bed cached
-    by an older DEM is not the bed a clean clone makes: a cache keyed on the name alone once
-    let tests pass here on the old packing that failed on a clean clone on the new one."""
-    import hashlib
-    h = hashlib.sha1()
-    src = os.path.join(ROOT, "dem")
-    files = sorted(os.path.relpath(os.path.join(d, f), src) for d, _, fs in os.walk(src)
-                   for f in fs if f.endswith(".py"))
-    for rel in files:
-        h.update(rel.encode())
-        with open(os.path.join(src, rel), "rb") as f:
-            h.update(f.read())
-    return h.hexdigest()[:12]
-
-
 def cache_path(stem):
-    """out/bench_cache/<stem>_<dem_digest>.npz (the folder claimed for the benchmarks)."""
-    return os.path.join(claim_cache(), f"{stem}_{dem_digest()}.npz")
+    """out/bench_cache/<stem>_<digest>.npz (the folder claimed for the benchmarks), the digest
+    being that of the sources the compiled kernels are keyed on (dem.source_digest). A settling
+    is chaotic (any change of the contact law's or the neighbour list's rounding gives another
+    packing of the same statistics), so a bed cached by other sources is not the bed a clean
+    clone makes: a cache keyed on the name alone once let tests pass here on the old packing
+    that failed on a clean clone on the new one."""
+    from dem import source_digest
+    return os.path.join(claim_cache(), f"{stem}_{source_digest()[:12]}.npz")
 
 
 def settled_packing(n=600, L=0.012, seed=11, log=print):
