@@ -78,8 +78,7 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--boxes", type=float, nargs="+", default=[0.04, 10.0], help="box widths L (m)")
     ap.add_argument("--steps", type=int, default=200)
-    ap.add_argument("--packing", default=os.path.join(os.path.dirname(ROOT), "shared", "bench", "packings",
-                                                      "settled_10k.csv"))
+    ap.add_argument("--packing", default=os.path.join(HERE, "packings", "settled_10k.npz"))
     ap.add_argument("--child", type=float, help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
     packing = os.path.abspath(a.packing)
@@ -87,7 +86,7 @@ def main(argv=None):
         child(a.child, a.steps, packing)
         return 0
     if not os.path.exists(packing):
-        print(f"no packing at {packing} (give --packing PATH to settled_10k.csv of ../shared/bench)",
+        print(f"no packing at {packing} (give --packing PATH to a settled bed, e.g. benchmarks/packings/settled_10k.npz)",
               file=sys.stderr)
         return 2
     print(f"shared 10k bed, {a.steps} steps; bytes per particle")

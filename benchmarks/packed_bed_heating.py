@@ -3,7 +3,7 @@
 
     python benchmarks/packed_bed_heating.py [--dt 2.0] [--reference-dt 0.25]
 
-The packing is the shared settled 10k bed (../shared/bench/packings/settled_10k.csv)
+The packing is the shared settled 10k bed (benchmarks/packings/settled_10k.npz)
 scaled from 1 mm to 3.2 mm radius, cut to the particles below 88 % of its height. Floor
 at 400 K, other walls adiabatic, bed initially at 300 K; Batchelor & O'Brien contact
 conduction (Hertz-overlap contact radius) plus Voronoi gas conduction (Cheng 1999, local
@@ -20,12 +20,12 @@ import time
 import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
-PACKING = os.path.join(os.path.dirname(os.path.dirname(HERE)), "shared", "bench", "packings", "settled_10k.csv")
+PACKING = os.path.join(HERE, "packings", "settled_10k.npz")
 SCALE = 3.2
 
 
 def make_scene(tmp, dt, end=4000.0):
-    d = np.genfromtxt(PACKING, delimiter=",", names=True)
+    d = np.load(PACKING)
     x = np.stack([d["x"], d["y"], d["z"]], 1) * SCALE
     r = d["radius"] * SCALE
     keep = x[:, 2] < 0.88 * x[:, 2].max()

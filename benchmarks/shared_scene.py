@@ -9,7 +9,7 @@ particle-steps per second, the heat/no-heat cost ratio, memory per particle, and
 temperatures of the initially hot and cold halves (LIGGGHTS's reference after 10,000
 steps of the 10k bed: 399.9667014482 K and 300.0332985518 K).
 With --liggghts the same runs are made with Debian's LIGGGHTS (`apt-get install liggghts`)
-through shared/bench/liggghts/run_lig.sh; --concurrent runs ours and LIGGGHTS at the same
+through shared/bench/liggghts/run_lig.sh (the shared inputs, see SHARED below); --concurrent runs ours and LIGGGHTS at the same
 time pinned to different cores (taskset), which removes the drift of a shared host.
 """
 import argparse
@@ -21,7 +21,22 @@ import time
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(HERE)
-SHARED = os.path.join(os.path.dirname(ROOT), "shared", "bench")
+# The LIGGGHTS inputs of the shared scene (liggghts/*.lig, run_lig.sh and the beds in LIGGGHTS's
+# format, packings/*.data) are not part of this repository: they are read from the folder that
+# THERMODEM_SHARED_BENCH names, by default ../shared/bench beside the clone.  Our side reads the
+# same beds from benchmarks/packings/*.npz and needs nothing beside the clone.
+SHARED = os.path.abspath(os.environ.get("THERMODEM_SHARED_BENCH")
+                         or os.path.join(os.path.dirname(ROOT), "shared", "bench"))
+SHARED_MISSING = (
+    "the LIGGGHTS side of the shared scene needs its inputs (liggghts/run_lig.sh, liggghts/*.lig, "
+    "packings/settled_*.data), which are not part of this repository; none at {path}. Put the shared "
+    "benchmark folder beside the clone as ../shared/bench, or set THERMODEM_SHARED_BENCH=/path/to/bench. "
+    "Our side alone runs without them: python benchmarks/shared_scene.py")
+
+
+def shared_inputs_present():
+    return os.path.isfile(os.path.join(SHARED, "liggghts", "run_lig.sh")) and \
+        os.path.isdir(os.path.join(SHARED, "packings"))
 ZSPLIT = {"10k": 0.02282313764, "50k": 0.03628337489}
 REF_T = {"10k": (399.9667014482, 300.0332985518)}
 
@@ -72,6 +87,9 @@ def main():
     ap.add_argument("--concurrent", action="store_true",
                     help="run LIGGGHTS at the same time on the other core (taskset)")
     args = ap.parse_args()
+    if args.liggghts and not shared_inputs_present():
+        print(SHARED_MISSING.format(path=SHARED), file=sys.stderr)
+        return 2
     n = {"10k": 10000, "50k": 50000}
     rows = []
     for size in args.sizes:
