@@ -96,6 +96,10 @@ def _resolve(target):
 def _worker(conn):
     """A worker process: runs the jobs it is sent, one at a time, until it gets None."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)   # the parent stops the workers (terminate)
+    # compiling is what this process is for: no "note: compiling the step ..." of a run that
+    # compiles unexpectedly (dem.stepper, a negative delay turns it off); the parent prints
+    # one line per job with its time instead
+    os.environ["THERMODEM_COMPILE_NOTICE_AFTER"] = "-1"
     install_index_lock()
     while True:
         try:

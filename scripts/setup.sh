@@ -21,7 +21,7 @@ if [ ${#need[@]} -gt 0 ]; then
 fi
 
 PY="${PYTHON:-python3}"
-if ! "$PY" -c "import dem, numba, meshio, mpi4py, pytest, scipy, pyvista, matplotlib, PIL" >/dev/null 2>&1; then
+if ! "$PY" -c "import dem, numba, meshio, mpi4py, pytest, xdist, scipy, pyvista, matplotlib, PIL" >/dev/null 2>&1; then
     log "pip install -e .[test,render]"
     "$PY" -m pip install -q --disable-pip-version-check -e ".[test,render]" >&2
 fi
