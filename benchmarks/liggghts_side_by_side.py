@@ -46,7 +46,8 @@ ROOT = os.path.dirname(HERE)
 sys.path.insert(0, HERE)
 sys.path.insert(0, ROOT)
 import shared_scene  # noqa: E402
-from shared_scene import SHARED, SHARED_MISSING, liggghts_cmd, shared_inputs_present, ours as ours_serial, parse_loop  # noqa: E402
+from shared_scene import (SHARED, liggghts_cmd, missing_shared_inputs, ours as ours_serial,  # noqa: E402
+                          parse_loop)
 from scaling import ours as ours_mpi  # noqa: E402
 
 SECTION = "## Side by side with LIGGGHTS"
@@ -267,8 +268,9 @@ def main(argv=None):
     a = ap.parse_args(argv)
     if a.liggghts_skin is not None and not (a.beds and a.liggghts_skin > 0):
         ap.error("--liggghts-skin needs --beds and a skin > 0 (m)")
-    if not shared_inputs_present():
-        print(SHARED_MISSING.format(path=SHARED), file=sys.stderr)
+    missing = missing_shared_inputs()
+    if missing:
+        print(missing, file=sys.stderr)
         return 2
     if not ensure_liggghts():
         print("LIGGGHTS is not installed and could not be installed (apt-get install liggghts needs root): "

@@ -9,8 +9,8 @@ particle-steps per second, the heat/no-heat cost ratio, memory per particle, and
 temperatures of the initially hot and cold halves (LIGGGHTS's reference after 10,000
 steps of the 10k bed: 399.9667014482 K and 300.0332985518 K).
 With --liggghts the same runs are made with Debian's LIGGGHTS (`apt-get install liggghts`)
-through shared/bench/liggghts/run_lig.sh (the shared inputs, see SHARED below); --concurrent runs ours and LIGGGHTS at the same
-time pinned to different cores (taskset), which removes the drift of a shared host.
+through shared/bench/liggghts/run_lig.sh (the shared inputs, see SHARED below); --concurrent
+runs ours and LIGGGHTS at the same time pinned to different cores (taskset), which removes the drift of a shared host.
 """
 import argparse
 import os
@@ -34,9 +34,12 @@ SHARED_MISSING = (
     "Our side alone runs without them: python benchmarks/shared_scene.py")
 
 
-def shared_inputs_present():
-    return os.path.isfile(os.path.join(SHARED, "liggghts", "run_lig.sh")) and \
-        os.path.isdir(os.path.join(SHARED, "packings"))
+def missing_shared_inputs():
+    """None when the shared LIGGGHTS inputs are at SHARED, else the message that says how to get them."""
+    if os.path.isfile(os.path.join(SHARED, "liggghts", "run_lig.sh")) and \
+            os.path.isdir(os.path.join(SHARED, "packings")):
+        return None
+    return SHARED_MISSING.format(path=SHARED)
 ZSPLIT = {"10k": 0.02282313764, "50k": 0.03628337489}
 REF_T = {"10k": (399.9667014482, 300.0332985518)}
 
@@ -87,8 +90,9 @@ def main():
     ap.add_argument("--concurrent", action="store_true",
                     help="run LIGGGHTS at the same time on the other core (taskset)")
     args = ap.parse_args()
-    if args.liggghts and not shared_inputs_present():
-        print(SHARED_MISSING.format(path=SHARED), file=sys.stderr)
+    missing = missing_shared_inputs() if args.liggghts else None
+    if missing:
+        print(missing, file=sys.stderr)
         return 2
     n = {"10k": 10000, "50k": 50000}
     rows = []

@@ -26,7 +26,7 @@ import pytest  # noqa: E402
 @contextmanager
 def machine_lock(name: str):
     """An exclusive lock shared by every worker of the suite (a file lock in the temporary folder):
-    what one worker builds once (the solver, a cached bed) the others wait for and then reuse."""
+    what one worker builds once (the solver) the others wait for and then reuse."""
     path = os.path.join(tempfile.gettempdir(), f"thermodem-tests-{name}.lock")
     with open(path, "a+") as fh:
         fcntl.flock(fh, fcntl.LOCK_EX)
@@ -50,10 +50,10 @@ def solver() -> Path:
     return exe
 
 
-# The modules that take longest (`bash scripts/test.sh --durations=0`, summed per module), started
-# first: a parallel run gives each worker whole modules (--dist loadscope) in collection order, and a
-# long module started last would run alone at the end. Measured 2026-12-06 on 2 cores; a module not
-# listed runs after these in its usual order.
+# The modules that hold the longest tests (the 60 slowest of a 2-worker run, 2026-12-06, 2 cores;
+# `bash scripts/test.sh --durations=60`), started first: a parallel run gives each worker whole
+# modules (--dist loadscope) in collection order, and a long module started last would run alone at
+# the end. A module not listed runs after these in its usual order.
 SLOW_MODULES = (
     "test_compile", "test_coupled_m2m", "test_reliability_signals", "test_reliability_mpi",
     "test_parallel", "test_coupled", "test_wall_heat", "test_drag_void_fraction", "test_parallel_io",
