@@ -1,4 +1,4 @@
-"""Every benchmark of docs/benchmarks.md, one after the other, in a bounded time.
+"""Every generated benchmark (docs/benchmarks.md and its pages), one after the other, in a bounded time.
 
     python -m benchmarks [--quick] [--no-docs] [--skip NAME ...]
 
@@ -11,9 +11,10 @@ Runs, each as its own process (a failure is reported and the others still run):
   liggghts    speed per core, on 2 processes, and temperatures against LIGGGHTS
               (benchmarks/liggghts_side_by_side.py; installs Debian's liggghts if missing)
 
-Each writes its section of docs/benchmarks.md (and its plots) unless --no-docs. Full run:
-about 15 minutes on the project's 2-core machine (856 s measured; each part's time is printed at the end);
---quick 3 minutes (172 s measured). Logs: out/benchmarks/<name>.log. Exit status: 0 when every part
+Each writes its section (accuracy: docs/benchmarks/accuracy.md; stability: docs/benchmarks/stability.md;
+cost and liggghts: docs/benchmarks.md) and its plots unless --no-docs. Full run: about 15 minutes on
+the project's 2-core machine (856 s measured; each part's time is printed at the end); --quick 3
+minutes (172 s measured). Logs: out/benchmarks/<name>.log. Exit status: 0 when every part
 succeeded, 1 otherwise (a part exits 1 when, e.g., a stability run leaves NaN in its state).
 """
 import argparse

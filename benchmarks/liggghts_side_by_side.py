@@ -20,7 +20,7 @@ them with a 90 % interval of the geometric mean (Student's t on the logarithms o
 ratios); it leaves docs/benchmarks.md alone.
 `--liggghts-skin S` (with --beds) runs LIGGGHTS with `neighbor S bin` instead of the shared
 inputs' 0.0002 (a copy of them in a temporary folder): LIGGGHTS at the skin ours chose itself
-(ours: `neighbor_skin = "auto"`, the scenes' default, docs/benchmarks.md "The skin chosen from
+(ours: `neighbor_skin = "auto"`, the scenes' default, docs/notebook.md "The skin chosen from
 the measured motion").
 
 Sizes: 10k at 10,000 steps (the scene's timed run) and 50k at 3,000 steps (--quick: 10k at
@@ -244,13 +244,13 @@ def markdown(rows, cmd, total, pairs):
     L.append("")
     L.append("The scene, the conduction law and the LIGGGHTS inputs: ../shared/bench/README.md. Our scenes "
              "(benchmarks/shared_bed_*.toml) run LIGGGHTS's own tangential law, `[contact] tangential = "
-             "\"projected\"` (docs/models.md; since 2026-12-05, before that the default `rescaled`: section "
-             "\"LIGGGHTS's own tangential law\"), and the default neighbour skin, `\"auto\"`: chosen at each "
-             "build from the measured motion, at most LIGGGHTS's 0.2 mm (0.018 mm on the 10k bed; since "
-             "2026-12-05, before that 0.2 mm fixed: section \"The skin chosen from the measured motion\", which "
-             "also runs LIGGGHTS at our skin). Runs on this "
+             "\"projected\"` (docs/models.md; since 2026-12-05, before that the default `rescaled`: "
+             "docs/notebook.md, \"LIGGGHTS's own tangential law\"), and the default neighbour skin, "
+             "`\"auto\"`: chosen at each build from the measured motion, at most LIGGGHTS's 0.2 mm (0.018 mm on "
+             "the 10k bed; since 2026-12-05, before that 0.2 mm fixed: docs/notebook.md, \"The skin chosen from "
+             "the measured motion\", which also runs LIGGGHTS at our skin). Runs on this "
              "shared machine vary by up to 30 % from one period to the next; the ratios, measured side by side, "
-             "vary much less (earlier periods: the sections below).")
+             "vary much less (earlier periods: docs/notebook.md).")
     return "\n".join(L)
 
 

@@ -10,7 +10,7 @@ through ``coupling.run.run_case`` on a modified copy of a case of openfoam_cases
 
 Wall time = the coupled loop of run_case without its output phase (solver start-up, mesh
 reading and the DEM kernels' compilation happen before the loop's clock; the Numba cache
-is filled by scripts/setup.sh). Figures: docs/benchmarks.md, section "Work-precision (DEM and thermal)".
+is filled by scripts/setup.sh). Figures: docs/benchmarks/accuracy.md, section "Work-precision (DEM and thermal)".
 """
 from __future__ import annotations
 

@@ -8,7 +8,8 @@ integrator, mechanical step x damping, softened modulus x contact-radius correct
 porosity estimate), measures the wall time of the run (kernels compiled before the
 clock starts; one process, one core) and the error against the exact or reference
 solution, and writes docs/accuracy_*.png (log-log error against wall time) and the
-section "## Work-precision (DEM and thermal)" of docs/benchmarks.md.
+section "## Work-precision (DEM and thermal)" of docs/benchmarks/accuracy.md (summarised in
+docs/benchmarks.md, "Accuracy against each reference").
 """
 import argparse
 import math
@@ -29,6 +30,7 @@ TOL = 0.01
 # the frozen default (dem.thermal.step_error.choose): TR-BDF2 up to 80 network limits, backward Euler beyond
 AUTO_LABEL = "auto (frozen: trbdf2, implicit beyond 80 network limits)"
 SECTION = "## Work-precision (DEM and thermal)"
+PAGE = os.path.join(DOCS, "benchmarks", "accuracy.md")   # the plots stay in DOCS: linked as ../accuracy_*.png
 
 
 def log(*a):
@@ -589,7 +591,7 @@ def case_markdown(case):
                 f"max {100 * r['h_max']:.1f} %, sum {100 * r['h_sum']:+.2f} % |\n"
                 f"| bed k_eff [W/(m K)] | {r['k_local']:.4f} | {r['k_vor']:.4f} | {100 * (r['k_local'] / r['k_vor'] - 1):+.2f} % |\n"
                 f"| set-up (porosity + conductances) [s] | {r['setup_local']:.2f} | {r['setup_vor']:.2f} | |\n\n"
-                f"![porosity](accuracy_porosity.png)\n")
+                f"![porosity](../accuracy_porosity.png)\n")
     key = case["series"]
     soft = case["key"] == "softening"
     cols = [key, "setting", "steps", "wall [s]", "error"] if not soft else [key, "softening", "relative cost", "error"]
@@ -626,7 +628,7 @@ def case_markdown(case):
             row += [r.get("mean")]
         rows.append(row)
     txt = f"### {case['title']}\n\n{case['what']}.\n\n" + md_table(cols + extra_cols, rows) + "\n\n"
-    txt += f"![{case['key']}](accuracy_{case['key']}.png)\n\n"
+    txt += f"![{case['key']}](../accuracy_{case['key']}.png)\n\n"
     txt += ("**1 %:** " if case.get("tol", TOL) == TOL else f"**Budget {case['tol']:g}:** ") + case["verdict"] + "\n"
     return txt
 
@@ -916,7 +918,7 @@ def main(argv=None):
     if a.only:
         # a subset: replace those cases' subsections (heading to their "1 %" line) and keep the rest
         # of the section (the other cases, the header, the defaults) as it is
-        path = os.path.join(DOCS, "benchmarks.md")
+        path = PAGE
         text = open(path).read()
         for case in cases:
             block = case_markdown(case).strip() + "\n"
@@ -926,10 +928,10 @@ def main(argv=None):
                 j = text.index("\n", text.index("**1 %:**", i)) + 1
                 text = text[:i] + block + text[j:]
             else:
-                log(f"no subsection {title!r} in docs/benchmarks.md: not written")
+                log(f"no subsection {title!r} in docs/benchmarks/accuracy.md: not written")
         with open(path, "w") as f:
             f.write(text)
-        log(f"replaced {len(cases)} subsections of docs/benchmarks.md and their docs/accuracy_*.png")
+        log(f"replaced {len(cases)} subsections of docs/benchmarks/accuracy.md and their docs/accuracy_*.png")
         return cases
     cmd = "python benchmarks/accuracy/run.py" + (" --quick" if a.quick else "")
     head = (f"```\n{cmd}            # or: python -m benchmarks.accuracy{' --quick' if a.quick else ''}\n```\n\n"
@@ -943,8 +945,8 @@ def main(argv=None):
             f"`quadrature_tolerance = 1e-4`; coupled: the settings of each case in openfoam_cases/). Coupled "
             f"cases run thermoDemFoam beside the DEM (2 processes).\n")
     body = head + "\n" + "\n".join(case_markdown(c) for c in cases) + "\n" + recommendations(cases)
-    replace_section(os.path.join(DOCS, "benchmarks.md"), SECTION, body)
-    log("wrote docs/benchmarks.md section and docs/accuracy_*.png")
+    replace_section(PAGE, SECTION, body)
+    log("wrote the section of docs/benchmarks/accuracy.md and docs/accuracy_*.png")
     return cases
 
 

@@ -14,7 +14,8 @@ time. Each run records the verdict of the checks without force, how the run ende
 (completed / the guard that stopped it and its message), whether its output is finite and
 bounded, and for coupled runs the eps clipping and the gas-particle exchange consistency.
 A run that leaves NaN/inf in its output is a failure (exit status 1). Writes the section
-"## Stability map" of docs/benchmarks.md (re-read right before writing).
+"## Stability map" of docs/benchmarks/stability.md (re-read right before writing; summarised in
+docs/benchmarks.md, "Stability: summary of the map").
 """
 import argparse
 import math
@@ -33,6 +34,7 @@ from benchmarks.accuracy.common import (AIR, DOCS, MAT, R, fmt, md_table, packed
                                         replace_section, scene, settled_packing, finite_state)
 
 SECTION = "## Stability map"
+PAGE = os.path.join(DOCS, "benchmarks", "stability.md")
 RECORDS = []
 
 
@@ -345,7 +347,7 @@ def write_docs(quick, total):
         edges.append(f"* {g}: {len(ok)}/{len(rr)} stable; {first}.")
     body += "\nEdges found:\n\n" + "\n".join(edges) + "\n"
     body += "\nFindings (generated from the rows above):\n\n" + "\n".join(f"* {f}" for f in findings()) + "\n"
-    replace_section(os.path.join(DOCS, "benchmarks.md"), SECTION, body)
+    replace_section(PAGE, SECTION, body)
 
 
 # ----------------------------------------------------------------------------- findings
