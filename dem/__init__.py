@@ -56,7 +56,7 @@ def _threading_layer():
     """Numba's threads (``--threads N``): OpenMP first, then TBB, then its own work queue, unless
     the user chose (NUMBA_THREADING_LAYER or NUMBA_THREADING_LAYER_PRIORITY). Numba's default
     order puts TBB first, and a library loaded beside ours can bring libtbb along: on the shared
-    10k bed TBB ran 2 threads at 0.84x of 1 thread, GNU OpenMP at 1.8x (docs/benchmarks.md,
+    10k bed TBB ran 2 threads at 0.84x of 1 thread, GNU OpenMP at 1.8x (docs/notebook.md,
     "Threads inside a process")."""
     import os
     import numba

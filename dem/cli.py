@@ -5,7 +5,7 @@ import sys
 import time
 
 # dt / t_H below which a Hertz impact's restitution and contact time are within 1 % with
-# damping = exact (work-precision sweep, docs/benchmarks.md "Hertz binary impact")
+# damping = exact (work-precision sweep, docs/benchmarks/accuracy.md "Hertz binary impact")
 ACCURATE_HERTZ_FRACTION = 0.02
 
 

@@ -27,7 +27,7 @@ Box = namedtuple("Box", "lo hi periodic")
 
 # The adaptive skin (neighbor_skin = "auto"). A rebuild costs about as much per particle as
 # SKIN_REBUILD_COST listed pairs that do not touch: 404-1,145 ns per particle against 7-11 ns
-# per such pair on the shared 10k and 50k beds, heat off and on (docs/benchmarks.md, "Where a
+# per such pair on the shared 10k and 50k beds, heat off and on (docs/notebook.md, "Where a
 # step goes": 46-104); the optimum below moves with the square root of it, and a cost 1.4x off
 # puts a step's list overhead only 6 % above its least. The skin stays within
 # [SKIN_MIN_FRACTION, 1] x the largest, 0.2 r_max (the fixed default it replaced: never a wider

@@ -14,7 +14,7 @@ from .neighbors import grid_bytes, raw_rows_bytes
 from .parcels import parcel_factors
 
 # a periodic length below this many parcel diameters orders a coarse-grained packing through its
-# periodic images (docs/benchmarks.md, "Coarse graining": over 3 to 6 parcel diameters the
+# periodic images (docs/notebook.md, "Coarse graining": over 3 to 6 parcel diameters the
 # coordination number of poured parcel beds was 6 to 15 % above the fine bed's, at 12 within 2 %)
 PARCEL_PERIOD_DIAMETERS = 10.0
 

@@ -146,7 +146,7 @@ def _pair_law(model, delta, vn, vtx, vty, vtz, hx, hy, hz, rstar, mstar, estar, 
     Inlined into both contact loops (issue 28): as a called function every contact spilled the
     loop's live doubles around the call (x86-64 keeps no vector register across a call) and
     returned its 8 values through memory; inlined, the pair loop of the shared beds runs 5-8 %
-    faster (docs/benchmarks.md, "Where a step goes"). The shared beds stay bitwise; scenes that
+    faster (docs/notebook.md, "Where a step goes"). The shared beds stay bitwise; scenes that
     slide or roll (the rotating drum) change by round-off, as fastmath may now fuse across the
     former call boundary."""
     if model == 0:
@@ -202,7 +202,7 @@ def full_form(ip, thi, periodic):
     geometric radius with a force-based correction). Like ``hon``,
     ``xon`` is a type, so that Numba compiles the lean form without that code and without
     its run-time switches: the shared heat beds, whose scene uses none of them, run their
-    interact phase about 10 % faster (docs/benchmarks.md, "The lean form of the contact loops").
+    interact phase about 10 % faster (docs/notebook.md, "The lean form of the contact loops").
     dem.stepper.Stepper.xon asks this; dem.step.compute_forces refuses the lean form for a
     scene that needs the full one."""
     if ip[IP.rolling] != 0 or periodic[0] or periodic[1] or periodic[2]:

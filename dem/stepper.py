@@ -96,7 +96,7 @@ class Stepper:
         """The kernels' optional-physics switch as a type: True when the scene uses rolling
         resistance, periodic images or (with heat) indirect conduction, radiation, frictional
         heating or contact age (dem.step.full_form), None otherwise, so that Numba compiles a
-        lean interact phase without that code (docs/benchmarks.md, "The lean form of the contact
+        lean interact phase without that code (docs/notebook.md, "The lean form of the contact
         loops")."""
         st = self.state
         return True if K.full_form(st.ip, st.thi, st.periodic) else None
@@ -106,7 +106,7 @@ class Stepper:
         """The kernels' tangential-spring switch as a type: None for the rescaled model (the
         default), True for the projected one (dem.contact.tangential), so that Numba compiles
         each model's code alone: as a run-time switch it made the pair loop 5-15 % slower
-        whichever model ran (docs/benchmarks.md). The set-up (dem.compile) compiles the
+        whichever model ran (docs/notebook.md). The set-up (dem.compile) compiles the
         rescaled forms; a scene with the projected model compiles its own once."""
         return True if self.state.ip[K.IP.tangential] == TANGENTIAL_PROJECTED else None
 

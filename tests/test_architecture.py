@@ -159,7 +159,7 @@ def test_parts_use_each_other_through_public_members():
 def test_contact_law_is_inlined_into_the_contact_loops():
     """``_pair_law`` is compiled into its two call sites (issue 28): as a called function each
     contact spilled the pair loop's live doubles around the call and returned 8 values through
-    memory, 5-8 % of the shared beds' pair loop (docs/benchmarks.md, "Where a step goes")."""
+    memory, 5-8 % of the shared beds' pair loop (docs/notebook.md, "Where a step goes")."""
     tree = ast.parse((ROOT / "dem/step.py").read_text())
     fn = next(n for n in tree.body if isinstance(n, ast.FunctionDef) and n.name == "_pair_law")
     (dec,) = fn.decorator_list
@@ -183,7 +183,7 @@ def test_pair_loops_index_rows_unsigned(path, name, expected, loops):
     a conditional move and a reload of the length per array, and the pair loop is bound by the
     instructions it issues (about 1,100 per particle-step on the shared 10k bed), not by its
     arithmetic's latency. Unsigned, the interact phase of the shared 10k bed takes 8 % less
-    time, the frozen 50k bed's TR-BDF2 step 3-5 % less (docs/benchmarks.md, "Row indices
+    time, the frozen 50k bed's TR-BDF2 step 3-5 % less (docs/notebook.md, "Row indices
     without the wrap-around")."""
     tree = ast.parse((ROOT / path).read_text())
     fn = next(n for n in tree.body if isinstance(n, ast.FunctionDef) and n.name == name)

@@ -57,7 +57,7 @@ def test_settled_bed_pressure_drop_is_steady(tmp_path, solver, bed, step):
     # 39 % at 1 ms, the bed thrown up at 2 ms)
     assert dev < 0.01, (step, mean, dev, vmax)
     # the bed is at rest: no bead faster than 5 mm/s, while the unstable schemes of the same
-    # bed throw beads at 9-200 mm/s (docs/benchmarks.md, "Semi-implicit drag"); a bead creeping
+    # bed throw beads at 9-200 mm/s (docs/notebook.md, "Semi-implicit drag"); a bead creeping
     # into place as the bed settles under the drag reaches 1-3 mm/s in some packings ...
     assert vmax < 5e-3, vmax
     # ... and its pressure drop is the held bed's: it settled a little further under the drag
@@ -111,7 +111,7 @@ def test_settled_bed_pressure_drop_at_its_jumps(tmp_path, solver, bed):
         # gas's own, |U|/d + nu/d^2), so that the drag law sets the velocity. Measured: 114 and
         # more in every cell holding bead centres, 0.9-4.1 in the fringe above the top that only
         # bead caps reach (eps 0.98-0.99), whose gas the bed's exit sets (10-23 % fast: that cell
-        # and the free cell above carry the jets of the top layer; docs/benchmarks.md)
+        # and the free cell above carry the jets of the top layer; docs/notebook.md, "Porosity jumps")
         bed_cells = np.flatnonzero(r["drag_ratio"] > 20.0)
         assert bed_cells[0] == 0
         assert np.all(np.diff(bed_cells) == 1), (r["layer"], bed_cells)     # one bed, no holes

@@ -8,7 +8,7 @@
   and the same on both to 0.1 % (measured +0.85 to +2.27 % over the packings of seeds 3-10,
   mean +1.56 %, standard deviation 0.50 %: 3 % is the mean plus 2.9 deviations; the same on
   both cell sizes to 0.02 % on every packing; the cells' void fraction gives -0.4 % and -7.1 %:
-  benchmarks/ergun_column.py --seeds, docs/benchmarks.md).
+  benchmarks/ergun_column.py --seeds, docs/notebook.md).
 * The same bed free at 1.5 U_mf: the pressure drop is the bed's buoyant weight per area
   within 2 % (measured -0.5 %).
 * The summed drag on the particles equals the gas's momentum loss to round-off, and a

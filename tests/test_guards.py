@@ -10,7 +10,7 @@ particle Courant number: `coupling check` and `coupling run` refuse), the gas-fi
 on every frame received from thermoDemFoam (GasFieldError), the runtime warnings (eps
 clipping, sudden eps change, gas faster than Mach 0.3), a DEM guard inside a coupled run
 (exit status 4, checkpoint written) and the solver's own check of the DEM data. The
-benchmarks/stability sweeps show where each one fires (docs/benchmarks.md, "Stability map").
+benchmarks/stability sweeps show where each one fires (docs/benchmarks/stability.md, "Stability map").
 """
 from __future__ import annotations
 

@@ -348,7 +348,7 @@ def test_surrounding_layer_upper_radius_bounded_by_smaller_sphere():
     H = th.pair_conductance("musser_2011_surrounding_layer", Ri=Ri, Rj=Rj, d=d, kf=KF, layer=layer, cutoff=10,
                             quadrature_tolerance=1e-12)
     assert H == pytest.approx(_sl_ref(Ri, Rj, d, 0.0, layer, 2.75e-8), rel=RTOL)
-    # the default tolerance (1e-4, chosen in docs/benchmarks.md) stays within it
+    # the default tolerance (1e-4, chosen in docs/benchmarks/accuracy.md) stays within it
     Hd = th.pair_conductance("musser_2011_surrounding_layer", Ri=Ri, Rj=Rj, d=d, kf=KF, layer=layer, cutoff=10)
     assert Hd == pytest.approx(H, rel=1e-4)
     # touching equal spheres: the layer of j reaches the equator of i (at distance sqrt(5) R

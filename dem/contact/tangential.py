@@ -23,7 +23,7 @@ stored spring (m), ``v_t`` the tangential velocity of the contact point:
   clip it at 0 in both models.
 
 The rescaled turn costs a division and a root per contact that the projection does not: on the
-shared beds the projected model's step is 7-9 % shorter (docs/benchmarks.md). The laws
+shared beds the projected model's step is 7-9 % shorter (docs/notebook.md). The laws
 (dem.contact.hertz_mindlin, dem.contact.linear) and dem.step._rotate_history choose between the
 functions below on their argument ``ton``, the model as a type (None rescaled, True projected),
 so that Numba removes the other model's code before typing: as a run-time switch the model made

@@ -156,7 +156,7 @@ BASE_GAS_INPUTS = (
     Input("radiation_range", GAS, "-", 3.0, (1.0, _INF), "radius of radiative influence / R"),
     # numerical: relative tolerance of the adaptive Gauss-Kronrod quadrature of the integral
     # indirect models (Voronoi A, surrounding layer); default chosen from the work-precision
-    # sweep of benchmarks/accuracy (docs/benchmarks.md, "Quadrature tolerance")
+    # sweep of benchmarks/accuracy (docs/benchmarks/accuracy.md, "Quadrature tolerance")
     Input("quadrature_tolerance", GAS, "-", 1e-4, (1e-14, 0.1),
           "relative tolerance of the integral indirect models' quadrature"),
 )

@@ -74,7 +74,7 @@ def parse_thermal(v, sc, data):
     th["direct"], th["direct_id"] = _model(v, t, "direct", "direct", "batchelor_obrien")
     th["contact_radius"], th["cr_id"] = _model(v, t, "contact_radius", "contact_radius", "hertz_overlap")
     if t.get("correction", "auto") == "auto":
-        # default chosen from the softening sweep (docs/benchmarks.md, "Young's-modulus softening"):
+        # default chosen from the softening sweep (docs/benchmarks/accuracy.md, "Young's-modulus softening"):
         # with a softened modulus (real_youngs_modulus given and larger), lu_2017 keeps the static
         # contact conductance exact; without correction it is over-predicted (+115 % at E/10)
         used_m = set(_materials_used(sc))

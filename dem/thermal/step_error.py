@@ -7,7 +7,7 @@ the steps in % of the temperature change, the larger of the two directions, made
 non-decreasing in f (at very large steps the update jumps to the end state, so fewer
 intermediate values are seen; the error of the transient does not shrink). Radiation alone is
 the worst case: conduction, integrated exactly by the exponential update, dilutes it (the
-stability map's frozen bed, docs/benchmarks.md: 1.4 % at 10 s, 3.8 % at 20 s).
+stability map's frozen bed, docs/benchmarks/stability.md: 1.4 % at 10 s, 3.8 % at 20 s).
 """
 import math
 
@@ -104,7 +104,7 @@ def choose(dt, network_limit, radiation_limit, ranks):
     any step (fixed point Q(T) = 0); the exponential update is not (EXPONENTIAL_LINE_ERROR: 0.45 %
     of the wall-to-wall difference at the network limit, 9.9 % from 30 limits on). TR-BDF2 runs
     up to TRBDF2_MAX_RATIO = 80 network limits, backward Euler beyond, by the measured errors
-    (docs/benchmarks.md, "Line of ten", "Frozen packed bed heated from its floor"): on the
+    (docs/benchmarks/accuracy.md, "Line of ten", "Frozen packed bed heated from its floor"): on the
     Beaulieu-size bed TR-BDF2 is 230 to 24,000 x more accurate than backward Euler and 1,700 to
     2,400 x more than the exponential update from 0.03 to 3.4 limits, and its largest transient
     error on the line of ten is 1.9 to 2.3 x below the exponential update's at and below the limit;
