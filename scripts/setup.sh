@@ -35,11 +35,23 @@ fi
 # one compile step, its warm-up jobs in parallel worker processes (one per usable core,
 # dem/compile.py): with OpenFOAM `coupling compile` (the coupling and the DEM kernels), else
 # `dem compile`. About 1 to 1.5 minutes the first time on a 2-core machine (load-dependent), then about 8 s.
+# THERMODEM_SETUP_CACHE_COPY=DIR (scripts/test.sh sets it to a folder of its own): when this
+# compile starts from an empty cache, DIR/<the cache folder's name> receives a hard-linked copy
+# of what it wrote (no disk: Numba replaces a cache file by renaming a new one over it, so the
+# copy keeps the set-up's files as they were), which tests/test_compile.py examines instead of
+# compiling everything again
+CACHE_DIR="$("$PY" -c 'import dem, numba; print(numba.config.CACHE_DIR)')"
+FRESH=0
+[ -e "$CACHE_DIR" ] || FRESH=1
 if [ "${THERMODEM_NO_OPENFOAM:-0}" != 1 ]; then
     log "compiling the DEM and coupling kernels into Numba's cache, in parallel (1 to 1.5 minutes on 2 cores the first time, then seconds)"
     "$PY" -m coupling.run compile >&2
 else
     log "compiling the DEM kernels into Numba's cache, in parallel (under a minute on 2 cores the first time, then seconds)"
     "$PY" -m dem.cli compile >&2
+fi
+if [ "$FRESH" = 1 ] && [ -n "${THERMODEM_SETUP_CACHE_COPY:-}" ] && [ ! -e "$THERMODEM_SETUP_CACHE_COPY/$(basename "$CACHE_DIR")" ]; then
+    mkdir -p "$THERMODEM_SETUP_CACHE_COPY"
+    cp -al "$CACHE_DIR" "$THERMODEM_SETUP_CACHE_COPY/"
 fi
 log "ready"

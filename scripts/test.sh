@@ -6,10 +6,15 @@
 set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd -P)"
 cd "$ROOT"
-bash scripts/setup.sh
+# the set-up's compile, when it starts from an empty cache, leaves a hard-linked copy of what it
+# compiled here for tests/test_compile.py (scripts/setup.sh); removed at exit
+SETUP_COPY="$(mktemp -d "${TMPDIR:-/tmp}/thermodem-setup-cache.XXXXXX")"
+trap 'rm -rf "$SETUP_COPY"' EXIT
+THERMODEM_SETUP_CACHE_COPY="$SETUP_COPY/cache" bash scripts/setup.sh
+export THERMODEM_TEST_SETUP_CACHE="$SETUP_COPY/cache"
 PY="${PYTHON:-python3}"
 WORKERS="${THERMODEM_TEST_WORKERS:-$("$PY" -c 'import os; print(len(os.sched_getaffinity(0)))')}"
 if [ "$WORKERS" = 0 ]; then
-    exec "$PY" -m pytest -q --durations=20 tests "$@"
+    "$PY" -m pytest -q --durations=20 tests "$@"; exit $?
 fi
-exec "$PY" -m pytest -q -n "$WORKERS" --dist loadscope --durations=20 tests "$@"
+"$PY" -m pytest -q -n "$WORKERS" --dist loadscope --durations=20 tests "$@"

@@ -78,6 +78,22 @@ def test_a_failing_job_and_a_dying_worker_raise_compile_error():
         C.run([C.Job("dies", "os:_exit", (3,))], 1, log=lambda s: None)
 
 
+def _notice_off():
+    """A compile job: in the worker that runs it, the compile notice of dem.stepper is off."""
+    from dem import stepper
+    delay = stepper.compile_notice_delay()
+    if not delay < 0:
+        raise AssertionError(f"a compile worker would say 'note: compiling the step' after {delay} s")
+
+
+def test_compile_workers_say_nothing_of_the_compile_they_are_for(monkeypatch):
+    """`dem compile` / `coupling compile` (the set-up) compile on purpose: their workers never
+    print the notice a run prints when it compiles unexpectedly, whatever the user's
+    THERMODEM_COMPILE_NOTICE_AFTER (here 0: any compile would be announced)."""
+    monkeypatch.setenv("THERMODEM_COMPILE_NOTICE_AFTER", "0")
+    C.run([C.Job("quiet", "test_compile:_notice_off")], 1, log=lambda s: None)
+
+
 # --------------------------------------------------------------------------- the lock
 
 TOY = '''
@@ -160,10 +176,35 @@ def _as_from_a_shell():
     signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
+def _setup_compile_copy(tmp_path):
+    """The cache the set-up's compile wrote into an empty cache folder (scripts/test.sh has
+    scripts/setup.sh leave a hard-linked copy of it under THERMODEM_TEST_SETUP_CACHE, in a folder
+    named as the cache, by the sources' digest), copied to where this test's processes look for
+    their cache (replacing what the interrupted compile left there); None when there is none
+    (pytest run on its own, a set-up that found its cache already there, or sources edited since)."""
+    import shutil
+    import dem
+    name = dem.source_digest()[:16]
+    src = os.path.join(os.environ.get("THERMODEM_TEST_SETUP_CACHE", ""), name)
+    if not os.environ.get("THERMODEM_TEST_SETUP_CACHE") or not os.path.isdir(src):
+        return None
+    shutil.rmtree(tmp_path / "xdg")
+    dst = tmp_path / "xdg" / "thermodem" / "numba" / name
+    shutil.copytree(src, dst)
+    return dst
+
+
 def test_compile_fills_the_cache_and_the_examples_then_compile_nothing(tmp_path):
     """An interrupted `dem compile` (SIGINT) exits 130 with one line and no traceback; then
     `dem compile --jobs 2` into the same cache fills it, and a first `dem run` of each example
-    loads every kernel from it (no cache file added, no kernel saved)."""
+    loads every kernel from it (no cache file added, no kernel saved).
+
+    Under scripts/test.sh the compile of an empty cache was just done by the set-up (the same
+    compile, `coupling compile`, DEM and coupling jobs, 2 processes) and the test reads a copy of
+    what it wrote, the same files and entries (THERMODEM_TEST_SETUP_CACHE): then `dem compile
+    --jobs 2` on that copy must compile nothing (no file added) and the checks below hold for the
+    set-up's own cache. Without the copy (pytest on its own) the test compiles the empty cache
+    itself (about 2 minutes on 2 cores)."""
     from test_reliability_coupled_restart import _children   # (the tests' folder is on the path under pytest)
     env = _env(tmp_path)
     p = subprocess.Popen([sys.executable, "-m", "dem.cli", "compile", "--jobs", "2"], env=env, cwd=ROOT,
@@ -179,14 +220,21 @@ def test_compile_fills_the_cache_and_the_examples_then_compile_nothing(tmp_path)
     assert p.returncode == 130, out + err
     assert "Traceback" not in err and err.strip().count("\n") == 0 and "interrupted" in err, err
 
+    copied = _setup_compile_copy(tmp_path)
+    setup_files = _cache_files(tmp_path)
     p = subprocess.run([sys.executable, "-m", "dem.cli", "compile", "--jobs", "2"], capture_output=True, text=True,
                        env=env, cwd=ROOT, timeout=1800)
     assert p.returncode == 0, p.stdout[-2000:] + p.stderr[-3000:]
     assert "kernels compiled and cached in" in p.stdout and "(2 processes)" in p.stdout
     for job in C.DEM_JOBS:
         assert f"  {job.name}: compiled in " in p.stdout
+    # the compile it was asked for is no surprise: no "compiling the step ... once" notice
+    assert "note: compiling" not in p.stdout + p.stderr, p.stderr[-2000:]
     before = _cache_files(tmp_path)
     assert len(before) > 100
+    if copied is not None:
+        assert before == setup_files, "dem compile added to the set-up's cache: " + \
+            ", ".join(sorted(set(before) - set(setup_files)))[:2000]
     # compute_forces and heat_step, compiled alone by signature (dem.compile.forces, heat_step),
     # have the types dem.step.advance calls them with, and the heat step's parallel loops
     # (dem.compile.heat_blocks) those heat_step calls them with: one entry per heat switch (and
