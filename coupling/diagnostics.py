@@ -161,15 +161,30 @@ BALANCE_TITLE = ("Heat balance of both phases: |error| relative to the heat move
 
 
 def plot(out: Path, title: str) -> Path | None:
-    """coupling.png from coupling.csv, a panel for each: the mean temperatures of the
-    particles and the gas; the heat from the particles to the gas; the pressure drop with the
-    bed's weight over the bottom area (the drop a fluidized bed carries); the mean height of
-    the particle centres; the heat balance's error and residual relative to the heat moved
-    (:func:`heat_moved`). Each panel's title says what its traces are."""
+    """coupling.png (:func:`figure`), written atomically; None without matplotlib or with
+    fewer than two rows of coupling.csv."""
+    fig = figure(out, title)
+    if fig is None:
+        return None
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from dem.output import atomic_write
+    FigureCanvasAgg(fig)
+    p = out / "coupling.png"
+    atomic_write(str(p), lambda tmp: fig.savefig(tmp, dpi=100, format="png"))
+    return p
+
+
+def figure(out: Path, title: str):
+    """The figure of coupling.png from coupling.csv, a panel for each: the mean temperatures of
+    the particles and the gas; the heat from the particles to the gas; the pressure drop with
+    the bed's weight over the bottom area (the drop a fluidized bed carries); the mean height
+    of the particle centres; the heat balance's error and residual relative to the heat moved
+    (:func:`heat_moved`). Each panel's title says what its traces are. Drawn with matplotlib's
+    Figure alone (no pyplot, no layout engine: fixed margins that hold the two-line titles),
+    about a second less at the end of every coupled run than through pyplot's constrained
+    layout."""
     try:
-        import matplotlib
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
+        from matplotlib.figure import Figure
     except ImportError:
         return None
     f = out / "coupling.csv"
@@ -179,8 +194,8 @@ def plot(out: Path, title: str) -> Path | None:
     if d.size < 2:
         return None
     names = d.dtype.names
-    fig = plt.figure(figsize=(11, 11), layout="constrained")
-    grid = fig.add_gridspec(3, 2)
+    fig = Figure(figsize=(11, 11))
+    grid = fig.add_gridspec(3, 2, left=0.075, right=0.97, bottom=0.05, top=0.915, wspace=0.26, hspace=0.42)
     ax = [fig.add_subplot(grid[0, 0]), fig.add_subplot(grid[0, 1]), fig.add_subplot(grid[1, 0]),
           fig.add_subplot(grid[1, 1]), fig.add_subplot(grid[2, :])]
     t = d["time"]
@@ -232,18 +247,14 @@ def plot(out: Path, title: str) -> Path | None:
     else:
         a.text(0.5, 0.5, "no heat balance: no heat exchanged in this run (coupling.toml heat = false, "
                          "or no heat yet)", transform=a.transAxes, ha="center", va="center")
+    from matplotlib.ticker import MaxNLocator
     for a in ax:
+        a.xaxis.set_major_locator(MaxNLocator(5 if a is not ax[4] else 10))
         a.set_xlabel("t [s]")
         a.set_xlim(t[0], t[-1])
         a.grid(alpha=0.3)
-    fig.suptitle(title)
-    p = out / "coupling.png"
-    from dem.output import atomic_write
-    try:
-        atomic_write(str(p), lambda tmp: fig.savefig(tmp, dpi=100, format="png"))
-    finally:
-        plt.close(fig)
-    return p
+    fig.suptitle(title, y=0.985)
+    return fig
 
 
 class Outputs:
