@@ -116,14 +116,23 @@ def test_ergun_pressure_drop(tmp_path, solver, u):
 
 # --------------------------------------------------------------------------- transports
 
-def test_file_and_socket_bit_identical(tmp_path, solver):
-    """Fluidized bed, 4 coupling steps (200 DEM steps, heat on): same particle temperatures."""
-    res = {}
-    for tr in ("file", "socket"):
-        s = run_case(CASES / "fluidized_bed_heating", tmp_path / tr, transport=tr, end_time=0.002,
-                     solver=solver, quiet=True)
-        res[tr] = read_final(Path(s["out"]) / "final.npz")
-    a, b = res["file"], res["socket"]
+@pytest.fixture(scope="module")
+def serial_bed(tmp_path_factory, solver):
+    """The heated fluidized bed (openfoam_cases/fluidized_bed_heating, its own transport: socket)
+    run in serial to t = 0.002 s (4 coupling steps, 200 DEM steps): the output folder. The
+    reference of the file/socket, transport-plug-in and two-DEM-rank tests, which each ran this
+    same command before; they only read its final.npz and coupling.csv."""
+    s = run_case(CASES / "fluidized_bed_heating", tmp_path_factory.mktemp("serial_bed") / "socket",
+                 end_time=0.002, solver=solver, quiet=True)
+    return Path(s["out"])
+
+
+def test_file_and_socket_bit_identical(tmp_path, solver, serial_bed):
+    """Fluidized bed, 4 coupling steps (200 DEM steps, heat on): same particle temperatures.
+    The socket run is the module's serial_bed (the case's transport is socket)."""
+    s = run_case(CASES / "fluidized_bed_heating", tmp_path / "file", transport="file", end_time=0.002,
+                 solver=solver, quiet=True)
+    a, b = read_final(Path(s["out"]) / "final.npz"), read_final(serial_bed / "final.npz")
     assert np.array_equal(a["id"], b["id"])
     assert np.array_equal(a["temperature"].view(np.uint64), b["temperature"].view(np.uint64))
     assert np.array_equal(a["position"].view(np.uint64), b["position"].view(np.uint64))
@@ -171,11 +180,12 @@ class MeasuredLink:
         return self.link.close(status, write_timings)
 
 
-def test_a_transport_plugs_in(tmp_path, solver, monkeypatch):
+def test_a_transport_plugs_in(tmp_path, solver, monkeypatch, serial_bed):
     """A transport replaces coupling.transport.open_link and nothing else: the measured link runs
     the fluidized bed to the same bits as the plain one, and what it measured is the frame of the
     protocol, 5 fields of 9 doubles per cell each way (eps, Ksl, Us, Simp, Sexp out; U, T, p,
-    grad p, eps in: docs/coupling_protocol.md) for each of the 4 coupling steps."""
+    grad p, eps in: docs/coupling_protocol.md) for each of the 4 coupling steps. The plain run
+    is the module's serial_bed (the same command)."""
     import coupling.run as crun
     from coupling import transport
     links = []
@@ -184,10 +194,9 @@ def test_a_transport_plugs_in(tmp_path, solver, monkeypatch):
         links.append(MeasuredLink(transport.open_link(*a, **kw)))
         return links[-1]
 
-    plain = run_case(CASES / "fluidized_bed_heating", tmp_path / "plain", end_time=0.002, solver=solver, quiet=True)
     monkeypatch.setattr(crun, "open_link", open_measured)
     s = run_case(CASES / "fluidized_bed_heating", tmp_path / "measured", end_time=0.002, solver=solver, quiet=True)
-    a, b = read_final(Path(plain["out"]) / "final.npz"), read_final(Path(s["out"]) / "final.npz")
+    a, b = read_final(serial_bed / "final.npz"), read_final(Path(s["out"]) / "final.npz")
     for k in ("position", "velocity", "temperature"):
         assert np.array_equal(a[k].view(np.uint64), b[k].view(np.uint64)), k
     (link,) = links
@@ -454,7 +463,9 @@ def test_solver_killed_checkpoint_restart(tmp_path, solver):
 # --------------------------------------------------------------------------- bad cases
 
 def _check(case: Path, capsys) -> tuple[int, str]:
-    rc = coupling_main(["check", str(case)])
+    from unittest import mock
+    with mock.patch.dict(os.environ):   # main drops the OMPI_* settings (conftest's) of a serial process
+        rc = coupling_main(["check", str(case)])
     return rc, capsys.readouterr().err
 
 
@@ -503,14 +514,14 @@ def test_bad_cases_refused(tmp_path, capsys):
     assert rc == 2 and "dem.toml" in err and "outside the OpenFOAM mesh" in err
 
 
-def test_two_dem_ranks_match_serial(tmp_path, solver):
+def test_two_dem_ranks_match_serial(tmp_path, solver, serial_bed):
     """mpirun -np 2 coupling run: the DEM split over two ranks (each adds its particles' void
     fraction, drag and heat terms; rank 0 talks to thermoDemFoam) gives the serial result
-    to round-off after 4 coupling steps (200 DEM steps) of the heated fluidized bed."""
+    to round-off after 4 coupling steps (200 DEM steps) of the heated fluidized bed. The serial
+    run is the module's serial_bed (the same command)."""
     if shutil.which("mpirun") is None:
         pytest.skip("needs Open MPI")
-    s = run_case(CASES / "fluidized_bed_heating", tmp_path / "one", end_time=0.002, solver=solver, quiet=True)
-    a = read_final(Path(s["out"]) / "final.npz")
+    a = read_final(serial_bed / "final.npz")
     env = dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1",
                OMPI_MCA_rmaps_base_oversubscribe="1")
     p = subprocess.run(["mpirun", "-np", "2", sys.executable, "-m", "coupling.run", "run",
@@ -524,7 +535,7 @@ def test_two_dem_ranks_match_serial(tmp_path, solver):
     assert np.abs(a["velocity"] - b["velocity"]).max() < 1e-10
     assert np.abs(a["temperature"] - b["temperature"]).max() < 1e-10
     assert a["temperature"].max() > 300.0
-    ca, cb = read_csv(tmp_path / "one" / "coupling.csv"), read_csv(tmp_path / "two" / "coupling.csv")
+    ca, cb = read_csv(serial_bed / "coupling.csv"), read_csv(tmp_path / "two" / "coupling.csv")
     assert cb[-1]["Q_to_gas"] == pytest.approx(ca[-1]["Q_to_gas"], rel=1e-9)
     assert cb[-1]["E_particles"] == pytest.approx(ca[-1]["E_particles"], rel=1e-12)
 
@@ -748,14 +759,11 @@ def test_coupling_png_says_what_it_shows_and_plots_the_recorded_balance(bed_outp
     which is sum(m) g / A of the particles (final.npz) and the column (60 x 12 mm); the heat
     balance panel draws coupling.csv's balance_residual over the heat moved (the boundaries'
     and the exchange's heat, read from the same file)."""
-    import matplotlib.pyplot as plt
-    from coupling.diagnostics import plot
+    from coupling.diagnostics import figure, plot
     out, _ = bed_output
-    shown = {}
-    monkeypatch.setattr(plt, "close", lambda fig: shown.setdefault("fig", fig))
     png = plot(out, "bed")
     assert png == out / "coupling.png" and png.stat().st_size > 0
-    axes = shown["fig"].axes
+    axes = figure(out, "bed").axes
     titles = [a.get_title(loc="left") for a in axes]
     assert titles[0].startswith("Mean temperature of each phase (K)")
     assert titles[1].startswith("Heat from the particles to the gas (W)")

@@ -72,6 +72,24 @@ def settle(tmp_path_factory):
     return {n: (run(n, "par_settle.toml", d / f"np{n}"), d / f"np{n}") for n in (1, 2, 3)}
 
 
+@pytest.fixture(scope="module")
+def two_rank_5ms(tmp_path_factory):
+    """par_settle.toml on 2 ranks to 5 ms: its checkpoint (a manifest and 2 pieces) is the one
+    every test continuing or damaging a 2-rank checkpoint starts from (the same command each
+    of them ran before; computed once). Tests that change the folder work on a copy."""
+    out = tmp_path_factory.mktemp("two_rank_5ms") / "a"
+    run(2, "par_settle.toml", out, "--end-time", "0.005")
+    return out
+
+
+@pytest.fixture(scope="module")
+def periodic_serial(tmp_path_factory):
+    """The serial run of par_periodic.toml (read by the two tests comparing a 3-rank run of it
+    with the serial one; computed once)."""
+    out = tmp_path_factory.mktemp("periodic") / "one"
+    return run(1, "par_periodic.toml", out), out
+
+
 @pytest.mark.parametrize("n", [2, 3])
 def test_settling_conducting_bed_same_on_n_ranks(settle, n):
     """900 beads thrown onto a floor (dense collisions, rolling springs, conduction with a
@@ -118,12 +136,12 @@ def test_exponential_update_conservative_on_3_ranks(tmp_path):
     assert gain == pytest.approx(h[-1]["E_wall_heater"], rel=1e-9)
 
 
-def test_periodic_crossing_keeps_contacts_and_heat(tmp_path):
+def test_periodic_crossing_keeps_contacts_and_heat(periodic_serial, tmp_path):
     """18 two-bead columns slide 35 mm along a 30 mm periodic axis cut into 3 slabs: every
     bead crosses every rank boundary and the periodic one. All 18 bead-bead and 18 floor
     contacts hold at every output, the contact springs equal the serial ones, heat is
     conserved to round-off and temperatures match the serial run."""
-    a = run(1, "par_periodic.toml", tmp_path / "one")
+    a, one = periodic_serial
     b = run(3, "par_periodic.toml", tmp_path / "three")
     assert_same(a, b, pos=1e-14, vel=1e-12, spin=1e-9, temp=1e-11)
     hist = history(tmp_path / "three")
@@ -132,7 +150,7 @@ def test_periodic_crossing_keeps_contacts_and_heat(tmp_path):
     assert all(abs(r["thermal_energy"] - e0) < 1e-12 * e0 for r in hist)
     assert hist[-1]["E_direct"] > 1e-4  # the pairs did conduct
     assert np.all(b["velocity"][:, 0] > 3.4)  # 35 mm in 10 ms: a full period
-    ca = np.load(tmp_path / "one" / "checkpoint.npz")
+    ca = np.load(one / "checkpoint.npz")
     cb, _ = checkpoint.load(tmp_path / "three" / "checkpoint.npz")   # the manifest and its 3 pieces
 
     def springs(c):
@@ -147,16 +165,21 @@ def test_periodic_crossing_keeps_contacts_and_heat(tmp_path):
 
 
 @pytest.mark.parametrize("first,second", [(2, 1), (1, 2), (2, 3)])
-def test_restart_across_rank_counts(settle, tmp_path, first, second):
+def test_restart_across_rank_counts(settle, two_rank_5ms, tmp_path, first, second):
     """A checkpoint written on `first` ranks continues on `second` ranks and ends where the
-    uninterrupted serial run ends."""
+    uninterrupted serial run ends. (The 2-rank checkpoint at 5 ms is the shared two_rank_5ms,
+    the same command this test ran; the restart only reads it.)"""
     ref, _ = settle[1]
-    run(first, "par_settle.toml", tmp_path / "a", "--end-time", "0.005")
-    b = run(second, "par_settle.toml", tmp_path / "b", "--restart", str(tmp_path / "a" / "checkpoint.npz"))
+    if first == 2:
+        a = two_rank_5ms
+    else:
+        a = tmp_path / "a"
+        run(first, "par_settle.toml", a, "--end-time", "0.005")
+    b = run(second, "par_settle.toml", tmp_path / "b", "--restart", str(a / "checkpoint.npz"))
     assert_same(ref, b)
 
 
-def test_slabs_thinner_than_the_halo_run(tmp_path):
+def test_slabs_thinner_than_the_halo_run(periodic_serial, tmp_path):
     """Slabs thinner than two halos (3 slabs along z through a 4 mm tall layer of beads) are
     legal on a non-periodic axis: each rank takes ghosts from every rank within one halo of
     its box, not only the next one (docs/reliability/mpi.md). The run matches the serial one."""
@@ -164,20 +187,23 @@ def test_slabs_thinner_than_the_halo_run(tmp_path):
     src = src.replace("../../examples/data", os.path.join(HERE, "..", "examples", "data"))
     scene = tmp_path / "thin.toml"
     scene.write_text(src)
-    a = run(1, "par_periodic.toml", tmp_path / "one")
+    a, _ = periodic_serial
     p = mpirun(3, "run", str(scene), "--out", str(tmp_path / "thin"), "--quiet")
     assert "error" not in p.stderr
     b = read_final(tmp_path / "thin" / "final.npz")
     assert_same(a, b, pos=1e-14, vel=1e-12, spin=1e-9, temp=1e-11)
 
 
-def test_each_rank_writes_its_own_checkpoint_piece(settle, tmp_path):
+def test_each_rank_writes_its_own_checkpoint_piece(settle, two_rank_5ms, tmp_path):
     """An MPI checkpoint is a manifest (scalars, totals, the pieces and their sha256) and one piece
     per rank holding that rank's particles: no rank gathers the others' (issue 26). The pieces
     together hold every particle once; a second checkpoint removes the first one's pieces, and a
-    newer piece left by a run killed before its manifest was written is not read."""
+    newer piece left by a run killed before its manifest was written is not read.
+    (The 2-rank run is the shared two_rank_5ms, copied since this test adds a piece and continues
+    the run; it stops at 5 ms where this test's own run stopped at 4 ms: any time before the end
+    gives a 2-piece checkpoint to continue.)"""
     out = tmp_path / "a"
-    mpirun(2, "run", os.path.join(SCENES, "par_settle.toml"), "--out", str(out), "--quiet", "--end-time", "0.004")
+    shutil.copytree(two_rank_5ms, out)
     man, _ = checkpoint.read(out / "checkpoint.npz")
     assert "state_position" not in man and man["pieces"].size == 2 and int(man["ranks"]) == 2
     folder = out / "checkpoint.pieces"
@@ -201,11 +227,13 @@ def test_each_rank_writes_its_own_checkpoint_piece(settle, tmp_path):
     assert sorted(os.listdir(folder)) == sorted(str(n) for n in man2["pieces"])   # earlier and stray pieces gone
 
 
-def test_a_damaged_piece_is_refused_on_every_rank(tmp_path):
+def test_a_damaged_piece_is_refused_on_every_rank(two_rank_5ms, tmp_path):
     """A piece changed after it was written: every rank stops before anything runs, one line
-    naming the piece (exit 2), on another rank count too."""
+    naming the piece (exit 2), on another rank count too. (The checkpoint is a copy of the shared
+    2-rank one at 5 ms, two_rank_5ms, where this test ran its own to 2 ms: the time of the
+    checkpoint does not enter the check of its pieces.)"""
     out = tmp_path / "a"
-    mpirun(2, "run", os.path.join(SCENES, "par_settle.toml"), "--out", str(out), "--quiet", "--end-time", "0.002")
+    shutil.copytree(two_rank_5ms, out)
     man, _ = checkpoint.read(out / "checkpoint.npz")
     piece = out / "checkpoint.pieces" / str(man["pieces"][1])
     data = dict(np.load(piece))

@@ -52,12 +52,20 @@ def assert_same(a, b, pos=1e-10, vel=1e-7, spin=5e-4, temp=1e-9):
     assert np.abs(a["temperature"] - b["temperature"]).max() <= temp
 
 
+END = 0.008   # the runs of the `runs` fixture stop here
+
+
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory):
-    """par_settle.toml to 4 ms on 1, 2 and 3 ranks."""
+    """par_settle.toml to 8 ms on 1, 2 and 3 ranks. Their final outputs are the ones the final-output
+    tests read, and their checkpoints (2 and 3 pieces) the ones the restart tests continue: each of
+    those ran this same command to 8 ms itself (the final-output tests ran to 4 ms: any time gives a
+    final output of one piece per rank, and the serial and the parallel runs still agree to the
+    bounds of tests/test_parallel.py, which they keep to 10 ms there). Tests that change a folder
+    work on a copy; `dem gather` adds its own file only, which no other test reads."""
     d = tmp_path_factory.mktemp("final")
     for n in (1, 2, 3):
-        mpirun(n, "run", SETTLE, "--out", d / f"np{n}", "--quiet", "--end-time", "0.004")
+        mpirun(n, "run", SETTLE, "--out", d / f"np{n}", "--quiet", "--end-time", END)
     return d
 
 
@@ -76,7 +84,7 @@ def test_final_output_is_a_piece_per_rank_read_by_id(runs, n):
         assert ids.size == rows and np.all(np.diff(ids) > 0) and ids[0] == lo and ids[-1] == hi
     got = read_final(out / "final.npz")
     assert sorted(got.files) == sorted(serial.files)
-    assert float(got["time"]) == float(serial["time"]) == pytest.approx(0.004)
+    assert float(got["time"]) == float(serial["time"]) == pytest.approx(END)
     assert_same(serial, got)
 
 
@@ -148,27 +156,29 @@ sys.exit(main(sys.argv[1:]))
 """
 
 
-def test_kill_9_between_pieces_and_manifest_leaves_the_previous_final_output(tmp_path):
+def test_kill_9_between_pieces_and_manifest_leaves_the_previous_final_output(runs, tmp_path):
     """A run killed between its final pieces and its manifest leaves the previous final output whole
-    (its manifest and the pieces it names, read as before); the next run removes the orphans."""
+    (its manifest and the pieces it names, read as before); the next run removes the orphans.
+    (The previous output is a copy of the fixture's 2-rank run at 8 ms, where this test ran its own
+    to 1 ms; the continued runs go 1 ms further, as before.)"""
     out = tmp_path / "o"
-    mpirun(2, "run", SETTLE, "--out", out, "--quiet", "--end-time", "0.001")
+    shutil.copytree(runs / "np2", out)
     before = read_final(out / "final.npz")
     names = set(os.listdir(out / "final.pieces"))
     ck = out / "checkpoint.npz"
-    p = mpirun(2, "run", SETTLE, "--out", out, "--quiet", "--end-time", "0.002", "--restart", ck,
+    p = mpirun(2, "run", SETTLE, "--out", out, "--quiet", "--end-time", END + 0.001, "--restart", ck,
                check=False, module=("-c", _KILL_BEFORE_MANIFEST))
     assert p.returncode != 0
     left = set(os.listdir(out / "final.pieces"))
     assert names < left and len(left - names) == 2        # the new pieces are there, unnamed
     after = read_final(out / "final.npz")                  # the previous output, whole
-    assert float(after["time"]) == pytest.approx(0.001)
+    assert float(after["time"]) == pytest.approx(END)
     for k in before.files:
         assert np.array_equal(before[k], after[k]), k
-    mpirun(2, "run", SETTLE, "--out", out, "--quiet", "--end-time", "0.002", "--restart", ck)
+    mpirun(2, "run", SETTLE, "--out", out, "--quiet", "--end-time", END + 0.001, "--restart", ck)
     man = final.read_manifest(out / "final.npz")
     assert sorted(os.listdir(out / "final.pieces")) == sorted(str(n) for n in man["pieces"])
-    assert float(read_final(out / "final.npz")["time"]) == pytest.approx(0.002)
+    assert float(read_final(out / "final.npz")["time"]) == pytest.approx(END + 0.001)
 
 
 # ------------------------------------------------------------------------------------ restarts
@@ -180,11 +190,13 @@ def restart_rows(stdout):
 
 
 @pytest.fixture(scope="module")
-def two_rank_checkpoint(tmp_path_factory):
-    """par_settle.toml serially to 10 ms, and on 2 ranks to 8 ms (its checkpoint: 2 pieces)."""
+def two_rank_checkpoint(runs, tmp_path_factory):
+    """par_settle.toml serially to 10 ms (d / "serial"), and on 2 ranks to 8 ms (d / "a", its
+    checkpoint: 2 pieces; the `runs` fixture's 2-rank run, the same command, reached through a
+    link; the tests only read it)."""
     d = tmp_path_factory.mktemp("restart")
     mpirun(1, "run", SETTLE, "--out", d / "serial", "--quiet")
-    mpirun(2, "run", SETTLE, "--out", d / "a", "--quiet", "--end-time", "0.008")
+    os.symlink(runs / "np2", d / "a")
     return d
 
 
@@ -206,12 +218,12 @@ def test_restart_reads_an_even_share_of_the_rows(two_rank_checkpoint, tmp_path, 
     assert_same(read_final(d / "serial" / "final.npz"), read_final(tmp_path / "b" / "final.npz"))
 
 
-def test_restart_3_to_2_ranks(two_rank_checkpoint, tmp_path):
+def test_restart_3_to_2_ranks(runs, two_rank_checkpoint, tmp_path):
     """A 3-piece checkpoint continued on 2 ranks: each takes half of the rows, from the pieces that
-    hold them, and the run ends where the serial one ends."""
+    hold them, and the run ends where the serial one ends. (The 3-rank run to 8 ms is the `runs`
+    fixture's, the same command this test ran; the restart only reads it.)"""
     d = two_rank_checkpoint
-    mpirun(3, "run", SETTLE, "--out", tmp_path / "a", "--quiet", "--end-time", "0.008")
-    p = mpirun(2, "run", SETTLE, "--out", tmp_path / "b", "--quiet", "--restart", tmp_path / "a" / "checkpoint.npz")
+    p = mpirun(2, "run", SETTLE, "--out", tmp_path / "b", "--quiet", "--restart", runs / "np3" / "checkpoint.npz")
     taken, read = restart_rows(p.stdout)
     assert taken == [N // 2, N // 2]
     assert_same(read_final(d / "serial" / "final.npz"), read_final(tmp_path / "b" / "final.npz"))

@@ -108,9 +108,21 @@ def reference(tmp_path_factory, solver):
     return out
 
 
-def test_restart_continues_the_same_run(reference, tmp_path):
-    out = tmp_path / "out"
+@pytest.fixture(scope="module")
+def first_half(tmp_path_factory, solver):
+    """The first N coupling steps as a run of their own (to N DT): its end is a restart point.
+    Shared by the restart and the corrupt-state tests, each of which continues (or damages) a
+    copy of it."""
+    out = tmp_path_factory.mktemp("half") / "out"
     _run(out, N * DT)
+    return out
+
+
+def test_restart_continues_the_same_run(reference, first_half, tmp_path):
+    """N steps (the module's first_half, copied: this test continues it) + --restart to 2 N
+    steps are the uninterrupted 2 N."""
+    out = tmp_path / "out"
+    shutil.copytree(first_half, out, symlinks=True)
     ck = out / "checkpoints"
     # the end of a run is a restart point: gas time, DEM checkpoint and coupling state
     assert (out / f"{N * DT:g}").is_dir()
@@ -186,20 +198,22 @@ def test_signal_stops_cleanly_and_continues(reference, tmp_path, signum, code, s
     _assert_same_run(reference, out)
 
 
-def test_corrupt_coupling_state_is_refused(tmp_path, solver):
+def test_corrupt_coupling_state_is_refused(first_half, tmp_path):
     """A damaged checkpoints/coupling_<step>.npz is refused naming the file (exit 2), before
-    any gas time directory is removed."""
+    any gas time directory is removed. The damaged run is a copy of the module's first_half (N
+    steps, continued to 2 N: the refusal comes before any step, so how many steps the damaged
+    run had does not enter; it had 2, continued to 4, before)."""
     out = tmp_path / "out"
-    _run(out, 2 * DT)
-    cs = out / "checkpoints" / f"coupling_{2:08d}.npz"
+    shutil.copytree(first_half, out, symlinks=True)
+    cs = out / "checkpoints" / f"coupling_{N:08d}.npz"
     data = bytearray(cs.read_bytes())
     data[len(data) // 2] ^= 0xFF
     cs.write_bytes(bytes(data))
     before = sorted(p.name for p in out.iterdir())
-    p = subprocess.run(_cmd(out, 4 * DT, "--restart"), capture_output=True, text=True, env=_env(), timeout=600)
+    p = subprocess.run(_cmd(out, END, "--restart"), capture_output=True, text=True, env=_env(), timeout=600)
     assert p.returncode == 2, p.stderr
     assert str(cs) in p.stderr and "Traceback" not in p.stderr
     assert sorted(p.name for p in out.iterdir()) == before
     cs.unlink()
-    p = subprocess.run(_cmd(out, 4 * DT, "--restart"), capture_output=True, text=True, env=_env(), timeout=600)
+    p = subprocess.run(_cmd(out, END, "--restart"), capture_output=True, text=True, env=_env(), timeout=600)
     assert p.returncode == 2 and str(cs) in p.stderr and "missing" in p.stderr, p.stderr

@@ -117,15 +117,32 @@ def bed(tmp_path_factory):
     return d
 
 
+@pytest.fixture(scope="module")
+def npz_on_two_ranks(bed, tmp_path_factory):
+    """The stored NPZ packing run on 2 ranks to the scene's end (3 ms): (CompletedProcess, output
+    folder). Read by the (2, bed.npz) case of the slices test, and continued (from its checkpoint)
+    by the restart test, which ran its own 2-rank run of this scene to 1 ms before: any 2-rank
+    checkpoint of the scene shows that a restart on 3 ranks takes it and an edited radius is refused."""
+    d = tmp_path_factory.mktemp("npz2")
+    s = scene(d, os.path.join(str(bed), "bed.npz"))
+    return mpirun(2, "run", str(s), "--out", str(d / "out")), d / "out"
+
+
 @pytest.mark.parametrize("n,file", [(2, "bed.csv"), (3, "bed.csv"), (2, "bed.npz"), (3, "bedz.npz")])
-def test_packing_file_read_by_slices_gives_the_serial_run(bed, tmp_path, n, file):
+def test_packing_file_read_by_slices_gives_the_serial_run(bed, request, tmp_path, n, file):
     """A CSV, a stored NPZ and a deflated NPZ on 2 and 3 ranks: the same final state by id as
     the serial run of the CSV, and no rank read or held more than its share of the rows (a CSV
-    slice ends at a line start: a line's length in bytes more, 2 % slack; an NPZ slice is exact)."""
-    s = scene(tmp_path, os.path.join(str(bed), file))
-    p = mpirun(n, "run", str(s), "--out", str(tmp_path / "out"))
+    slice ends at a line start: a line's length in bytes more, 2 % slack; an NPZ slice is exact).
+    (The stored NPZ on 2 ranks is the npz_on_two_ranks fixture, the same command, shared with the
+    restart test.)"""
+    if (n, file) == (2, "bed.npz"):
+        p, out = request.getfixturevalue("npz_on_two_ranks")
+    else:
+        s = scene(tmp_path, os.path.join(str(bed), file))
+        out = tmp_path / "out"
+        p = mpirun(n, "run", str(s), "--out", str(out))
     a = read_final(bed / "serial" / "final.npz")
-    b = read_final(tmp_path / "out" / "final.npz")
+    b = read_final(out / "final.npz")
     assert_same(a, b)
     assert np.array_equal(np.sort(a["id"]), np.arange(100, 100 + N))
     read, held = setup_rows(p.stdout)
@@ -181,20 +198,22 @@ def test_particle_outside_or_behind_a_wall_in_the_last_slice_is_named_like_seria
     assert not (tmp_path / "o3").exists()
 
 
-def test_mpi_restart_refuses_changed_particle_definitions(bed, tmp_path):
+def test_mpi_restart_refuses_changed_particle_definitions(bed, npz_on_two_ranks, tmp_path):
     """A checkpoint of a 2-rank run continues on 3 ranks with the same packing file, and is
     refused (exit 2, one line) when a radius of the file changed: the per-rank set-up's
-    digests (sums of per-particle hashes) are the same on any rank count and see the change."""
+    digests (sums of per-particle hashes) are the same on any rank count and see the change.
+    (The 2-rank run is the shared npz_on_two_ranks, at 3 ms: the restarts only read its
+    checkpoint; the continued run goes 1 ms further.)"""
     s = scene(tmp_path, os.path.join(str(bed), "bed.npz"))
-    mpirun(2, "run", str(s), "--out", str(tmp_path / "a"), "--quiet", "--end-time", "0.001")
-    mpirun(3, "run", str(s), "--out", str(tmp_path / "b"), "--quiet", "--restart", str(tmp_path / "a" / "checkpoint.npz"))
+    ck = npz_on_two_ranks[1] / "checkpoint.npz"
+    mpirun(3, "run", str(s), "--out", str(tmp_path / "b"), "--quiet", "--end-time", "0.004", "--restart", str(ck))
     cols = dict(np.load(bed / "bed.npz"))
     cols["radius"] = cols["radius"].copy()
     cols["radius"][N - 3] *= 1.01
     np.savez(tmp_path / "edited.npz", **cols)
     s2 = scene(tmp_path, str(tmp_path / "edited.npz"), "s2.toml")
-    p = mpirun(3, "run", str(s2), "--out", str(tmp_path / "c"), "--quiet", "--restart",
-               str(tmp_path / "a" / "checkpoint.npz"), check=False)
+    p = mpirun(3, "run", str(s2), "--out", str(tmp_path / "c"), "--quiet", "--end-time", "0.004", "--restart",
+               str(ck), check=False)
     assert p.returncode == 2
     lines = errors(p)
     assert len(lines) == 1 and "the radii differ from the scene that wrote the checkpoint" in lines[0], lines
