@@ -1,0 +1,449 @@
+"""Triangle-mesh walls: reading a CAD surface (STL, ASCII or binary; other formats meshio reads),
+checking it, welding it into vertices and faces with their edge neighbours, and the contacts of
+a sphere with it (issue 50).
+
+The contacts of one sphere with one mesh are its closest points on the candidate triangles
+(Ericson, *Real-Time Collision Detection*, 2005, sec. 5.1.5: the closest point of a triangle to
+a point, by the Voronoi regions of its vertices, edges and face), each tagged with the feature
+it lies on: the face's interior, an edge or a vertex. A sphere over a smooth surface sees the
+same point from every triangle that shares the edge or the vertex under it, and sees the edges
+of the neighbours of the face it touches; counting those would push it twice. Of the raw
+closest points within the radius we keep (the rule of Hu, Hu, Jin and Dong, *Powder Technol.*
+246 (2013) 498; Kremmer and Favier, *Int. J. Numer. Meth. Eng.* 51 (2001) 1407: a feature
+contact counts only when no contact of a larger feature that contains it does):
+
+* every face contact;
+* an edge contact unless a triangle with a face contact holds that edge, or the same edge was
+  already kept;
+* a vertex contact unless a triangle with a face contact, or a kept edge, holds that vertex, or
+  the same vertex was already kept.
+
+So a sphere on a flat surface of many triangles has exactly the analytic plane's one contact,
+wherever it sits, and a sphere in a concave crease (a valley, the corner of a hopper) keeps one
+contact per face it touches. Triangles are stored in the mesh's own (reference) frame; a
+moving mesh moves the sphere's centre into that frame instead (rigid motion), so the triangles,
+their bins and their neighbours never change during a run.
+"""
+from __future__ import annotations
+
+import math
+import os
+import re
+
+import numpy as np
+from numba import njit
+
+from ..errors import SceneError
+
+FACE, EDGE, VERTEX = 0, 1, 2
+
+
+# --------------------------------------------------------------------------- reading
+
+def read_triangles(path, key="file"):
+    """The triangles of a surface file as an (n, 3, 3) float64 array (triangle, corner, xyz):
+    STL, ASCII or binary, read here; OBJ, PLY, OFF and the other formats meshio reads through
+    meshio (its triangle cells; quads are split in two). Raises SceneError naming the file."""
+    if not os.path.isfile(path):
+        raise SceneError(path, key, "no such file (give the path of an STL file, relative to the scene file)")
+    ext = os.path.splitext(path)[1].lower()
+    if ext == ".stl":
+        with open(path, "rb") as fh:
+            data = fh.read()
+        return _stl(path, key, data)
+    try:
+        import meshio
+        m = meshio.read(path)
+    except Exception as e:  # noqa: BLE001 (meshio raises many kinds for a file it cannot read)
+        raise SceneError(path, key, f"not a surface meshio can read ({type(e).__name__}: {e}); "
+                                    "give an STL file (ASCII or binary) or an OBJ/PLY/OFF file") from None
+    pts = np.asarray(m.points, float)
+    if pts.shape[1] == 2:
+        pts = np.c_[pts, np.zeros(len(pts))]
+    tris = []
+    for block in m.cells:
+        if block.type == "triangle":
+            tris.append(pts[block.data])
+        elif block.type == "quad":
+            q = block.data
+            tris.append(pts[q[:, [0, 1, 2]]])
+            tris.append(pts[q[:, [0, 2, 3]]])
+    if not tris:
+        raise SceneError(path, key, "holds no triangles (a surface mesh of triangles or quads is needed)")
+    return np.ascontiguousarray(np.concatenate(tris), dtype=np.float64)
+
+
+def _stl(path, key, data):
+    n_bin = int.from_bytes(data[80:84], "little") if len(data) >= 84 else -1
+    if len(data) >= 84 and len(data) == 84 + 50 * n_bin:
+        rec = np.dtype([("normal", "<f4", 3), ("v", "<f4", (3, 3)), ("attr", "<u2")])
+        arr = np.frombuffer(data, rec, count=n_bin, offset=84)
+        tris = arr["v"].astype(np.float64)
+    elif data.lstrip()[:5].lower() == b"solid":
+        text = data.decode("ascii", errors="replace")
+        nums = re.findall(r"^\s*vertex\s+(\S+)\s+(\S+)\s+(\S+)", text, re.M | re.I)
+        n_facets = len(re.findall(r"^\s*endfacet\b", text, re.M | re.I))
+        try:
+            v = np.array(nums, dtype=np.float64)
+        except ValueError as e:
+            raise SceneError(path, key, f"an ASCII STL vertex is not three numbers ({e})") from None
+        if v.shape[0] != 3 * n_facets or n_facets == 0:
+            raise SceneError(path, key, f"not a complete ASCII STL: {n_facets} facets, {v.shape[0]} vertices "
+                                        "(three 'vertex x y z' lines per facet)")
+        tris = v.reshape(-1, 3, 3)
+    else:
+        raise SceneError(path, key, f"not an STL file: {len(data)} bytes, neither ASCII ('solid' ... 'endsolid') "
+                                    f"nor binary (84 + 50 x {n_bin} bytes)")
+    if tris.shape[0] == 0:
+        raise SceneError(path, key, "holds no triangles")
+    return np.ascontiguousarray(tris)
+
+
+# --------------------------------------------------------------------------- placing and checking
+
+def rotation_matrix(degrees):
+    """Rotation by ``degrees`` = (about x, about y, about z), applied in that order (x first)."""
+    ax, ay, az = (math.radians(float(a)) for a in degrees)
+    cx, sx, cy, sy, cz, sz = math.cos(ax), math.sin(ax), math.cos(ay), math.sin(ay), math.cos(az), math.sin(az)
+    rx = np.array([[1, 0, 0], [0, cx, -sx], [0, sx, cx]])
+    ry = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
+    rz = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
+    return rz @ ry @ rx
+
+
+def place(tris, scale=1.0, rotate=(0.0, 0.0, 0.0), translate=(0.0, 0.0, 0.0)):
+    """x -> R (scale x) + translate: the file's units (mm from CAD: scale = 0.001) to metres,
+    then turned and moved into the scene."""
+    s = np.broadcast_to(np.asarray(scale, float), (3,))
+    out = (tris * s) @ rotation_matrix(rotate).T + np.asarray(translate, float)
+    return np.ascontiguousarray(out)
+
+
+def check_triangles(tris, path, key):
+    """Refuse a mesh with a triangle that is not finite, degenerate (a zero or near-zero area:
+    two corners equal or all three on a line) or a duplicate of another (the same three corners),
+    naming the first such triangle as it is numbered in the file (from 1)."""
+    bad = ~np.isfinite(tris).all(axis=(1, 2))
+    if bad.any():
+        k = int(np.flatnonzero(bad)[0])
+        raise SceneError(path, key, f"triangle {k + 1} has a coordinate that is not a finite number "
+                                    f"({tris[k].tolist()})")
+    a, b, c = tris[:, 0], tris[:, 1], tris[:, 2]
+    area2 = np.linalg.norm(np.cross(b - a, c - a), axis=1)
+    longest = np.max(np.stack([np.linalg.norm(b - a, axis=1), np.linalg.norm(c - b, axis=1),
+                               np.linalg.norm(a - c, axis=1)]), axis=0)
+    # a sliver whose height is below 1e-9 of its longest side has no usable normal
+    small = area2 <= 1e-9 * longest ** 2
+    if small.any():
+        k = int(np.flatnonzero(small)[0])
+        raise SceneError(path, key, f"triangle {k + 1} is degenerate (area {0.5 * area2[k]:.3g}, corners "
+                                    f"{tris[k].tolist()}): remove it or repair the mesh")
+    verts, faces = weld(tris)
+    key3 = np.sort(faces, axis=1)
+    _, first, inv = np.unique(key3, axis=0, return_index=True, return_inverse=True)
+    inv = inv.reshape(-1)
+    dup = first[inv] != np.arange(len(faces))
+    if dup.any():
+        k = int(np.flatnonzero(dup)[0])
+        raise SceneError(path, key, f"triangle {k + 1} duplicates triangle {int(first[inv[k]]) + 1} "
+                                    "(the same three corners): remove one of them")
+    return verts, faces
+
+
+def weld(tris, tol=1e-9):
+    """Vertices (nv, 3) and faces (n, 3) of a triangle soup: corners closer than ``tol`` of the
+    mesh's size are one vertex (STL stores every corner of every triangle)."""
+    pts = tris.reshape(-1, 3)
+    size = float(np.max(np.ptp(pts, axis=0))) or 1.0
+    q = np.round(pts / (tol * size)).astype(np.int64)
+    _, first, inv = np.unique(q, axis=0, return_index=True, return_inverse=True)
+    verts = np.ascontiguousarray(pts[first])
+    faces = np.ascontiguousarray(inv.reshape(-1, 3).astype(np.int64))
+    return verts, faces
+
+
+# --------------------------------------------------------------------------- closest points
+
+@njit(cache=True, error_model="numpy")
+def closest_on_triangle(px, py, pz, ax, ay, az, bx, by, bz, cx, cy, cz):
+    """The point of triangle abc closest to p (Ericson 2005, sec. 5.1.5) and its feature:
+    returns (qx, qy, qz, kind, index) with kind FACE (index 0), EDGE (index 0: ab, 1: bc,
+    2: ca) or VERTEX (index 0: a, 1: b, 2: c)."""
+    abx, aby, abz = bx - ax, by - ay, bz - az
+    acx, acy, acz = cx - ax, cy - ay, cz - az
+    apx, apy, apz = px - ax, py - ay, pz - az
+    d1 = abx * apx + aby * apy + abz * apz
+    d2 = acx * apx + acy * apy + acz * apz
+    if d1 <= 0.0 and d2 <= 0.0:
+        return ax, ay, az, VERTEX, 0
+    bpx, bpy, bpz = px - bx, py - by, pz - bz
+    d3 = abx * bpx + aby * bpy + abz * bpz
+    d4 = acx * bpx + acy * bpy + acz * bpz
+    if d3 >= 0.0 and d4 <= d3:
+        return bx, by, bz, VERTEX, 1
+    vc = d1 * d4 - d3 * d2
+    if vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0:
+        v = d1 / (d1 - d3)
+        return ax + v * abx, ay + v * aby, az + v * abz, EDGE, 0
+    cpx, cpy, cpz = px - cx, py - cy, pz - cz
+    d5 = abx * cpx + aby * cpy + abz * cpz
+    d6 = acx * cpx + acy * cpy + acz * cpz
+    if d6 >= 0.0 and d5 <= d6:
+        return cx, cy, cz, VERTEX, 2
+    vb = d5 * d2 - d1 * d6
+    if vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0:
+        w = d2 / (d2 - d6)
+        return ax + w * acx, ay + w * acy, az + w * acz, EDGE, 2
+    va = d3 * d6 - d5 * d4
+    if va <= 0.0 and (d4 - d3) >= 0.0 and (d5 - d6) >= 0.0:
+        w = (d4 - d3) / ((d4 - d3) + (d5 - d6))
+        return bx + w * (cx - bx), by + w * (cy - by), bz + w * (cz - bz), EDGE, 1
+    denom = 1.0 / (va + vb + vc)
+    v = vb * denom
+    w = vc * denom
+    return (ax + abx * v + acx * w, ay + aby * v + acy * w, az + abz * v + acz * w, FACE, 0)
+
+
+@njit(cache=True, error_model="numpy")
+def _near_segment(qx, qy, qz, verts, a, b, h):
+    ex = verts[b, 0] - verts[a, 0]
+    ey = verts[b, 1] - verts[a, 1]
+    ez = verts[b, 2] - verts[a, 2]
+    rx = qx - verts[a, 0]
+    ry = qy - verts[a, 1]
+    rz = qz - verts[a, 2]
+    e2 = ex * ex + ey * ey + ez * ez
+    s = min(max((rx * ex + ry * ey + rz * ez) / e2, 0.0), 1.0)
+    dx = rx - s * ex
+    dy = ry - s * ey
+    dz = rz - s * ez
+    return dx * dx + dy * dy + dz * dz <= h * h
+
+
+@njit(cache=True, error_model="numpy")
+def _snap(qx, qy, qz, verts, a, b, c, kind, idx):
+    """The feature of a closest point, decided by distance (within 1e-10 of the triangle's
+    perimeter): a point on a shared edge or vertex gets the same feature from every triangle
+    that holds it, whatever the round-off of each one's region tests."""
+    h = 0.0
+    for u, v in ((a, b), (b, c), (c, a)):
+        h += math.sqrt((verts[v, 0] - verts[u, 0]) ** 2 + (verts[v, 1] - verts[u, 1]) ** 2
+                       + (verts[v, 2] - verts[u, 2]) ** 2)
+    h *= 1e-10
+    corners = (a, b, c)
+    for k in range(3):
+        w = corners[k]
+        if (qx - verts[w, 0]) ** 2 + (qy - verts[w, 1]) ** 2 + (qz - verts[w, 2]) ** 2 <= h * h:
+            return VERTEX, k
+    if kind == VERTEX:
+        return kind, idx
+    for k in range(3):
+        if _near_segment(qx, qy, qz, verts, corners[k], corners[(k + 1) % 3], h):
+            return EDGE, k
+    return FACE, 0
+
+
+def valences(faces, n_verts):
+    """How many triangles hold each triangle's edges (n, 3: edge k from corner k to k + 1) and
+    each vertex (n_verts): 2 inside a closed or smooth surface, 1 on an open border."""
+    e = np.sort(np.stack([faces, np.roll(faces, -1, axis=1)], axis=-1), axis=-1).reshape(-1, 2)
+    _, inv, cnt = np.unique(e, axis=0, return_inverse=True, return_counts=True)
+    edge = np.ascontiguousarray(cnt[inv.reshape(-1)].reshape(-1, 3).astype(np.int64))
+    vert = np.ascontiguousarray(np.bincount(faces.reshape(-1), minlength=n_verts).astype(np.int64))
+    return edge, vert
+
+
+@njit(cache=True, error_model="numpy")
+def sphere_contacts(px, py, pz, radius, verts, faces, edge_val, vert_val, cand, ncand, raw, out):
+    """The contacts of the sphere (centre p, ``radius``) with the mesh's candidate triangles
+    ``cand[:ncand]`` (every triangle within reach of the sphere), into ``out`` (rows of 8: the
+    distance from the centre to the contact point, the unit normal from the centre towards the
+    surface (3), the triangle, the feature kind, the feature's vertices a, b (-1: none));
+    returns how many (at most out.shape[0]). ``raw``: scratch of at least ncand rows of 8.
+
+    A face's closest point is a contact. An edge's or a vertex's is a contact only when every
+    triangle that holds that edge or vertex (``edge_val``, ``vert_val``: how many) has it as its
+    own closest point, and then once: it is then the closest point of the surface around it
+    (a convex edge or corner); where a triangle holding it has a closer point, that triangle's
+    own contact is the one (a flat or smooth surface, a concave crease)."""
+    kmax = out.shape[0]
+    m = 0
+    for q in range(ncand):
+        t = cand[q]
+        a = faces[t, 0]
+        b = faces[t, 1]
+        c = faces[t, 2]
+        qx, qy, qz, kind, idx = closest_on_triangle(
+            px, py, pz, verts[a, 0], verts[a, 1], verts[a, 2], verts[b, 0], verts[b, 1], verts[b, 2],
+            verts[c, 0], verts[c, 1], verts[c, 2])
+        dx, dy, dz = qx - px, qy - py, qz - pz
+        d = math.sqrt(dx * dx + dy * dy + dz * dz)
+        if not d < radius or d < 1e-300:
+            continue
+        kind, idx = _snap(qx, qy, qz, verts, a, b, c, kind, idx)
+        f0 = -1
+        f1 = -1
+        val = 0
+        if kind == EDGE:
+            f0 = faces[t, idx]
+            f1 = faces[t, (idx + 1) % 3]
+            if f1 < f0:
+                f0, f1 = f1, f0
+            val = edge_val[t, idx]
+        elif kind == VERTEX:
+            f0 = faces[t, idx]
+            val = vert_val[f0]
+        raw[m, 0] = d
+        raw[m, 1] = dx / d
+        raw[m, 2] = dy / d
+        raw[m, 3] = dz / d
+        raw[m, 4] = t
+        raw[m, 5] = kind + 10.0 * val     # the kind, and how many triangles hold the feature
+        raw[m, 6] = f0
+        raw[m, 7] = f1
+        m += 1
+    k = 0
+    for q in range(m):
+        code = raw[q, 5]
+        kind = np.int64(code) % 10
+        keep = True
+        if kind != FACE:
+            val = np.int64(code) // 10
+            seen = 0
+            for s in range(m):
+                if np.int64(raw[s, 5]) % 10 == kind and raw[s, 6] == raw[q, 6] and \
+                        (kind == VERTEX or raw[s, 7] == raw[q, 7]):
+                    if s < q:
+                        keep = False     # the same feature, kept already
+                        break
+                    seen += 1
+            if keep and seen != val:
+                keep = False             # a triangle holding it has a closer point
+        if keep and k < kmax:
+            for j in range(8):
+                out[k, j] = raw[q, j]
+            out[k, 5] = kind
+            k += 1
+    return k
+
+
+# --------------------------------------------------------------------------- the search
+
+@njit(cache=True, error_model="numpy")
+def _tri_cells(verts, faces, lo, cell, dims, keys, tris, fill):
+    """(cell, triangle) pairs of the cells a triangle passes within half a cell diagonal of
+    (every cell it touches, and a few beside); counts only when ``fill`` is False."""
+    half_diag = 0.8660254037844386 * cell
+    m = 0
+    for t in range(faces.shape[0]):
+        a = faces[t, 0]
+        b = faces[t, 1]
+        c = faces[t, 2]
+        i0 = np.empty(3, np.int64)
+        i1 = np.empty(3, np.int64)
+        for k in range(3):
+            mn = min(verts[a, k], verts[b, k], verts[c, k])
+            mx = max(verts[a, k], verts[b, k], verts[c, k])
+            i0[k] = max(np.int64(math.floor((mn - lo[k]) / cell)), 0)
+            i1[k] = min(np.int64(math.floor((mx - lo[k]) / cell)), dims[k] - 1)
+        for ix in range(i0[0], i1[0] + 1):
+            cx = lo[0] + (ix + 0.5) * cell
+            for iy in range(i0[1], i1[1] + 1):
+                cy = lo[1] + (iy + 0.5) * cell
+                for iz in range(i0[2], i1[2] + 1):
+                    cz = lo[2] + (iz + 0.5) * cell
+                    qx, qy, qz, _, _ = closest_on_triangle(
+                        cx, cy, cz, verts[a, 0], verts[a, 1], verts[a, 2], verts[b, 0], verts[b, 1],
+                        verts[b, 2], verts[c, 0], verts[c, 1], verts[c, 2])
+                    if (qx - cx) ** 2 + (qy - cy) ** 2 + (qz - cz) ** 2 <= half_diag * half_diag:
+                        if fill:
+                            keys[m] = ix + dims[0] * (iy + dims[1] * np.int64(iz))
+                            tris[m] = t
+                        m += 1
+    return m
+
+
+def bin_triangles(verts, faces, cell):
+    """The triangles binned into cubes of side ``cell`` (the particles' cell size: a query
+    then visits a few cells), with ``keys`` the occupied cells
+    (sorted), and cell keys[k]'s triangles items[start[k]:start[k + 1]]. Only cells near the
+    surface are stored, so a hollow vessel costs its area over cell^2, not its volume.
+    Returned as the tuple (lo, cell, dims, keys, start, items) that near_triangles reads."""
+    cell = float(cell)
+    lo = np.ascontiguousarray(verts.min(axis=0) - cell)
+    dims = np.ascontiguousarray(np.ceil((verts.max(axis=0) + cell - lo) / cell).astype(np.int64) + 1)
+    none = np.empty(0, np.int64)
+    m = _tri_cells(verts, faces, lo, cell, dims, none, none, False)
+    keys = np.empty(m, np.int64)
+    tris = np.empty(m, np.int64)
+    _tri_cells(verts, faces, lo, cell, dims, keys, tris, True)
+    order = np.argsort(keys, kind="stable")
+    keys, tris = keys[order], tris[order]
+    ukeys, start = np.unique(keys, return_index=True)
+    start = np.ascontiguousarray(np.r_[start, m].astype(np.int64))
+    return lo, cell, dims, np.ascontiguousarray(ukeys), start, np.ascontiguousarray(tris)
+
+
+@njit(cache=True, error_model="numpy")
+def near_triangles(p, reach, bins, stamp, tag, out):
+    """The triangles that may pass within ``reach`` of point p (3,) (``bins``: of
+    :func:`bin_triangles`; those binned in the cells the box
+    p +- reach overlaps), each once, into ``out``; returns how many (at most out.size; -1 when
+    more would not fit). ``stamp`` (one int per triangle) marks those taken with ``tag``: a
+    caller passes a new tag for each query, so nothing is cleared between them."""
+    lo, cell, dims, keys, start, items = bins
+    px, py, pz = p[0], p[1], p[2]
+    n = 0
+    j0 = np.int64(math.floor((px - reach - lo[0]) / cell))
+    j1 = np.int64(math.floor((px + reach - lo[0]) / cell))
+    k0 = np.int64(math.floor((py - reach - lo[1]) / cell))
+    k1 = np.int64(math.floor((py + reach - lo[1]) / cell))
+    l0 = np.int64(math.floor((pz - reach - lo[2]) / cell))
+    l1 = np.int64(math.floor((pz + reach - lo[2]) / cell))
+    for iz in range(max(l0, 0), min(l1, dims[2] - 1) + 1):
+        for iy in range(max(k0, 0), min(k1, dims[1] - 1) + 1):
+            for ix in range(max(j0, 0), min(j1, dims[0] - 1) + 1):
+                key = ix + dims[0] * (iy + dims[1] * np.int64(iz))
+                at = np.searchsorted(keys, key)
+                if at >= keys.size or keys[at] != key:
+                    continue
+                for q in range(start[at], start[at + 1]):
+                    t = items[q]
+                    if stamp[t] == tag:
+                        continue
+                    stamp[t] = tag
+                    if n >= out.size:
+                        return -1
+                    out[n] = t
+                    n += 1
+    return n
+
+
+# --------------------------------------------------------------------------- writing
+
+def write_stl(path, tris, binary=True, name="thermodem"):
+    """Triangles (n, 3, 3) as an STL file (binary float32, or ASCII with 17 significant
+    digits); the facet normals from the corners' order (right hand)."""
+    tris = np.asarray(tris, float)
+    nrm = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
+    nrm /= np.maximum(np.linalg.norm(nrm, axis=1), 1e-300)[:, None]
+    if binary:
+        rec = np.zeros(len(tris), np.dtype([("normal", "<f4", 3), ("v", "<f4", (3, 3)), ("attr", "<u2")]))
+        rec["normal"] = nrm
+        rec["v"] = tris
+        with open(path, "wb") as fh:
+            fh.write(name.encode()[:80].ljust(80, b" "))
+            fh.write(np.uint32(len(tris)).tobytes())
+            fh.write(rec.tobytes())
+        return
+    lines = [f"solid {name}"]
+    for n, t in zip(nrm, tris):
+        lines.append(f"  facet normal {n[0]:.17g} {n[1]:.17g} {n[2]:.17g}")
+        lines.append("    outer loop")
+        for v in t:
+            lines.append(f"      vertex {v[0]:.17g} {v[1]:.17g} {v[2]:.17g}")
+        lines.append("    endloop")
+        lines.append("  endfacet")
+    lines.append(f"endsolid {name}")
+    with open(path, "w") as fh:
+        fh.write("\n".join(lines) + "\n")
