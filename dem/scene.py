@@ -739,37 +739,16 @@ def _check_walls(v, walls, x, ids, periodic, part=None, totals=None):
 
 def _check_overlaps(v, sc):
     """Initial overlaps beyond [simulation] initial_overlap_ratio (of the smaller radius)."""
-    from scipy.spatial import cKDTree
+    from .insertion import max_overlap
     x, r = sc.position, sc.radius
     if x.shape[0] < 2:
         return
-    per = sc.domain["periodic"]
-    box = None
-    xx = x
-    if any(per):
-        L = sc.domain["max"] - sc.domain["min"]
-        box = np.where(per, L, 0.0)
-        xx = x - sc.domain["min"]
-        xx = np.where(per, np.mod(xx, np.where(per, L, 1.0)), xx)
-        # cKDTree needs finite box on non-periodic axes too: use a large size there
-        span = xx.max(0) - xx.min(0) + 10 * r.max()
-        box = np.where(per, L, span + 1.0)
-        xx = xx - np.where(per, 0.0, xx.min(0) - 1e-9)
-    tree = cKDTree(xx, boxsize=box)
-    pairs = tree.query_pairs(2 * r.max(), output_type="ndarray")
-    if pairs.size == 0:
-        return
-    d = np.linalg.norm(xx[pairs[:, 0]] - xx[pairs[:, 1]], axis=1)
-    if box is not None:
-        dv = xx[pairs[:, 0]] - xx[pairs[:, 1]]
-        dv -= box * np.round(dv / box)
-        d = np.linalg.norm(dv, axis=1)
-    ov = (r[pairs[:, 0]] + r[pairs[:, 1]] - d) / np.minimum(r[pairs[:, 0]], r[pairs[:, 1]])
-    k = int(np.argmax(ov))
-    if ov[k] > sc.simulation["initial_overlap_ratio"]:
-        i, j = pairs[k]
+    per = np.asarray(sc.domain["periodic"], bool)
+    box = np.where(per, np.asarray(sc.domain["max"], float) - np.asarray(sc.domain["min"], float), 0.0)
+    ov, i, j = max_overlap(np.ascontiguousarray(x, float), np.ascontiguousarray(r, float), box)
+    if ov > sc.simulation["initial_overlap_ratio"]:
         v.err(f"particles[{sc.group[i]}]",
-              f"particles id {sc.id[i]} and id {sc.id[j]} overlap by {ov[k]:.3g} of the smaller radius "
+              f"particles id {sc.id[i]} and id {sc.id[j]} overlap by {ov:.3g} of the smaller radius "
               f"initially (allowed: simulation.initial_overlap_ratio = {sc.simulation['initial_overlap_ratio']})")
 
 

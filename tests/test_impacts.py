@@ -1,6 +1,8 @@
 """Binary impacts: restitution, Hertz contact time, energy, oblique impacts on a wall
 (Chung & Ooi, Granular Matter 13 (2011) 643, test 6 regimes)."""
 import math
+import os
+import sys
 
 import numpy as np
 import pytest
@@ -195,3 +197,26 @@ def test_oblique_no_slip_against_continuous_solution(tangential):
     collide_until_apart(sim, max_steps=10 ** 6)
     wR = sim.state.angular_velocity[0, 1] * r
     assert wR == pytest.approx(wR_ref, rel=0.05)
+
+
+def test_the_solved_damping_factor_is_kept_beside_the_cache(tmp_path):
+    """The exact damping's factor, solved by bisection once per restitution, is read back by
+    the next process bit for bit from the file beside Numba's cache (dem.contact.damping.MEMO);
+    an unreadable file is solved again and replaced, and what it holds is the same factor."""
+    import subprocess
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path))
+    code = ("import sys; from dem.contact import damping as d; "
+            "print(repr(d.damping_factor(float(sys.argv[1]), 0, 0)), repr(d._solve_g(float(sys.argv[1]), True)))")
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    first = subprocess.run([sys.executable, "-c", code, "0.73"], capture_output=True, text=True, env=env, cwd=root)
+    assert first.returncode == 0, first.stderr
+    memo = tmp_path / "damping_factors.json"
+    assert memo.is_file() and "0.73 hertz" in memo.read_text()
+    again = subprocess.run([sys.executable, "-c", code, "0.73"], capture_output=True, text=True, env=env, cwd=root)
+    a, g = (float(v) for v in first.stdout.split())
+    b, _ = (float(v) for v in again.stdout.split())
+    assert a == b == g / math.sqrt(0.75)
+    memo.write_text("{not json")
+    third = subprocess.run([sys.executable, "-c", code, "0.73"], capture_output=True, text=True, env=env, cwd=root)
+    assert third.returncode == 0 and float(third.stdout.split()[0]) == a, third.stderr
+    assert "0.73 hertz" in memo.read_text()

@@ -13,7 +13,10 @@ the linear-oscillator formula A = -2 sqrt(5/6) beta sqrt(2) (LIGGGHTS, ``tsuji_l
 which misses the target restitution by a few per cent at e = 0.5.
 The linear spring-dashpot (x'' = -x - g x', g = A) is treated the same way.
 """
+import json
 import math
+import os
+
 import numpy as np
 from numba import njit
 
@@ -75,12 +78,55 @@ def _solve_g(e, hertz):
 
 
 _CACHE = {}
+MEMO = "damping_factors.json"   # beside Numba's cache, in the folder keyed by the sources' digest
+
+
+def _memo_path():
+    import numba
+    return os.path.join(numba.config.CACHE_DIR, MEMO) if numba.config.CACHE_DIR else None
+
+
+def _memo_read():
+    """The factors solved by earlier processes ({"e model": g}), {} when there are none or
+    the file cannot be read (a cache: solved again then)."""
+    path = _memo_path()
+    try:
+        with open(path) as fh:
+            memo = json.load(fh)
+        return memo if isinstance(memo, dict) else {}
+    except (OSError, ValueError, TypeError):
+        return {}
+
+
+def _memo_add(name, g):
+    """Add one solved factor (written whole, by rename: a reader never sees half a file; two
+    processes adding at once may keep only one of their entries, and the other is solved again
+    next time). Silent when the folder cannot be written: the factor is only not kept."""
+    path = _memo_path()
+    if path is None:
+        return
+    memo = _memo_read()
+    memo[name] = g
+    tmp = f"{path}.{os.getpid()}.tmp"
+    try:
+        os.makedirs(os.path.dirname(path), exist_ok=True)
+        with open(tmp, "w") as fh:
+            json.dump(memo, fh)
+        os.replace(tmp, path)
+    except OSError:
+        try:
+            os.unlink(tmp)
+        except OSError:
+            pass
 
 
 def damping_factor(e, model, damping):
     """Factor A of c_n for restitution e.
 
     model: 0 Hertz, 1 linear; damping: 0 exact, 1 tsuji_liggghts (closed form).
+    The exact factor's bisection (about 0.3 s) is solved once per restitution and kept, in this
+    process and in a file beside Numba's cache (MEMO, in the folder keyed by the sources'
+    digest, so an edit of the solver solves again): later runs read the same bits.
     """
     e = float(e)
     if damping == 1:
@@ -90,7 +136,11 @@ def damping_factor(e, model, damping):
         return -2.0 * math.sqrt(5.0 / 6.0) * beta * math.sqrt(2.0) if model == 0 else -2.0 * beta
     key = (round(e, 14), model)
     if key not in _CACHE:
-        g = _solve_g(e, model == 0)
+        name = f"{key[0]!r} {'hertz' if model == 0 else 'linear'}"
+        g = _memo_read().get(name)
+        if not isinstance(g, float) or not math.isfinite(g):
+            g = _solve_g(e, model == 0)
+            _memo_add(name, g)
         _CACHE[key] = g / math.sqrt(0.75) if model == 0 else g
     return _CACHE[key]
 
