@@ -170,7 +170,7 @@ def plot(out: Path, title: str) -> Path | None:
     from dem.output import atomic_write
     FigureCanvasAgg(fig)
     p = out / "coupling.png"
-    atomic_write(str(p), lambda tmp: fig.savefig(tmp, dpi=100, format="png"))
+    atomic_write(str(p), lambda tmp: fig.savefig(tmp, dpi=100, format="png", pil_kwargs={"compress_level": 1}))
     return p
 
 

@@ -50,15 +50,16 @@ def solver() -> Path:
     return exe
 
 
-# The modules that hold the longest tests (the 60 slowest of a 2-worker run, 2026-12-06, 2 cores;
-# `bash scripts/test.sh --durations=60`), started first: a parallel run gives each worker whole
-# modules (--dist loadscope) in collection order, and a long module started last would run alone at
-# the end. A module not listed runs after these in its usual order.
+# The modules in the order of their total time, longest first (a 2-worker run of
+# `bash scripts/test.sh --durations=0` on a fresh clone, 2026-12-07, 2 cores): a parallel run
+# gives each worker whole modules (--dist loadscope) in collection order, and a long module started
+# last would run alone at the end. A module not listed runs after these in its usual order.
 SLOW_MODULES = (
-    "test_compile", "test_coupled_m2m", "test_reliability_signals", "test_reliability_mpi",
-    "test_parallel", "test_coupled", "test_wall_heat", "test_drag_void_fraction", "test_parallel_io",
-    "test_coarse_graining", "test_benchmarks_cost", "test_threads", "test_setup_mpi",
-    "test_reliability_coupled_restart", "test_coupled_pieces", "test_coupled_drag", "test_coupled_forces",
+    "test_coupled_m2m", "test_parallel", "test_reliability_signals", "test_reliability_mpi",
+    "test_setup_mpi", "test_parallel_io", "test_coupled", "test_wall_heat", "test_drag_void_fraction",
+    "test_threads", "test_compile", "test_coupled_drag", "test_reliability_coupled_restart",
+    "test_reliability_outdir", "test_reliability_checkpoint", "test_settling", "test_coarse_graining",
+    "test_coupling_checks", "test_openfoam_solver", "test_coupled_pieces", "test_impacts",
 )
 
 
