@@ -152,6 +152,15 @@ def insert(region, radii, rng, existing_x, existing_r, attempts=ATTEMPTS):
     return out, keep, k
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def _beside(a, dims, length):
+    """A neighbour cell's index along one axis: wrapped on a periodic axis (``length`` > 0),
+    else (index, whether it is inside the grid)."""
+    if length > 0.0:
+        return a % dims, True
+    return a, 0 <= a < dims
+
+
 @njit(cache=True, error_model="numpy")
 def max_overlap(x, r, box):
     """The largest overlap of two spheres relative to the smaller radius, (r_i + r_j - d) /
@@ -192,22 +201,16 @@ def max_overlap(x, r, box):
     sk = keys[order]
     for i in range(n):
         for o0 in range(-1, 2):
-            a0 = c[i, 0] + o0
-            if box[0] > 0.0:
-                a0 %= dims[0]
-            elif a0 < 0 or a0 >= dims[0]:
+            a0, in0 = _beside(c[i, 0] + o0, dims[0], box[0])
+            if not in0:
                 continue
             for o1 in range(-1, 2):
-                a1 = c[i, 1] + o1
-                if box[1] > 0.0:
-                    a1 %= dims[1]
-                elif a1 < 0 or a1 >= dims[1]:
+                a1, in1 = _beside(c[i, 1] + o1, dims[1], box[1])
+                if not in1:
                     continue
                 for o2 in range(-1, 2):
-                    a2 = c[i, 2] + o2
-                    if box[2] > 0.0:
-                        a2 %= dims[2]
-                    elif a2 < 0 or a2 >= dims[2]:
+                    a2, in2 = _beside(c[i, 2] + o2, dims[2], box[2])
+                    if not in2:
                         continue
                     key = a0 + dims[0] * (a1 + dims[1] * a2)
                     s = np.searchsorted(sk, key)

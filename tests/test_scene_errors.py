@@ -355,3 +355,32 @@ def test_cli_missing_scene_file(tmp_path):
     r = _cli(["check", str(f)], cwd=tmp_path)
     assert r.returncode == 2
     assert f"{f}: file not found" in r.stderr
+
+
+def test_the_initial_overlap_check_finds_the_largest_overlap():
+    """dem.insertion.max_overlap (the check of [simulation] initial_overlap_ratio) against brute
+    force over every pair, by the nearest image on periodic axes: the same largest overlap
+    (to 1e-12 of the radius: the same arithmetic in another order) on 200 random beds of 2 to
+    300 spheres, walled and periodic axes mixed; none within reach gives -inf."""
+    import numpy as np
+    from dem.insertion import max_overlap
+    rng = np.random.default_rng(0)
+    for _ in range(200):
+        n = int(rng.integers(2, 300))
+        L = np.array([0.02, 0.03, 0.01])
+        per = rng.random(3) < 0.5
+        x = rng.uniform(0, 1, (n, 3)) * L
+        r = rng.uniform(0.0005, 0.001, n)
+        ov, i, j = max_overlap(x, r, np.where(per, L, 0.0))
+        d = x[:, None, :] - x[None, :, :]
+        d -= np.where(per, L, 0.0) * np.round(d / L) * per
+        dist = np.linalg.norm(d, axis=2)
+        m = (r[:, None] + r[None, :] - dist) / np.minimum(r[:, None], r[None, :])
+        iu = np.triu_indices(n, 1)
+        near = dist[iu] <= 2 * r.max()
+        if not near.any():
+            assert ov == -np.inf and (i, j) == (-1, -1)
+            continue
+        assert abs(ov - m[iu][near].max()) <= 1e-12
+        assert abs(m[i, j] - ov) <= 1e-12 and i < j
+    assert max_overlap(np.zeros((1, 3)), np.ones(1), np.zeros(3))[0] == -np.inf
