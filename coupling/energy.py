@@ -100,7 +100,13 @@ def check_tie_names(case) -> None:
             raise CaseConfigError(case.config_file, f"no gas patch {t['patch']!r}; the mesh's patches: "
                                                     f"{', '.join(patches)}", f"walls[{k}].patch")
         if case.sim is not None:
-            _check_condition(case, k, t, case.sim.scene.walls[names.index(t["dem"])])
+            w = case.sim.scene.walls[names.index(t["dem"])]
+            if w["type"] == "mesh":
+                raise CaseConfigError(case.config_file, f"DEM wall {t['dem']!r} is a mesh wall; a tie to a gas "
+                                                        "patch needs a plane or a cylinder (the gas heat is "
+                                                        "placed by the wall's nearest points); untie it",
+                                      f"walls[{k}].dem")
+            _check_condition(case, k, t, w)
 
 
 def _gas_condition(case, patch):

@@ -360,7 +360,7 @@ def validate(path, arrays, record, subset=False):
     from . import schema as S
     try:
         N = int(record["particles"]["n"]) if not subset else int(arrays["state_id"].shape[0])
-        nw = len(record["walls"])
+        nw = sum(int(w.get("slots", 1)) for w in record["walls"])   # wall rows (a mesh wall has several)
         nmat = len(record["materials"])
         feats = _features(record)
     except (KeyError, TypeError, ValueError, AttributeError):
@@ -460,7 +460,8 @@ def _check_slots(path, key, idx, count, limit, slots):
 
 # ---------------------------------------------------------------------------- the record
 WALL_GEOMETRY = ("type", "point", "normal", "u_axis", "extent", "axis", "radius", "inside", "length",
-                 "velocity", "angular_velocity", "rotation_center")
+                 "velocity", "angular_velocity", "rotation_center",
+                 "file", "scale", "rotate", "translate", "digest", "slots")   # a mesh wall's (the digest: its triangles)
 THERMAL_CHOICES = ("direct", "contact_radius", "correction", "indirect", "convection", "radiation",
                    "friction_heat", "partition", "porosity", "integrator", "time_step")
 THERMAL_PARAMS = ("direct_factor", "impact_ct", "impact_cn", "chi")
@@ -554,6 +555,7 @@ class Plan:
         self.material_map = None   # old material index -> new index
         self.wall_map = None       # old wall index -> new index
         self.nwalls_old = 0
+        self.walls_old = []
         self.density = set()       # new material indices whose mass changes
         self.heat_capacity = set()  # new material indices whose heat capacity changes
         self.rebuild = False       # neighbour / wall lists must be rebuilt (portable load)
@@ -720,6 +722,7 @@ def _plan_walls(sim, ck_path, arrays, record, now, plan):
     old_names = [w["name"] for w in old_w]
     new_names = [w["name"] for w in new_w]
     plan.nwalls_old = len(old_w)
+    plan.walls_old = old_w
     if old_w == new_w:
         plan.wall_map = np.arange(max(len(old_w), 1), dtype=np.int32)
         return
@@ -772,10 +775,19 @@ def _check_added_wall(sim, ck_path, arrays, record, k, name):
     from .stats import max_overlap_ratio
     x, r = arrays["state_position"], arrays["state_radius"]
     n = r.shape[0]
-    wf = np.ascontiguousarray(sim.state.wf[k:k + 1])
-    wi = np.ascontiguousarray(sim.state.wi[k:k + 1])
-    ov = max_overlap_ratio(n, x, r, np.zeros((n, 1), np.int32), np.zeros(n, np.int32), sim.state.lo, sim.state.hi,
-                           sim.state.periodic, wf, wi, 1, float(record["time"]))
+    w = sim.scene.walls[k]
+    if w["type"] == "mesh":   # the particles in the mesh's frame at that time (dem.contact.mesh)
+        from .contact.mesh import nearest, mesh_frame_points
+        s = w["surface"]
+        X = mesh_frame_points(w, x, float(record["time"]))
+        d, _ = nearest(X, r, s.verts, s.faces, s.bins(float(2.0 * r.max(initial=1e-3))))
+        ov = float(np.max((r - d) / r, initial=0.0))
+    else:
+        row = int(sim.world.wall_first[k])
+        wf = np.ascontiguousarray(sim.state.wf[row:row + 1])
+        wi = np.ascontiguousarray(sim.state.wi[row:row + 1])
+        ov = max_overlap_ratio(n, x, r, np.zeros((n, 1), np.int32), np.zeros(n, np.int32), sim.state.lo,
+                               sim.state.hi, sim.state.periodic, wf, wi, 1, float(record["time"]))
     bound = sim.scene.simulation["max_overlap_ratio"]
     if ov > bound:
         raise SceneError(sim.scene.file, f"walls[{name}]",
@@ -869,16 +881,23 @@ def _apply_material_properties(arrays, plan, sim):
 def _remap_walls(arrays, plan, sim):
     """Per-wall columns of the histories moved to each wall's new index; added walls start
     with none. The wall lists themselves are rebuilt by the loader."""
-    nw_new = len(sim.scene.walls)
+    from .contact.walls import wall_rows
+    old_w = plan.walls_old
+    f_old, o_old = wall_rows(old_w)
+    f_new, o_new = wall_rows(sim.scene.walls)
+    nw_new = o_new.size
     W1 = max(nw_new, 1)
-    src = np.arange(plan.nwalls_old)
-    dst = plan.wall_map[:plan.nwalls_old]
+    # rows: each old wall's rows onto its new wall's (a wall keeps its type, so its row count)
+    src = np.arange(o_old.size)
+    dst = (f_new[plan.wall_map[o_old]] + (src - f_old[o_old])).astype(np.int64) if src.size else src
+    row_map = np.zeros(max(o_old.size, 1), np.int32)
+    row_map[src] = dst
 
     wnb, wnn = arrays["wnb"], arrays["wnn"]
     new = np.zeros((wnb.shape[0], W1), np.int32)
     used = np.arange(wnb.shape[1])[None, :] < wnn[:, None]
     if plan.nwalls_old:
-        new[:, :wnb.shape[1]] = np.where(used, plan.wall_map[np.where(used, wnb, 0)], 0)
+        new[:, :wnb.shape[1]] = np.where(used, row_map[np.where(used, wnb, 0)], 0)
     from . import schema as S
     for f in S.of("particle"):
         a = arrays.get(f.checkpoint) if f.checkpoint else None

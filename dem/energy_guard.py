@@ -31,7 +31,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .contact.walls import wall_distance, WF, WI
+from .contact.walls import particle_wall, WF, WI
 from .neighbors import pair_distance
 from .step import FP, contact_law, pair_material
 
@@ -77,7 +77,7 @@ def particle_energies(P, C, W, TB, prm, nown, t, out):
                 out[j, 2] += 0.5 * e
         for q in range(wnn[i]):
             wl = wnb[i, q]
-            dist, nx, ny, nz = wall_distance(wf, wi, wl, x[i, 0], x[i, 1], x[i, 2], t)
+            dist, nx, ny, nz = particle_wall(wf, wi, P.mcon, wl, i, x[i, 0], x[i, 1], x[i, 2], t)
             if dist >= r[i]:
                 continue
             mw = np.int32(wi[wl, WI.mat])

@@ -90,7 +90,7 @@ def scene_bytes(scene):
         n, rmax = int(scene.n_rank), float(scene.rmax)
     else:
         n, rmax = int(scene.radius.size), float(scene.radius.max(initial=0.0))
-    nw = max(len(scene.walls), 1)
+    nw = max(sum(int(w.get("slots", 1)) for w in scene.walls), 1)   # wall rows (a mesh wall has several)
     rolling = scene.contact["rolling"] != "none"
     thermal = scene.thermal is not None
     slot = 4 + 24 + (24 if rolling else 0)

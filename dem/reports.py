@@ -27,7 +27,7 @@ def check(world, stepper):
     dt = world.dt
     par = stepper.par
     n = st.n_owned
-    rep = {"particles": world.n_total, "walls": world.nwalls, "materials": len(sc.materials)}
+    rep = {"particles": world.n_total, "walls": len(sc.walls), "materials": len(sc.materials)}
     m, r = st.mass[:n], st.radius[:n]
     rep["mass_total"] = _over_ranks(par, "sum", float(m.sum()))
     rep["mass_min"] = _over_ranks(par, "min", float(m.min(initial=math.inf)))
@@ -85,7 +85,10 @@ def models_report(world, par):
     else:
         skipped.append("rolling resistance: [contact] rolling = 'none'")
     if world.nwalls:
-        runs.append(f"walls: {world.nwalls}")
+        nm = sum(w["type"] == "mesh" for w in world.scene.walls)
+        runs.append(f"walls: {len(world.scene.walls)}" + (f" ({nm} triangle mesh{'es' if nm > 1 else ''}, "
+                    f"{sum(w['surface'].n_triangles for w in world.scene.walls if w['type'] == 'mesh')} "
+                    f"triangles)" if nm else ""))
     else:
         skipped.append("walls: none in the scene")
     if not sc.simulation["mechanics"]:

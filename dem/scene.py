@@ -136,7 +136,9 @@ MAT_KEYS_MECH = {"name", "density", "youngs_modulus", "poisson_ratio", "restitut
 PART_KEYS = {"material", "positions", "radii", "radius", "velocities", "velocity", "file", "count",
              "region", "temperature", "angular_velocities", "coarse_graining"}
 WALL_KEYS = {"type", "material", "point", "normal", "extent", "u_axis", "axis", "radius", "inside",
-             "length", "velocity", "angular_velocity", "rotation_center", "name", "thermal"}
+             "length", "velocity", "angular_velocity", "rotation_center", "name", "thermal",
+             "file", "scale", "rotate", "translate"}
+MESH_ONLY = {"file", "scale", "rotate", "translate"}
 CONTACT_KEYS = {"model", "rolling", "damping", "tangential", "normal_stiffness", "tangential_stiffness_ratio",
                 "characteristic_velocity", "rolling_damping"}
 OUTPUT_KEYS = {"vtk"}
@@ -564,13 +566,17 @@ def parse(data, file="<dict>", base_dir=".", end_time=None, comm="auto"):
     for k, wl in enumerate(data.get("walls", [])):
         p = f"walls[{k}]"
         v.table(wl, p, WALL_KEYS, required=("type", "material"))
-        wt = v.string(wl, "type", p, choices=["plane", "cylinder"], required=True)
+        wt = v.string(wl, "type", p, choices=["plane", "cylinder", "mesh"], required=True)
         W = dict(type=wt, material=mat_ref(wl, p), name=v.string(wl, "name", p, default=f"wall{k}"),
                  velocity=v.vec(wl, "velocity", p, default=np.zeros(3)),
                  angular_velocity=v.vec(wl, "angular_velocity", p, default=np.zeros(3)),
                  thermal=wl.get("thermal"))
-        if wt == "plane":
-            v.table(wl, p, WALL_KEYS - {"axis", "radius", "inside", "length"})
+        if wt == "mesh":
+            v.table(wl, p, WALL_KEYS - {"point", "normal", "extent", "u_axis", "axis", "radius", "inside", "length"})
+            W.update(_mesh_wall(v, wl, p, base_dir, lo, hi))
+            W["rotation_center"] = v.vec(wl, "rotation_center", p, default=W["point"])
+        elif wt == "plane":
+            v.table(wl, p, WALL_KEYS - {"axis", "radius", "inside", "length"} - MESH_ONLY)
             W["point"] = v.vec(wl, "point", p, required=True)
             W["normal"] = v.unit(wl, "normal", p)
             ext = v.vec(wl, "extent", p, n=2, default=None)
@@ -590,7 +596,7 @@ def parse(data, file="<dict>", base_dir=".", end_time=None, comm="auto"):
             if np.linalg.norm(np.cross(om, W["normal"])) > 1e-12 * max(1.0, np.linalg.norm(om)):
                 v.err(p + ".angular_velocity", "a plane may only turn about its normal (its surface must stay in place)")
         else:
-            v.table(wl, p, WALL_KEYS - {"normal", "extent", "u_axis"})
+            v.table(wl, p, WALL_KEYS - {"normal", "extent", "u_axis"} - MESH_ONLY)
             W["point"] = v.vec(wl, "point", p, required=True)
             W["axis"] = v.unit(wl, "axis", p)
             W["radius"] = v.num(wl, "radius", p, lo=0, lo_open=True, required=True)
@@ -606,11 +612,13 @@ def parse(data, file="<dict>", base_dir=".", end_time=None, comm="auto"):
     if part is None:
         _check_periodic_length(v, lo, hi, periodic, r)
         _check_walls(v, walls, x, ids, periodic)
+        _check_meshes(v, walls, x, r, ids, sim["initial_overlap_ratio"])
         rmax = float(r.max())
     else:
         rmax = float(part.max(r.max(initial=0.0)))
         _check_periodic_length(v, lo, hi, periodic, np.array([rmax]))
         _check_walls(v, walls, x, ids, periodic, part, totals)
+        _check_meshes(v, walls, x, r, ids, sim["initial_overlap_ratio"], part, totals)
     o = v.table(data.get("output", {}), "output", OUTPUT_KEYS)
     output = dict(vtk=v.boolean(o, "vtk", "output", default=True))
     pa = v.table(data.get("parallel", {}), "parallel", PARALLEL_KEYS)
@@ -685,6 +693,8 @@ def _check_walls(v, walls, x, ids, periodic, part=None, totals=None):
         grow, n_all = totals["grow"], totals["n"]
     for k, w in enumerate(walls):
         p = f"walls[{k}]"
+        if w["type"] == "mesh":   # _check_meshes
+            continue
         if w["type"] == "plane":
             n = w["normal"]
             if w["extent"] is not None:
@@ -735,6 +745,62 @@ def _check_walls(v, walls, x, ids, periodic, part=None, totals=None):
                 v.err(p + ".inside", f"every particle lies inside the cylinder (radius {w['radius']:g} m "
                                      f"about {w['point'].tolist()}, axis {a.tolist()}) but inside = false "
                                      "keeps particles outside it; set inside = true or check radius and point")
+
+
+def _mesh_wall(v, wl, p, base_dir, lo, hi):
+    """A [[walls]] type = "mesh": its surface file (STL, ASCII or binary, or a format meshio
+    reads), placed by scale (a number or one per axis), rotate (degrees about x, y, z, in that
+    order) and translate (m), checked triangle by triangle (dem.contact.mesh)."""
+    from .contact.mesh import Surface, SLOTS
+    fname = v.string(wl, "file", p, required=True)
+    path = fname if os.path.isabs(fname) else os.path.join(base_dir, fname)
+    sc = wl.get("scale", 1.0)
+    if isinstance(sc, list):
+        scale = v.vec(wl, "scale", p)
+    else:
+        scale = v.num(wl, "scale", p, default=1.0, lo=0, lo_open=True)
+    if np.any(np.asarray(scale) <= 0):
+        v.err(p + ".scale", f"must be > 0 (one number, or one per axis), got {np.asarray(scale).tolist()}")
+    rotate = v.vec(wl, "rotate", p, default=np.zeros(3))
+    translate = v.vec(wl, "translate", p, default=np.zeros(3))
+    try:
+        surf = Surface(path, p + ".file", scale, rotate, translate)
+    except SceneError as e:
+        v.err(p + ".file", f"{fname}: {e.message}")
+    if np.any(surf.hi < lo) or np.any(surf.lo > hi):
+        v.err(p + ".file", f"{fname}: the mesh (from {surf.lo.tolist()} to {surf.hi.tolist()} after scale, "
+                           f"rotate and translate) does not reach the domain (from {np.asarray(lo).tolist()} to "
+                           f"{np.asarray(hi).tolist()}); check scale (the file's units: mm from CAD is "
+                           f"scale = 0.001) and translate")
+    return dict(file=fname, path=path, scale=np.asarray(scale, float).tolist() if np.ndim(scale) else float(scale),
+                rotate=rotate, translate=translate, surface=surf, slots=SLOTS, digest=surf.digest,
+                point=0.5 * (surf.lo + surf.hi))
+
+
+def _check_meshes(v, walls, x, r, ids, ratio, part=None, totals=None):
+    """No particle may start overlapping a mesh wall by more than initial_overlap_ratio of its
+    radius (the first in scene order named, with the triangle as numbered in the file). Under
+    MPI on this rank's rows, the first over the ranks agreed (dem.parallel.setup.SetupComm)."""
+    from .contact.mesh import nearest
+    for k, w in enumerate(walls):
+        if w["type"] != "mesh":
+            continue
+        s = w["surface"]
+        if len(x):
+            d, tri = nearest(x, r, s.verts, s.faces, s.bins(float(2.0 * r.max())))
+            bad = np.flatnonzero((r - d) > ratio * r)
+        else:
+            bad = np.zeros(0, np.int64)
+        q = int(bad[0]) if bad.size else None
+        key = None if q is None else (int(totals["grow"][q]) if part is not None else q)
+
+        def text(q=q, d=d if len(x) else None, tri=tri if len(x) else None):
+            return (f"{w['file']}: particle id {ids[q]} at {x[q].tolist()} (radius {r[q]:g} m) overlaps "
+                    f"triangle {int(tri[q]) + 1} by {(r[q] - d[q]) / r[q]:.3g} of its radius initially "
+                    f"(allowed: simulation.initial_overlap_ratio = {ratio}); move the particles or the mesh")
+        msg = part.agree(key, text) if part is not None else (None if q is None else text())
+        if msg is not None:
+            v.err(f"walls[{k}].file", msg)
 
 
 def _check_overlaps(v, sc):

@@ -4,7 +4,8 @@ Every array a run holds is declared here once, with what it needs:
 
 * ``owner``: ``particle`` (one row per particle, owned rows then ghosts; trailing axes may be
   per wall: ``W``), ``pair`` (one row per particle, one column per neighbour slot ``S``,
-  aligned with the half neighbour list ``nb``), ``wall`` (one row per wall), ``table``
+  aligned with the half neighbour list ``nb``), ``wall`` (one row per wall row: a mesh wall has
+  several, dem.contact.mesh), ``mesh`` (the triangle meshes, in the Walls bundle), ``table``
   (material and gas tables), ``param`` (switches, scalars, run totals);
 * ``dtype`` and ``tail`` (the shape after the first axis: numbers, ``"W"`` = one per wall,
   ``"Q"`` = one per wall candidate (as many as walls), ``"S"`` = neighbour slots, None = set by the
@@ -127,6 +128,9 @@ FIELDS = (
        doc="wall conductance per candidate (W/K; contact area for a fixed-flux wall)"),
     _f("Hwg", "particle", F8, ("Q",), when="indirect", checkpoint="th_Hwg",
        doc="the part of Hw across the gas gap (indirect conduction, W/K)"),
+    _f("mcon", "particle", F8, ("W", 4), when="mesh", checkpoint="mcon",
+       doc="contact with a mesh wall's row: distance from the centre (inf: none), unit normal towards the "
+           "surface (dem.contact.mesh.mesh_contacts; the normal is how the next step finds the same contact)"),
     # ---------------------------------------------------------------- pairs (neighbour slots)
     _f("nb", "pair", I4, ("S",), checkpoint="nb", doc="half neighbour list (row of the other particle)"),
     _f("nnb", "pair", I4, checkpoint="nnb", doc="used slots of each row"),
@@ -146,6 +150,21 @@ FIELDS = (
        doc="the part of wtot across the gas gap (indirect conduction, J); the rest went through the contacts"),
     _f("wrad", "wall", F8, (), checkpoint="th_wrad",
        doc="the part of wtot by radiation (a fixed-temperature wall with an emissivity, J)"),
+    # ---------------------------------------------------------------- triangle meshes (dem.contact.mesh)
+    # every mesh of the scene, concatenated, in its reference frame; set up from the scene, never
+    # saved (a restart reads the mesh files again and checks their digest: dem.checkpoint)
+    _f("mv", "mesh", F8, (3,), when="mesh", doc="vertices (m)"),
+    _f("mfc", "mesh", I8, (3,), when="mesh", doc="triangles: their three vertices"),
+    _f("mev", "mesh", I8, (3,), when="mesh", doc="triangles holding each edge (corner k to k + 1)"),
+    _f("mvv", "mesh", I8, when="mesh", doc="triangles holding each vertex"),
+    _f("mm", "mesh", F8, (None,), when="mesh", doc="per mesh: motion and bins (columns: dem.contact.mesh MM)"),
+    _f("mmi", "mesh", I8, (None,), when="mesh", doc="per mesh: rows and bins (columns: dem.contact.mesh MMI)"),
+    _f("mkeys", "mesh", I8, when="mesh", doc="occupied bins of each mesh, sorted"),
+    _f("mstart", "mesh", I8, when="mesh", doc="each mesh's bin k: triangles mitems[mstart[k0 + m + k]:... + 1]"),
+    _f("mitems", "mesh", I8, when="mesh", doc="the triangles of the bins"),
+    _f("mstamp", "mesh", I8, when="mesh", scratch=True, doc="search scratch: a tag per triangle, the last tag at the end"),
+    _f("mout", "mesh", I8, when="mesh", scratch=True, doc="search scratch: the candidate triangles"),
+    _f("mraw", "mesh", F8, (8,), when="mesh", scratch=True, doc="search scratch: the candidates' closest points"),
     # ---------------------------------------------------------------- tables
     _f("tab", "table", F8, (None, None), doc="pair tables E*, G*, damping, mu, mu_r, c_t/c_n [6, mat, mat] (slots: dem.step TAB)"),
     _f("tmat", "table", F8, (None,), doc="thermal material table (dem.thermal.registry)"),
@@ -175,21 +194,31 @@ def of(owner, kernel_only=False):
     return tuple(f for f in FIELDS if f.owner == owner and (f.kernel or not kernel_only))
 
 
+# the owners whose arrays each bundle holds (the meshes travel with the walls)
+BUNDLE_OWNERS = {"particle": ("particle",), "pair": ("pair",), "wall": ("wall", "mesh"),
+                 "table": ("table",), "param": ("param",)}
+
+
+def bundle_fields(owner):
+    """The declared arrays of the kernels' bundle of ``owner``, in bundle order."""
+    return tuple(f for o in BUNDLE_OWNERS[owner] for f in of(o, kernel_only=True))
+
+
 def _bundle(owner, doc):
-    t = namedtuple(owner.capitalize() + "s", [f.name for f in of(owner, kernel_only=True)])
+    t = namedtuple(owner.capitalize() + "s", [f.name for f in bundle_fields(owner)])
     t.__doc__ = doc
     return t
 
 
 Particles = _bundle("particle", "Per-particle arrays (owned rows, then ghosts) the kernels read and write.")
 Pairs = _bundle("pair", "Neighbour slots: the half list and every array aligned with it.")
-Walls = _bundle("wall", "Per-wall geometry, motion, thermal condition and totals.")
+Walls = _bundle("wall", "Per-wall geometry, motion, thermal condition and totals; the triangle meshes.")
 Tables = _bundle("table", "Material-pair and gas tables.")
 Params = _bundle("param", "Switches, scalars, domain and run totals.")
 
 # what enables an array; a feature a scene does not name is off
 FEATURES = ("heat", "fluid", "fluid_torque", "virtual_mass", "epsd", "contact_age", "friction_heat",
-            "group_sources", "indirect", "radiation", "coarse_graining")
+            "group_sources", "indirect", "radiation", "coarse_graining", "mesh")
 
 
 # features a coupling sets before each interval (its arrays are not checkpointed: the coupling

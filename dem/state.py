@@ -120,7 +120,7 @@ class State:
         array is replaced: an MPI step asks for them several times)."""
         b = self.__dict__.get("_bundles")
         if b is None:
-            b = tuple(B(*[getattr(self, f.name) for f in S.of(owner, kernel_only=True)])
+            b = tuple(B(*[getattr(self, f.name) for f in S.bundle_fields(owner)])
                       for B, owner in ((S.Particles, "particle"), (S.Pairs, "pair"), (S.Walls, "wall"),
                                        (S.Tables, "table"), (S.Params, "param")))
             self.__dict__["_bundles"] = b

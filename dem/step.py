@@ -28,7 +28,8 @@ from .contact.hertz_mindlin import hertz_mindlin
 from .contact.linear import linear_spring_dashpot
 from .contact.rolling import constant_torque, epsd
 from .contact.tangential import luding_2008_turn, silbert_2001_turn, TANGENTIAL_PROJECTED
-from .contact.walls import wall_distance, wall_velocity, WI
+from .contact.walls import wall_distance, wall_velocity, particle_wall, WI, MESH
+from .contact.mesh import mesh_contacts, mesh_near, MMI
 from .blocks import block_bounds, block_count, cross_counts, keep_cross_counts, kept_cross_counts
 from .neighbors import build_half_list, Box, adaptive_skin, pairs_beyond
 from .schema import Pairs, XC, slots
@@ -52,7 +53,8 @@ IP = slots("IP", (
                    "LAMMPS / LIGGGHTS; dem.contact.tangential)"),
     ("autoskin", "1: the skin chosen at each build (neighbor_skin = \"auto\", dem.neighbors.adaptive_skin); "
                  "0: the scene's"),
-), size=8)
+    ("nmesh", "triangle-mesh walls (dem.contact.mesh; each is WI rows of type MESH)"),
+), size=12)
 # float parameters (Params.fp)
 FP = slots("FP", (
     ("dt", "time step (s)"),
@@ -194,7 +196,7 @@ def _rotate_history(h, i, s, ux, uy, uz, inv_u2, ton):
 @njit(cache=True, error_model="numpy")
 def full_form(ip, thi, periodic):
     """Whether a scene needs the full form of the interact phase (``xon`` = True): rolling
-    resistance, a periodic direction, or with heat the models the lean form (``xon`` = None)
+    resistance, a periodic direction, a triangle-mesh wall, or with heat the models the lean form (``xon`` = None)
     leaves out: indirect conduction, radiation, frictional heating, contact age, a direct
     conduction law other than Batchelor & O'Brien (the default), and the contact radii that are
     not a pair constant times sqrt(R* delta) or the geometric radius
@@ -205,7 +207,7 @@ def full_form(ip, thi, periodic):
     interact phase about 10 % faster (docs/notebook.md, "The lean form of the contact loops").
     dem.stepper.Stepper.xon asks this; dem.step.compute_forces refuses the lean form for a
     scene that needs the full one."""
-    if ip[IP.rolling] != 0 or periodic[0] or periodic[1] or periodic[2]:
+    if ip[IP.rolling] != 0 or periodic[0] or periodic[1] or periodic[2] or ip[IP.nmesh] > 0:
         return True
     if thi[TI.heat] == 0:
         return False
@@ -601,7 +603,10 @@ def interact_rows(P, C, W, TB, prm, n, t, hon, xon, ton, blk):
         mi = np.uint32(mat[i])
         for q in range(wnn[i]):
             wl = np.uint32(wnb[i, q])
-            dist, nx, ny, nz = wall_distance(wf, wi, wl, x[i, 0], x[i, 1], x[i, 2], t)
+            if xon is not None:   # a mesh row's contact is the particle's own (P.mcon)
+                dist, nx, ny, nz = particle_wall(wf, wi, P.mcon, wl, i, x[i, 0], x[i, 1], x[i, 2], t)
+            else:
+                dist, nx, ny, nz = wall_distance(wf, wi, wl, x[i, 0], x[i, 1], x[i, 2], t)
             if not (dist < ri) or dist < -ri:
                 whist[i, wl, 0] = 0.0
                 whist[i, wl, 1] = 0.0
@@ -614,7 +619,7 @@ def interact_rows(P, C, W, TB, prm, n, t, hon, xon, ton, blk):
                     if xon is not None and use_age:
                         wage[i, wl, 0] = 0.0
                     hw = 0.0
-                    if xon is not None and imodel >= 0 and wth[wl, WT.cond] == 1.0 and dist >= ri:
+                    if xon is not None and imodel >= 0 and wth[wl, WT.cond] == 1.0 and ri <= dist < math.inf:
                         if has_cg:
                             c = cgv[i]
                             hw = c * c * indirect_pw(imodel, ri / c, dist / c, 0.0, mi, np.int32(wi[wl, WI.mat]),
@@ -840,6 +845,9 @@ def compute_forces(P, C, W, TB, prm, n, t, hon, xon, ton):
     if (ton is not None) != (prm.ip[IP.tangential] == TANGENTIAL_PROJECTED):
         raise ValueError("internal error: the interact phase was compiled for the other tangential model "
                          "than the scene's (ip[IP.tangential], dem.stepper.Stepper.ton)")
+    if xon is not None and prm.ip[IP.nmesh] > 0:   # the mesh walls' contacts of this step
+        mesh_contacts(P, W, prm.ip[IP.nown], prm.fp[FP.reach], t, prm.ip[IP.rolling] == 2,
+                      P.wage.shape[0] > 0)
     nblk = blocks(prm.ip)
     if nblk == 1:
         maxov, who_i, who_j, ncont, e_dir, e_ind, e_wall, _ = interact_rows(
@@ -858,12 +866,30 @@ def compute_forces(P, C, W, TB, prm, n, t, hon, xon, ton):
 
 
 @njit(cache=True, error_model="numpy")
-def build_wall_list(x, r, n, wf, wi, nwalls, reach, t, wnb, wnn, whist, wrhist):
-    """Walls within reach of each particle; histories of the others are cleared."""
+def build_wall_list(x, r, n, W, nwalls, reach, t, wnb, wnn, whist, wrhist, mcon):
+    """Walls within reach of each particle; histories of the others are cleared. A mesh wall's
+    rows are listed together, when a point of its surface is within reach (dem.contact.mesh);
+    without, their contact records end (``mcon``)."""
+    wf, wi = W.wf, W.wi
     rolling = wrhist.shape[0] > 0
     for i in range(n):
         c = 0
+        near = False
         for wl in range(nwalls):
+            if wi[wl, WI.type] == MESH:
+                m = wi[wl, WI.mesh]
+                if wl == W.mmi[m, MMI.row0]:   # the mesh's first row decides for all of them
+                    near = mesh_near(W, m, x[i, 0], x[i, 1], x[i, 2], r[i] + reach, t)
+                if near:
+                    wnb[i, c] = wl
+                    c += 1
+                else:
+                    mcon[i, wl, 0] = math.inf
+                    for k in range(3):
+                        whist[i, wl, k] = 0.0
+                        if rolling:
+                            wrhist[i, wl, k] = 0.0
+                continue
             dist, nx, ny, nz = wall_distance(wf, wi, wl, x[i, 0], x[i, 1], x[i, 2], t)
             if dist < r[i] + reach and dist > -r[i]:
                 wnb[i, c] = wl
@@ -1086,8 +1112,8 @@ def after_build(P, C, W, prm, n, nown, t, carry):
             rhist = np.zeros(hist.shape)
         if heat and thi[TI.age] != 0:
             age = np.zeros((nb.shape[0], nb.shape[1], 2))
-    build_wall_list(x, P.radius, nown, W.wf, W.wi, ip[IP.nwalls], fp[FP.reach] + fp[FP.skin], t, P.wnb, P.wnn,
-                    P.whist, P.wrhist)
+    build_wall_list(x, P.radius, nown, W, ip[IP.nwalls], fp[FP.reach] + fp[FP.skin], t, P.wnb, P.wnn,
+                    P.whist, P.wrhist, P.mcon)
     if ip[IP.autoskin] != 0:  # what the skin alone brought into the list (a serial run's gap density;
         # a run on several ranks sums nfar and the owned rows over the ranks: dem.stepper)
         nfar = pairs_beyond(x, P.radius, nb, nnb, nown, prm.lo, prm.hi, prm.periodic, fp[FP.reach])

@@ -260,7 +260,8 @@ class Stepper:
         where = f"at t = {w.time:.9g} s (step {w.step_count})"
         pos = np.array2string(st.position[i], precision=6)
         if status == K.OVERLAP:
-            other = f"wall {w.scene.walls[-1 - j]['name']}" if j < 0 else f"particle id {int(st.id[j])}"
+            other = (f"wall {w.scene.walls[int(w.wall_of_row[-1 - j])]['name']}" if j < 0
+                     else f"particle id {int(st.id[j])}")
             return (f"particle id {pid} at {pos} and {other} overlap by {value:.3g} of the radius {where}, "
                     f"beyond simulation.max_overlap_ratio = {st.fp[K.FP.maxov]:g}. Lower time_step "
                     f"(now {dt:g} s), raise youngs_modulus, or lower the impact speeds")

@@ -32,9 +32,10 @@ class World:
         self.time = 0.0
         self.end_time = sim["end_time"]
         mats = scene.materials
+        self.wall_first, self.wall_of_row = W.wall_rows(scene.walls)   # a mesh wall is several rows
         self.state = st = State(scene.id, scene.position, scene.velocity, scene.angular_velocity,
                                 scene.radius, scene.material, scene.group, [m["density"] for m in mats],
-                                walls=len(scene.walls))
+                                walls=self.wall_of_row.size)
         cgs = parcel_factors(scene)
         if cgs is not None:   # cg = 1 everywhere: exactly the run without
             st.enable(coarse_graining=True)
@@ -48,9 +49,15 @@ class World:
                 st.position[:, k] = st.lo[k] + np.mod(st.position[:, k] - st.lo[k], L[k])
         st.tab, self.pair_tables = pair_tables(scene)
         st.wf, st.wi = wall_tables(scene.walls)
-        self.nwalls = len(scene.walls)
+        self.nwalls = int(self.wall_of_row.size)   # wall rows (the kernels' walls)
+        self.nmeshes = sum(w["type"] == "mesh" for w in scene.walls)
         st.enable(epsd=ROLLING_MODELS[scene.contact["rolling"]] == 2)
-        self.wall_speed = max([float(np.linalg.norm(w["velocity"])) for w in scene.walls], default=0.0)
+        if self.nmeshes:
+            st.enable(mesh=True)
+            st.mcon[:, :, 0] = math.inf
+            mesh_tables(st, scene.walls, 2.0 * float(getattr(scene, "rmax", 0.0) or st.radius.max(initial=0.0))
+                        + float(scene.simulation["neighbor_skin"]))
+        self.wall_speed = max([wall_surface_speed(w) for w in scene.walls], default=0.0)
         st.ip, st.fp = self._params()
         self.thermal = None
         if scene.thermal is not None:
@@ -79,6 +86,7 @@ class World:
         ip[K.IP.rolling] = ROLLING_MODELS[sc.contact["rolling"]]
         ip[K.IP.tangential] = TANGENTIAL_MODELS[sc.contact["tangential"]]
         ip[K.IP.nwalls] = self.nwalls
+        ip[K.IP.nmesh] = self.nmeshes
         ip[K.IP.mech] = 1 if sc.simulation["mechanics"] else 0
         ip[K.IP.nown] = self.state.n_owned
         ip[K.IP.threads] = 1
@@ -155,18 +163,85 @@ def pair_tables(scene):
     return np.ascontiguousarray(tab), t
 
 
+def wall_surface_speed(w):
+    """The fastest a wall's surface moves towards a particle (m/s, the rebuild test): its
+    translation, and for a turning mesh the rotation at its farthest vertex (a plane or a
+    cylinder turns within its own surface)."""
+    v = float(np.linalg.norm(w["velocity"]))
+    if w["type"] == "mesh":
+        s = w["surface"]
+        v += float(np.linalg.norm(w["angular_velocity"])) * float(
+            np.max(np.linalg.norm(s.verts - w["rotation_center"], axis=1), initial=0.0))
+    return v
+
+
+def mesh_tables(st, walls, cell):
+    """The Walls bundle's mesh arrays (dem.schema owner "mesh"): every mesh wall's vertices,
+    faces, valences and triangle bins (cubes of ``cell``, the particles' cell size) concatenated,
+    its motion and rows (dem.contact.mesh MM, MMI)."""
+    from .contact.mesh import MM, MMI
+    first, _ = W.wall_rows(walls)
+    meshes = [(k, w) for k, w in enumerate(walls) if w["type"] == "mesh"]
+    nm = len(meshes)
+    mm = np.zeros((nm, MM.SIZE))
+    mmi = np.zeros((nm, MMI.SIZE), np.int64)
+    mv, mfc, mev, mvv, keys, start, items = [], [], [], [], [], [], []
+    nv = nt = nk = ni = 0
+    for m, (k, w) in enumerate(meshes):
+        s = w["surface"]
+        lo, c, dims, bk, bs, bi = s.bins(float(cell))
+        mm[m, MM.vx:MM.vx + 3] = w["velocity"]
+        mm[m, MM.ox:MM.ox + 3] = w["angular_velocity"]
+        mm[m, MM.cx:MM.cx + 3] = w["rotation_center"]
+        mm[m, MM.lo:MM.lo + 3] = lo
+        mm[m, MM.cell] = c
+        mmi[m, MMI.row0] = first[k]
+        mmi[m, MMI.nslot] = w["slots"]
+        mmi[m, MMI.dims:MMI.dims + 3] = dims
+        mmi[m, MMI.k0] = nk
+        mmi[m, MMI.nk] = len(bk)
+        mv.append(s.verts)
+        mfc.append(s.faces + nv)
+        mev.append(s.edge_val)
+        mvv.append(s.vert_val)
+        keys.append(bk)
+        start.append(bs + ni)
+        items.append(bi + nt)
+        nv += len(s.verts)
+        nt += len(s.faces)
+        nk += len(bk)
+        ni += len(bi)
+    cat = lambda a, dt: np.ascontiguousarray(np.concatenate(a).astype(dt))   # noqa: E731
+    st.mv, st.mfc, st.mev, st.mvv = cat(mv, float), cat(mfc, np.int64), cat(mev, np.int64), cat(mvv, np.int64)
+    st.mkeys, st.mstart, st.mitems = cat(keys, np.int64), cat(start, np.int64), cat(items, np.int64)
+    st.mm, st.mmi = mm, mmi
+    st.mstamp = np.zeros(nt + 1, np.int64)
+    st.mout = np.empty(nt, np.int64)
+    st.mraw = np.empty((nt, 8))
+
+
 def wall_tables(walls):
-    """(wf[n, WF.SIZE], wi[n, WI.SIZE]) of the scene's walls (one empty row without walls)."""
-    nw = len(walls)
+    """(wf[n, WF.SIZE], wi[n, WI.SIZE]) of the scene's wall rows (one empty row without walls):
+    a plane or a cylinder is one row, a mesh wall its ``slots`` rows (dem.contact.walls.wall_rows)."""
+    first, owner = W.wall_rows(walls)
+    nw = owner.size
     wf = np.zeros((max(nw, 1), W.WF.SIZE))
     wi = np.zeros((max(nw, 1), W.WI.SIZE), np.int64)
-    for k, w in enumerate(walls):
+    wi[:, W.WI.mesh] = -1
+    m = 0
+    for row, kw in enumerate(owner):
+        k, w = row, walls[kw]
         wf[k, W.WF.px:W.WF.px + 3] = w["point"]
         wf[k, W.WF.vx:W.WF.vx + 3] = w["velocity"]
         wf[k, W.WF.ox:W.WF.ox + 3] = w["angular_velocity"]
         wf[k, W.WF.cx:W.WF.cx + 3] = w["rotation_center"]
         wi[k, W.WI.mat] = w["material"]
-        if w["type"] == "plane":
+        if w["type"] == "mesh":
+            wi[k, W.WI.type] = W.MESH
+            wi[k, W.WI.mesh] = m
+            if row == first[kw] + w["slots"] - 1:
+                m += 1
+        elif w["type"] == "plane":
             wi[k, W.WI.type] = W.PLANE
             wf[k, W.WF.nx:W.WF.nx + 3] = w["normal"]
             wf[k, W.WF.ux:W.WF.ux + 3] = w["u_axis"]

@@ -16,6 +16,8 @@ import os
 
 import numpy as np
 
+from .contact.walls import per_wall
+
 from . import schema as S
 from .output import OutputError
 from .thermal.kernel import MECHANISMS as THERMAL_MECHANISMS
@@ -113,7 +115,7 @@ class Writers:
         if th is not None:
             T = st.temperature[:n]
             vals += [float(np.sum(T / st.inv_heat_capacity[:n])), float(T.sum())]
-            vals += list(th.tot[:len(THERMAL_MECHANISMS)]) + list(th.wtot[:len(w.scene.walls)])
+            vals += list(th.tot[:len(THERMAL_MECHANISMS)]) + list(per_wall(th.wtot, w.scene.walls))
         tot = p.allsum(np.array(vals))
         row = dict(time=w.time, kinetic_energy=tot[0], rotational_energy=tot[1],
                    contacts=int(tot[2]) // 2, max_overlap_ratio=p.allmax(maxov))
@@ -141,11 +143,12 @@ class Writers:
         """Heat through each wall since the start (J), summed over the ranks (collective):
         [n_walls, 3] of (all paths, across the gas gap, by radiation); None without heat or
         walls."""
-        nw = len(self.world.scene.walls)
+        walls = self.world.scene.walls
+        nw = len(walls)
         if self.world.thermal is None or nw == 0:
             return None
         st = self.state
-        a = np.c_[st.wtot[:nw], st.wgap[:nw], st.wrad[:nw]].astype(float)
+        a = np.c_[per_wall(st.wtot, walls), per_wall(st.wgap, walls), per_wall(st.wrad, walls)].astype(float)
         if self.par is not None:
             a = np.asarray(self.par.allsum(a.ravel()), float).reshape(nw, 3)
         return a

@@ -34,6 +34,8 @@ import numpy as np
 from numba import njit
 
 from ..errors import SceneError
+from ..schema import slots
+from .walls import WI
 
 FACE, EDGE, VERTEX = 0, 1, 2
 
@@ -391,8 +393,13 @@ def near_triangles(p, reach, bins, stamp, tag, out):
     p +- reach overlaps), each once, into ``out``; returns how many (at most out.size; -1 when
     more would not fit). ``stamp`` (one int per triangle) marks those taken with ``tag``: a
     caller passes a new tag for each query, so nothing is cleared between them."""
+    return near_xyz(p[0], p[1], p[2], reach, bins, stamp, tag, out)
+
+
+@njit(cache=True, error_model="numpy")
+def near_xyz(px, py, pz, reach, bins, stamp, tag, out):
+    """:func:`near_triangles` of the point (px, py, pz)."""
     lo, cell, dims, keys, start, items = bins
-    px, py, pz = p[0], p[1], p[2]
     n = 0
     j0 = np.int64(math.floor((px - reach - lo[0]) / cell))
     j1 = np.int64(math.floor((px + reach - lo[0]) / cell))
@@ -447,3 +454,286 @@ def write_stl(path, tris, binary=True, name="thermodem"):
     lines.append(f"endsolid {name}")
     with open(path, "w") as fh:
         fh.write("\n".join(lines) + "\n")
+
+
+# --------------------------------------------------------------------------- in the step
+#
+# A mesh wall is ``nslot`` consecutive wall rows (dem.world.wall_tables): one row per contact
+# the sphere may have with the mesh at once (a concave corner of three faces has three), so that
+# every per-wall array of a plane (the tangential and rolling springs, the contact age, the
+# conductance and the heat totals: dem.schema) serves a mesh contact unchanged. The geometry of
+# each row's contact is per particle: dem.schema ``mcon`` (distance, unit normal towards the
+# surface; distance inf: no contact in that row), written before each force evaluation by
+# :func:`mesh_contacts`. Triangles are in the mesh's reference frame (its place at t = 0); the
+# frame moves rigidly: x = C + V t + R(Omega t) (X - C).
+
+# per-mesh floats (Walls.mm) and ints (Walls.mmi)
+MM = slots("MM", (
+    ("vx", 3, "translational velocity V (m/s)"),
+    ("ox", 3, "angular velocity Omega (rad/s)"),
+    ("cx", 3, "centre of the rotation C (m, at t = 0)"),
+    ("lo", 3, "lower corner of the triangle bins (reference frame)"),
+    ("cell", "bin size (m)"),
+))
+MMI = slots("MMI", (
+    ("row0", "first wall row of the mesh"),
+    ("nslot", "wall rows (contacts at once) of the mesh"),
+    ("dims", 3, "bins along x, y, z"),
+    ("k0", "first of the mesh's occupied bins in mkeys"),
+    ("nk", "occupied bins"),
+))
+MATCH_COS = 0.5   # a contact keeps its row (and its spring) when its normal turned less than 60 degrees
+KMAX = 16         # contacts of one sphere with one mesh examined at once (the nslot nearest are kept)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _turn(ox, oy, oz, t, vx, vy, vz, sign):
+    """R(sign Omega t) v (Rodrigues)."""
+    ax, ay, az = ox * t * sign, oy * t * sign, oz * t * sign
+    th = math.sqrt(ax * ax + ay * ay + az * az)
+    if th == 0.0:
+        return vx, vy, vz
+    kx, ky, kz = ax / th, ay / th, az / th
+    c = math.cos(th)
+    s = math.sin(th)
+    d = (kx * vx + ky * vy + kz * vz) * (1.0 - c)
+    return (vx * c + (ky * vz - kz * vy) * s + kx * d,
+            vy * c + (kz * vx - kx * vz) * s + ky * d,
+            vz * c + (kx * vy - ky * vx) * s + kz * d)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def to_mesh_frame(mm, m, x0, x1, x2, t):
+    """A point at time t in the reference frame of mesh m: X = C + R(-Omega t) (x - C - V t)."""
+    cx = mm[m, MM.cx] + mm[m, MM.vx] * t
+    cy = mm[m, MM.cx + 1] + mm[m, MM.vx + 1] * t
+    cz = mm[m, MM.cx + 2] + mm[m, MM.vx + 2] * t
+    rx, ry, rz = _turn(mm[m, MM.ox], mm[m, MM.ox + 1], mm[m, MM.ox + 2], t, x0 - cx, x1 - cy, x2 - cz, -1.0)
+    return mm[m, MM.cx] + rx, mm[m, MM.cx + 1] + ry, mm[m, MM.cx + 2] + rz
+
+
+@njit(cache=True, error_model="numpy")
+def mesh_bins(W, m):
+    """The bins of mesh m as :func:`near_triangles` reads them."""
+    k0 = W.mmi[m, MMI.k0]
+    nk = W.mmi[m, MMI.nk]
+    return (W.mm[m, MM.lo:MM.lo + 3], W.mm[m, MM.cell], W.mmi[m, MMI.dims:MMI.dims + 3],
+            W.mkeys[k0:k0 + nk], W.mstart[k0 + m:k0 + m + nk + 1], W.mitems)
+
+
+@njit(cache=True, error_model="numpy")
+def _query(W, m, px, py, pz, reach):
+    """The candidate triangles of mesh m within reach of the reference-frame point p, into
+    W.mout; returns how many."""
+    stamp = W.mstamp
+    tag = stamp[stamp.shape[0] - 1] + 1
+    stamp[stamp.shape[0] - 1] = tag
+    return near_xyz(px, py, pz, reach, mesh_bins(W, m), stamp, tag, W.mout)
+
+
+@njit(cache=True, error_model="numpy")
+def mesh_near(W, m, x0, x1, x2, reach, t):
+    """Whether a surface point of mesh m lies within ``reach`` of the point x at time t."""
+    px, py, pz = to_mesh_frame(W.mm, m, x0, x1, x2, t)
+    nt = _query(W, m, px, py, pz, reach)
+    verts, faces = W.mv, W.mfc
+    for q in range(nt):
+        tr = W.mout[q]
+        a = faces[tr, 0]
+        b = faces[tr, 1]
+        c = faces[tr, 2]
+        qx, qy, qz, _, _ = closest_on_triangle(px, py, pz, verts[a, 0], verts[a, 1], verts[a, 2],
+                                               verts[b, 0], verts[b, 1], verts[b, 2],
+                                               verts[c, 0], verts[c, 1], verts[c, 2])
+        if (qx - px) ** 2 + (qy - py) ** 2 + (qz - pz) ** 2 < reach * reach:
+            return True
+    return False
+
+
+@njit(cache=True, error_model="numpy")
+def mesh_contacts(P, W, nown, reach, t, rolling, age):
+    """Before a force evaluation: the contacts of each owned particle with each mesh wall in
+    its wall list (surface points within its radius + ``reach``, the heat models' range), the
+    ``nslot`` nearest, each into the wall row whose previous contact's normal is closest to
+    its own (within 60 degrees: the same contact, sliding or rolling from one triangle to the
+    next, keeps its spring); a new contact takes a free row, whose springs start at zero.
+    Writes P.mcon (rows without a contact: distance inf)."""
+    mcon, wnb, wnn, whist, wrhist, wage, x, r = P.mcon, P.wnb, P.wnn, P.whist, P.wrhist, P.wage, P.position, P.radius
+    wi, mm, mmi = W.wi, W.mm, W.mmi
+    cbuf = np.empty((KMAX, 8))
+    used = np.zeros(KMAX, np.bool_)
+    slot = np.empty(KMAX, np.int64)
+    for i in range(nown):
+        for q in range(wnn[i]):
+            wl = wnb[i, q]
+            m = wi[wl, WI.mesh]      # -1 for a plane or a cylinder
+            if m < 0 or wl != mmi[m, MMI.row0]:
+                continue
+            row0 = mmi[m, MMI.row0]
+            ns = mmi[m, MMI.nslot]
+            px, py, pz = to_mesh_frame(mm, m, x[i, 0], x[i, 1], x[i, 2], t)
+            cut = r[i] + reach
+            nt = _query(W, m, px, py, pz, cut)
+            k = sphere_contacts(px, py, pz, cut, W.mv, W.mfc, W.mev, W.mvv, W.mout, nt, W.mraw, cbuf)
+            # the nearest first (insertion sort: k is a few)
+            for a in range(1, k):
+                b = a
+                while b > 0 and cbuf[b, 0] < cbuf[b - 1, 0]:
+                    for j in range(8):
+                        tmp = cbuf[b, j]
+                        cbuf[b, j] = cbuf[b - 1, j]
+                        cbuf[b - 1, j] = tmp
+                    b -= 1
+            k = min(k, ns)
+            ox, oy, oz = mm[m, MM.ox], mm[m, MM.ox + 1], mm[m, MM.ox + 2]
+            for c in range(k):   # normals back to the world frame
+                nx, ny, nz = _turn(ox, oy, oz, t, cbuf[c, 1], cbuf[c, 2], cbuf[c, 3], 1.0)
+                cbuf[c, 1] = nx
+                cbuf[c, 2] = ny
+                cbuf[c, 3] = nz
+                slot[c] = -1
+            for s in range(ns):
+                used[s] = False
+            for _ in range(k):   # greedy: the best-aligned (contact, row) pair first
+                best = MATCH_COS
+                bc = -1
+                bs = -1
+                for c in range(k):
+                    if slot[c] >= 0:
+                        continue
+                    for s in range(ns):
+                        if used[s] or not mcon[i, row0 + s, 0] < math.inf:
+                            continue
+                        d = (cbuf[c, 1] * mcon[i, row0 + s, 1] + cbuf[c, 2] * mcon[i, row0 + s, 2]
+                             + cbuf[c, 3] * mcon[i, row0 + s, 3])
+                        if d > best:
+                            best = d
+                            bc = c
+                            bs = s
+                if bc < 0:
+                    break
+                slot[bc] = bs
+                used[bs] = True
+            for c in range(k):   # new contacts: a row that had none, else one whose contact ended
+                if slot[c] >= 0:
+                    continue
+                pick = -1
+                for s in range(ns):
+                    if not used[s] and not mcon[i, row0 + s, 0] < math.inf:
+                        pick = s
+                        break
+                if pick < 0:
+                    for s in range(ns):
+                        if not used[s]:
+                            pick = s
+                            break
+                rw = row0 + pick
+                for j in range(3):
+                    whist[i, rw, j] = 0.0
+                    if rolling:
+                        wrhist[i, rw, j] = 0.0
+                if age:
+                    wage[i, rw, 0] = 0.0
+                    wage[i, rw, 1] = 0.0
+                slot[c] = pick
+                used[pick] = True
+            for s in range(ns):
+                if not used[s]:
+                    mcon[i, row0 + s, 0] = math.inf
+            for c in range(k):
+                rw = row0 + slot[c]
+                for j in range(4):
+                    mcon[i, rw, j] = cbuf[c, j]
+
+
+@njit(cache=True, error_model="numpy")
+def _nearest(x, reach, verts, faces, bins, stamp, out):
+    """For each point of x (n, 3): the distance to the nearest surface point within reach[i] and
+    its triangle (inf, -1: none)."""
+    n = x.shape[0]
+    d = np.full(n, math.inf)
+    tri = np.full(n, -1, np.int64)
+    for i in range(n):
+        nt = near_triangles(x[i], reach[i], bins, stamp, i + 1, out)
+        for q in range(nt):
+            t = out[q]
+            a = faces[t, 0]
+            b = faces[t, 1]
+            c = faces[t, 2]
+            qx, qy, qz, _, _ = closest_on_triangle(x[i, 0], x[i, 1], x[i, 2], verts[a, 0], verts[a, 1], verts[a, 2],
+                                                   verts[b, 0], verts[b, 1], verts[b, 2],
+                                                   verts[c, 0], verts[c, 1], verts[c, 2])
+            e = math.sqrt((qx - x[i, 0]) ** 2 + (qy - x[i, 1]) ** 2 + (qz - x[i, 2]) ** 2)
+            if e < d[i]:
+                d[i] = e
+                tri[i] = t
+    return d, tri
+
+
+def nearest(x, reach, verts, faces, bins):
+    """(distance, triangle) of each point of x (n, 3) to the mesh, looked for within reach (n,)
+    (inf and -1 beyond)."""
+    x = np.ascontiguousarray(x, float).reshape(-1, 3)
+    reach = np.ascontiguousarray(np.broadcast_to(np.asarray(reach, float), (x.shape[0],)))
+    stamp = np.zeros(faces.shape[0], np.int64)
+    out = np.empty(faces.shape[0], np.int64)
+    return _nearest(x, reach, verts, faces, bins, stamp, out)
+
+
+def mesh_frame_points(w, x, t):
+    """Points x (n, 3) at time t in the reference frame of scene mesh wall ``w`` (as
+    :func:`to_mesh_frame`, for many points, in Python)."""
+    c = np.asarray(w["rotation_center"], float)
+    rel = np.asarray(x, float) - c - np.asarray(w["velocity"], float) * t
+    a = -np.asarray(w["angular_velocity"], float) * t
+    th = float(np.linalg.norm(a))
+    if th == 0.0:
+        return c + rel
+    k = a / th
+    return c + (rel * math.cos(th) + np.cross(k, rel) * math.sin(th)
+                + np.outer(rel @ k, k) * (1.0 - math.cos(th)))
+
+
+SLOTS = 4   # wall rows of a mesh: the contacts a sphere keeps with one mesh at once (a corner of
+            # three faces has three; a fourth for a vertex where more faces meet)
+
+
+class Surface:
+    """One mesh wall as the scene reads it: its welded vertices and faces (reference frame: its
+    place at t = 0), edge and vertex valences, area and bounding box, and a digest of the
+    triangles (what a restart compares)."""
+
+    def __init__(self, path, key, scale=1.0, rotate=(0.0, 0.0, 0.0), translate=(0.0, 0.0, 0.0)):
+        import hashlib
+        tris = place(read_triangles(path, key), scale, rotate, translate)
+        self.verts, self.faces = check_triangles(tris, path, key)
+        self.edge_val, self.vert_val = valences(self.faces, len(self.verts))
+        a, b, c = (self.verts[self.faces[:, k]] for k in range(3))
+        self.area = float(0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1).sum())
+        self.lo = self.verts.min(axis=0)
+        self.hi = self.verts.max(axis=0)
+        self.n_triangles = len(self.faces)
+        self.digest = hashlib.sha256(np.ascontiguousarray(tris).tobytes()).hexdigest()[:16]
+        self._bins = {}
+
+    def bins(self, cell):
+        if cell not in self._bins:
+            self._bins[cell] = bin_triangles(self.verts, self.faces, cell)
+        return self._bins[cell]
+
+
+@njit(cache=True, error_model="numpy")
+def mesh_caps(W, m, x0, x1, x2, rm, t):
+    """The volume the surface of mesh m cuts off the sphere of radius rm about x at time t: a
+    cap per contact (the tangent plane at each of the ``nslot`` nearest contacts of
+    :func:`mesh_contacts`), as a plane wall's (dem.thermal.heat.local_porosity)."""
+    px, py, pz = to_mesh_frame(W.mm, m, x0, x1, x2, t)
+    nt = _query(W, m, px, py, pz, rm)
+    cbuf = np.empty((KMAX, 8))
+    k = sphere_contacts(px, py, pz, rm, W.mv, W.mfc, W.mev, W.mvv, W.mout, nt, W.mraw, cbuf)
+    d = np.sort(cbuf[:k, 0])
+    v = 0.0
+    for c in range(min(k, W.mmi[m, MMI.nslot])):
+        h = rm - d[c]
+        v += math.pi * h * h * (3.0 * rm - h) / 3.0
+    return v

@@ -3,9 +3,14 @@ cylinders (particles inside or outside, optionally finite), moving with a consta
 translational velocity and/or a surface rotation about an axis that leaves the surface
 invariant (a drum turning about its axis, an end plate turning about its normal).
 
-Walls are rows of a float array ``wf`` (columns below) and an int array ``wi``.
+Walls are rows of a float array ``wf`` (columns below) and an int array ``wi``. A triangle-mesh
+wall is several rows of type MESH (one per contact at once, dem.contact.mesh): their geometry is
+per particle (dem.schema ``mcon``), so :func:`wall_distance` has none for them (inf); their
+motion columns (vx, ox, cx) are the mesh's, so :func:`wall_velocity` serves them.
 """
 import math
+
+import numpy as np
 from numba import njit
 
 from ..schema import slots
@@ -25,10 +30,11 @@ WF = slots("WF", (
 ))
 # int columns (Walls.wi)
 WI = slots("WI", (
-    ("type", "PLANE or CYLINDER"),
+    ("type", "PLANE, CYLINDER or MESH"),
     ("mat", "material index"),
+    ("mesh", "the mesh of a MESH row (dem.contact.mesh; -1 for a plane or a cylinder)"),
 ))
-PLANE, CYLINDER = 0, 1
+PLANE, CYLINDER, MESH = 0, 1, 2
 
 
 @njit(cache=True, error_model="numpy")
@@ -68,6 +74,8 @@ def wall_distance(wf, wi, w, x0, x1, x2, t):
             sg = 1.0 if s >= 0 else -1.0
             return 0.0, -sg * ax, -sg * ay, -sg * az
         return d, -dx / d, -dy / d, -dz / d
+    if wi[w, WI.type] == MESH:   # per particle: dem.schema mcon
+        return math.inf, 0.0, 0.0, 1.0
     # cylinder
     half = wf[w, WF.eu]
     if abs(s) > half:
@@ -82,6 +90,15 @@ def wall_distance(wf, wi, w, x0, x1, x2, t):
     return side * (wf[w, WF.rad] - rho), side * qx / rho, side * qy / rho, side * qz / rho
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def particle_wall(wf, wi, mcon, w, i, x0, x1, x2, t):
+    """:func:`wall_distance` of particle i (centre x) and wall row w, a mesh row's from the
+    particle's own contact record ``mcon`` (dem.schema; dem.contact.mesh.mesh_contacts)."""
+    if wi[w, WI.type] == MESH:
+        return mcon[i, w, 0], mcon[i, w, 1], mcon[i, w, 2], mcon[i, w, 3]
+    return wall_distance(wf, wi, w, x0, x1, x2, t)
+
+
 @njit(cache=True, error_model="numpy")
 def wall_velocity(wf, w, cx, cy, cz, t):
     """Velocity of the wall surface at point c: V + Omega x (c - C(t))."""
@@ -94,3 +111,22 @@ def wall_velocity(wf, w, cx, cy, cz, t):
     return (wf[w, WF.vx] + oy * rz - oz * ry,
             wf[w, WF.vx + 1] + oz * rx - ox * rz,
             wf[w, WF.vx + 2] + ox * ry - oy * rx)
+
+
+def wall_rows(walls):
+    """The rows of the scene's walls ``walls`` (dem.scene) in wf / wi and every per-wall array:
+    (first row of each wall, the wall of each row). A plane or a cylinder is one row, a mesh
+    its ``slots`` (dem.contact.mesh.SLOTS); without meshes row k is wall k."""
+    counts = np.array([int(w.get("slots", 1)) for w in walls], np.int64)
+    first = np.r_[0, np.cumsum(counts)[:-1]].astype(np.int64) if len(walls) else np.zeros(0, np.int64)
+    owner = np.repeat(np.arange(len(walls), dtype=np.int64), counts)
+    return first, owner
+
+
+def per_wall(values, walls):
+    """Per-row values (the wall totals of dem.schema, rows of wall_rows) summed per wall."""
+    first, owner = wall_rows(walls)
+    v = np.asarray(values, float)[:owner.size]
+    if owner.size == len(walls):
+        return v.copy()
+    return np.bincount(owner, weights=v, minlength=len(walls))

@@ -33,7 +33,8 @@ from .radiation import (SIGMA_SB, radiation_accumulate, radiation_env_temperatur
 from .registry import EMISSIVITY, KF, RHO_F, MU_F, PR, RAD_KRAUSE_2017
 from .implicit import jacobi_pcg, jacobi_pcg_blocks, pair_heat_blocks, pair_heat_rows, CG_RTOL
 from ..neighbors import pair_distance
-from ..contact.walls import WF, WI, PLANE, wall_distance
+from ..contact.walls import WF, WI, PLANE, MESH, wall_distance
+from ..contact.mesh import mesh_caps, MMI
 from ..blocks import add_buffered, block_bounds, cross_counts, kept_cross_counts
 from ..schema import slots
 
@@ -978,7 +979,7 @@ def local_porosity(P, C, W, prm, n, reach, t, floor):
     """Porosity in a measuring sphere of radius R_m = R_i + reach around each particle of
     rows [0, n), into P.por: 1 - (own volume + exact lens volumes of the neighbours inside
     (the half list of ``C``)) / (sphere volume minus the caps cut off by the plane walls of
-    ``W`` among each particle's candidates). Floor applied (a measuring sphere that is mostly
+    ``W`` among each particle's candidates, and by the mesh walls at their contacts). Floor applied (a measuring sphere that is mostly
     wall). P, C, W, prm: the bundles of dem.schema."""
     x, r, wnb, wnn, out = P.position, P.radius, P.wnb, P.wnn, P.por
     nb, nnb, wf, wi = C.nb, C.nnb, W.wf, W.wi
@@ -997,6 +998,11 @@ def local_porosity(P, C, W, prm, n, reach, t, floor):
         vm = 4.0 / 3.0 * math.pi * rm ** 3
         for q in range(wnn[i]):
             w = wnb[i, q]
+            if wi[w, WI.type] == MESH:   # the mesh's caps, once (at its first row)
+                m = wi[w, WI.mesh]
+                if w == W.mmi[m, MMI.row0]:
+                    vm -= mesh_caps(W, m, x[i, 0], x[i, 1], x[i, 2], rm, t)
+                continue
             if wi[w, WI.type] != PLANE:
                 continue
             dist = 0.0  # signed distance to the plane at time t (a moving wall where it is now)

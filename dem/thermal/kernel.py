@@ -110,11 +110,14 @@ class ThermalModel:
             reach = max(reach, rmax)
         self.reach = reach
         # walls
-        nw = max(len(sc.walls), 1)
+        from ..contact.walls import wall_rows
+        _, row_wall = wall_rows(sc.walls)   # a mesh wall is several rows, each with its condition
+        nw = max(row_wall.size, 1)
         wth = np.zeros((nw, WT.SIZE))
         ntab = max([len(w["table"]) for w in th["walls"] if w["table"] is not None], default=1)
         wtab = np.zeros((nw, ntab, 2))
-        for k, w in enumerate(th["walls"]):
+        for k, kw in enumerate(row_wall):
+            w = th["walls"][kw]
             wth[k, WT.cond] = w["cond_id"]
             wth[k, WT.t] = w["temperature"]
             wth[k, WT.q] = w["heat_flux"]
@@ -387,6 +390,7 @@ class ThermalModel:
                    T_max=float(T.max()))
         for k, m in enumerate(MECHANISMS):
             row[f"E_{m}"] = float(self.tot[k])
-        for k, w in enumerate(self.scene.walls):
-            row[f"E_wall_{w['name']}"] = float(self.wtot[k])
+        from ..contact.walls import per_wall
+        for w, e in zip(self.scene.walls, per_wall(self.wtot, self.scene.walls)):
+            row[f"E_wall_{w['name']}"] = float(e)
         return row

@@ -84,9 +84,11 @@ def line_length_in_box(point, axis, lo, hi):
 
 def wall_area(w, lo, hi):
     """Area (m^2) of scene wall ``w`` (dem.scene) that particles in the domain box [lo, hi]
-    can touch: a bounded plane's rectangle (one face, 4 e_u e_v), an unbounded plane's section
+    can touch: a mesh's surface area, a bounded plane's rectangle (one face, 4 e_u e_v), an unbounded plane's section
     of the box, a cylinder's lateral surface 2 pi R L over its length (an unbounded one: over
     the part of its axis inside the box)."""
+    if w["type"] == "mesh":   # the whole surface (a vessel's mesh is the vessel)
+        return float(w["surface"].area)
     if w["type"] == "plane":
         ext = w.get("extent")
         if ext is not None:
@@ -203,22 +205,30 @@ def particle_wall_heat(sim, k):
     none = np.zeros(0, np.int64), np.zeros(0), np.zeros(0), np.zeros(0)
     if sim.thermal is None or not n:
         return none
-    cond = int(st.wth[k, WT.cond])
+    r0 = int(sim.world.wall_first[k])            # the wall's first row; a mesh has several
+    ns = int(sim.scene.walls[k].get("slots", 1))
+    cond = int(st.wth[r0, WT.cond])
     if cond == 0:
         return none
     wnb, wnn = st.wnb[:n], st.wnn[:n]
-    rows, cols = np.nonzero((wnb == k) & (np.arange(wnb.shape[1])[None, :] < wnn[:, None]))
+    rows, cols = np.nonzero((wnb >= r0) & (wnb < r0 + ns) & (np.arange(wnb.shape[1])[None, :] < wnn[:, None]))
+    if ns > 1:   # a particle touching a mesh at several rows: one entry, the rows' sum
+        order = np.argsort(rows, kind="stable")
+        rows, cols = rows[order], cols[order]
     H = st.Hw[rows, cols]
-    if cond == 2:   # fixed flux: Hw holds the contact area
-        return rows, H * st.wth[k, WT.q], np.zeros_like(H), np.zeros_like(H)
     Hg = st.Hwg[rows, cols] if st.Hwg.shape[0] >= n else np.zeros_like(H)   # Hwg: indirect models only
-    dT = wall_temperature(st.wth, st.wtab, k, sim.time) - st.temperature[rows]
+    if ns > 1:
+        u, at = np.unique(rows, return_index=True)
+        H, Hg, rows = np.add.reduceat(H, at) if H.size else H, np.add.reduceat(Hg, at) if Hg.size else Hg, u
+    if cond == 2:   # fixed flux: Hw holds the contact area
+        return rows, H * st.wth[r0, WT.q], np.zeros_like(H), np.zeros_like(H)
+    dT = wall_temperature(st.wth, st.wtab, r0, sim.time) - st.temperature[rows]
     qc, qg = (H - Hg) * dT, Hg * dT
     if st.thi[TI.wrad] != 1:
         return rows, qc, qg, np.zeros_like(H)
     qr = np.zeros(n)
     P, C, W, TB, prm = st.bundles()
-    wall_radiation_now(P, C, W, TB, prm, n, sim.time, k, qr)
+    wall_radiation_now(P, C, W, TB, prm, n, sim.time, r0, qr)
     allr = np.union1d(rows, np.flatnonzero(qr))
     out = np.zeros((3, allr.size))
     pos = np.searchsorted(allr, rows)
@@ -243,7 +253,7 @@ def cylinder_flux_by_angle(sim, n_bins=ANGLE_BINS):
     edges = np.linspace(0.0, 360.0, n_bins + 1)
     centres = 0.5 * (edges[:-1] + edges[1:])
     for k, w in enumerate(sc.walls):
-        if w["type"] != "cylinder" or int(st.wth[k, WT.cond]) == 0:
+        if w["type"] != "cylinder" or int(st.wth[int(sim.world.wall_first[k]), WT.cond]) == 0:
             continue
         e0, e1 = _angle_frame(w, sc.simulation["gravity"])
         sums = np.zeros((3, n_bins))
