@@ -461,7 +461,7 @@ def _check_slots(path, key, idx, count, limit, slots):
 # ---------------------------------------------------------------------------- the record
 WALL_GEOMETRY = ("type", "point", "normal", "u_axis", "extent", "axis", "radius", "inside", "length",
                  "velocity", "angular_velocity", "rotation_center",
-                 "file", "scale", "rotate", "translate", "digest", "slots")   # a mesh wall's (the digest: its triangles)
+                 "file", "scale", "rotate", "translate", "digest", "slots", "oscillation")   # a mesh wall's (the digest: its triangles)
 THERMAL_CHOICES = ("direct", "contact_radius", "correction", "indirect", "convection", "radiation",
                    "friction_heat", "partition", "porosity", "integrator", "time_step")
 THERMAL_PARAMS = ("direct_factor", "impact_ct", "impact_cn", "chi")

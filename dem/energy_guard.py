@@ -127,7 +127,8 @@ def inputs_of(world):
     if not world.scene.simulation["mechanics"]:
         why.append("mechanics frozen")
     nw = world.nwalls
-    if nw and (np.any(st.wf[:nw, WF.vx:WF.vx + 3] != 0.0) or np.any(st.wf[:nw, WF.ox:WF.ox + 3] != 0.0)):
+    if nw and (np.any(st.wf[:nw, WF.vx:WF.vx + 3] != 0.0) or np.any(st.wf[:nw, WF.ox:WF.ox + 3] != 0.0)
+               or any(w.get("oscillation") for w in world.scene.walls)):
         why.append("a wall moves or turns")
     g = np.asarray(st.fp[FP.gx:FP.gz + 1])
     if np.any(st.periodic & (g != 0.0)):

@@ -44,6 +44,8 @@ after the FAIL ones.
 import os
 import sys
 
+import numpy as np
+
 PAUSE, END, STOP, FAIL = "pause", "end", "stop", "fail"
 
 
@@ -275,11 +277,37 @@ class VTKWriter(Operation):
 
     def start(self, run):
         self.vtk = run.sim.vtk_series(self.out_dir)   # every rank: each writes its own piece under MPI
+        self.walls = None
+        meshes = [w for w in run.sim.scene.walls if w["type"] == "mesh"]
+        if meshes:   # walls.pvd: the mesh walls where they are at each output (the root alone)
+            from .output import VTKSeries
+            self.walls = VTKSeries(self.out_dir, name="walls")
         if self.write_initial:
             self.act(run, PAUSE)
 
     def act(self, run, event):
         run.sim.write_vtk(self.vtk)
+        if self.walls is not None:
+            sim = run.sim
+            sim.root_write(lambda: _write_mesh_walls(self.walls, sim))
+
+
+def _write_mesh_walls(series, sim):
+    """One frame of walls.pvd: every mesh wall's triangles at the run's time, with the wall's
+    number in the scene (cell data ``wall``)."""
+    from .contact.mesh import placed_vertices
+    pts, tri, wall = [], [], []
+    nv = 0
+    for k, w in enumerate(sim.scene.walls):
+        if w["type"] != "mesh":
+            continue
+        v = placed_vertices(w, sim.time)
+        pts.append(v)
+        tri.append(w["surface"].faces + nv)
+        wall.append(np.full(len(w["surface"].faces), k, np.int64))
+        nv += len(v)
+    series.write_surface(sim.time, sim.world.step_count, np.concatenate(pts), np.concatenate(tri),
+                         {"wall": np.concatenate(wall)})
 
 
 class FinalState(Operation):

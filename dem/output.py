@@ -166,6 +166,15 @@ class VTKSeries:
         """This rank's piece of frame ``index`` (an MPI run; every rank with particles)."""
         write_vtu(self.piece_path(index, self.rank), points, fields)
 
+    def write_surface(self, time, index, points, triangles, cell_fields):
+        """A frame of triangles (the mesh walls where they are at ``time``), one process."""
+        import meshio
+        fname = f"{self.name}_{index:06d}.vtu"
+        mesh = meshio.Mesh(points, [("triangle", triangles)],
+                           cell_data={k: [np.ascontiguousarray(v)] for k, v in cell_fields.items()})
+        atomic_write(os.path.join(self.dir, fname), lambda tmp: meshio.write(tmp, mesh, file_format="vtu"))
+        self._index(time, fname)
+
     def write_frame(self, time, index, pieces, fields):
         """The root: the .pvtu of frame ``index`` naming the pieces of the ranks ``pieces``
         (those that own particles), with the arrays of ``fields`` (name -> an array of the

@@ -137,8 +137,8 @@ PART_KEYS = {"material", "positions", "radii", "radius", "velocities", "velocity
              "region", "temperature", "angular_velocities", "coarse_graining"}
 WALL_KEYS = {"type", "material", "point", "normal", "extent", "u_axis", "axis", "radius", "inside",
              "length", "velocity", "angular_velocity", "rotation_center", "name", "thermal",
-             "file", "scale", "rotate", "translate"}
-MESH_ONLY = {"file", "scale", "rotate", "translate"}
+             "file", "scale", "rotate", "translate", "oscillation"}
+MESH_ONLY = {"file", "scale", "rotate", "translate", "oscillation"}
 CONTACT_KEYS = {"model", "rolling", "damping", "tangential", "normal_stiffness", "tangential_stiffness_ratio",
                 "characteristic_velocity", "rolling_damping"}
 OUTPUT_KEYS = {"vtk"}
@@ -575,6 +575,12 @@ def parse(data, file="<dict>", base_dir=".", end_time=None, comm="auto"):
             v.table(wl, p, WALL_KEYS - {"point", "normal", "extent", "u_axis", "axis", "radius", "inside", "length"})
             W.update(_mesh_wall(v, wl, p, base_dir, lo, hi))
             W["rotation_center"] = v.vec(wl, "rotation_center", p, default=W["point"])
+            if "oscillation" in wl:   # a prescribed periodic translation (a vibrating wall)
+                o = v.table(wl["oscillation"], p + ".oscillation", {"amplitude", "frequency", "phase"},
+                            required=("amplitude", "frequency"))
+                W["oscillation"] = dict(amplitude=v.vec(o, "amplitude", p + ".oscillation"),
+                                        frequency=v.num(o, "frequency", p + ".oscillation", lo=0, lo_open=True),
+                                        phase=v.num(o, "phase", p + ".oscillation", default=0.0))
         elif wt == "plane":
             v.table(wl, p, WALL_KEYS - {"axis", "radius", "inside", "length"} - MESH_ONLY)
             W["point"] = v.vec(wl, "point", p, required=True)

@@ -29,7 +29,7 @@ from .contact.linear import linear_spring_dashpot
 from .contact.rolling import constant_torque, epsd
 from .contact.tangential import luding_2008_turn, silbert_2001_turn, TANGENTIAL_PROJECTED
 from .contact.walls import wall_distance, wall_velocity, particle_wall, WI, MESH
-from .contact.mesh import mesh_contacts, mesh_near, MMI
+from .contact.mesh import mesh_contacts, mesh_near, mesh_velocity, MMI
 from .blocks import block_bounds, block_count, cross_counts, keep_cross_counts, kept_cross_counts
 from .neighbors import build_half_list, Box, adaptive_skin, pairs_beyond
 from .schema import Pairs, XC, slots
@@ -650,7 +650,10 @@ def interact_rows(P, C, W, TB, prm, n, t, hon, xon, ton, blk):
             cpx = x[i, 0] + dist * nx
             cpy = x[i, 1] + dist * ny
             cpz = x[i, 2] + dist * nz
-            uwx, uwy, uwz = wall_velocity(wf, wl, cpx, cpy, cpz, t)
+            if xon is not None and wi[wl, WI.type] == MESH:   # a mesh may also oscillate
+                uwx, uwy, uwz = mesh_velocity(W.mm, wi[wl, WI.mesh], cpx, cpy, cpz, t)
+            else:
+                uwx, uwy, uwz = wall_velocity(wf, wl, cpx, cpy, cpz, t)
             sx = ri * w[i, 0]
             sy = ri * w[i, 1]
             sz = ri * w[i, 2]

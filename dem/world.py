@@ -119,6 +119,8 @@ class World:
         vw = 0.0
         for w in self.scene.walls:
             vw = max(vw, float(np.linalg.norm(w["velocity"])))
+            if w.get("oscillation"):
+                vw = max(vw, wall_surface_speed(w))
             om = float(np.linalg.norm(w["angular_velocity"]))
             if om > 0:
                 vw = max(vw, om * (w.get("radius") or float(np.max(st.hi - st.lo))))
@@ -172,6 +174,9 @@ def wall_surface_speed(w):
         s = w["surface"]
         v += float(np.linalg.norm(w["angular_velocity"])) * float(
             np.max(np.linalg.norm(s.verts - w["rotation_center"], axis=1), initial=0.0))
+        osc = w.get("oscillation")
+        if osc:
+            v += float(np.linalg.norm(osc["amplitude"])) * 2.0 * math.pi * osc["frequency"]
     return v
 
 
@@ -195,6 +200,11 @@ def mesh_tables(st, walls, cell):
         mm[m, MM.cx:MM.cx + 3] = w["rotation_center"]
         mm[m, MM.lo:MM.lo + 3] = lo
         mm[m, MM.cell] = c
+        osc = w.get("oscillation")
+        if osc:
+            mm[m, MM.ax:MM.ax + 3] = osc["amplitude"]
+            mm[m, MM.osc] = 2.0 * math.pi * osc["frequency"]
+            mm[m, MM.phase] = math.radians(osc["phase"])
         mmi[m, MMI.row0] = first[k]
         mmi[m, MMI.nslot] = w["slots"]
         mmi[m, MMI.dims:MMI.dims + 3] = dims

@@ -156,8 +156,18 @@ def test_a_turning_faceted_drum_carries_its_sphere_like_the_cylinder(tmp_path):
           "walls": [{"type": "mesh", "file": stl, "material": "m", "angular_velocity": [0, om, 0],
                      "rotation_center": [0, 0, 0]}]}
     sim = Simulation.from_dict(sc)
-    sim.run(progress=False)
+    sim.run(out_dir=str(tmp_path / "out"), progress=False)
     st = sim.state
+    # walls.pvd shows the drum where it is: turned by Omega t about y (x' = x cos + z sin)
+    import meshio
+    from dem.output import pvd_entries
+    t_last, frame = pvd_entries(str(tmp_path / "out" / "walls.pvd"))[-1]
+    assert t_last == pytest.approx(0.1)
+    pts = meshio.read(tmp_path / "out" / frame).points
+    v0 = sim.scene.walls[0]["surface"].verts
+    th = om * t_last
+    turned = np.c_[v0[:, 0] * np.cos(th) + v0[:, 2] * np.sin(th), v0[:, 1], -v0[:, 0] * np.sin(th) + v0[:, 2] * np.cos(th)]
+    assert np.abs(pts - turned).max() < 1e-12
     x = st.position[0]
     n = np.array([x[0], 0.0, x[2]])
     n /= np.linalg.norm(n)
@@ -311,3 +321,23 @@ def test_a_bed_on_a_mesh_floor_on_two_ranks_is_the_serial_bed(floor_stl, tmp_pat
     assert a["position"][:, 2].min() < R   # on the floor
     assert np.abs(a["position"] - b["position"]).max() <= 1e-10
     assert np.abs(a["velocity"] - b["velocity"]).max() <= 1e-7
+
+
+def test_a_sphere_rides_a_vibrating_stl_floor(floor_stl):
+    """The floor oscillates vertically, z_w = A sin(2 pi f t), at Gamma = A (2 pi f)^2 / g = 0.5:
+    below 1 the floor never pulls away faster than gravity, so the sphere resting on it rides
+    along: its height follows the floor's within 1 % of A (the Hertz overlap changes by 1e-7 m
+    as the load swings between 0.5 and 1.5 of its weight), and its vertical velocity the
+    floor's, A 2 pi f cos(2 pi f t), within 2 % of the peak (the contact's own ringing)."""
+    A, f = 1e-4, 0.5 / (2 * np.pi) * (9.81 / 1e-4) ** 0.5   # Gamma = 0.5: f = 35.3 Hz
+    z0 = R - 1.3e-7   # about the overlap of its weight
+    sc = scene([{"type": "mesh", "name": "floor", "file": floor_stl, "material": "m",
+                 "oscillation": {"amplitude": [0.0, 0.0, A], "frequency": f}}], [[0.0, 0.0, z0]], 2.0 / f, (0, 0, 0))
+    sim = Simulation.from_dict(sc)
+    om = 2 * np.pi * f
+    for k in range(1, 9):   # eight points over a period, after one period of settling in
+        t = (1.0 + k / 8.0) / f
+        sim.run(end_time=t, progress=False)
+        st, t = sim.state, sim.time
+        assert st.position[0, 2] - z0 == pytest.approx(A * np.sin(om * t), abs=0.01 * A)
+        assert st.velocity[0, 2] == pytest.approx(A * om * np.cos(om * t), abs=0.02 * A * om)

@@ -465,7 +465,8 @@ def write_stl(path, tris, binary=True, name="thermodem"):
 # each row's contact is per particle: dem.schema ``mcon`` (distance, unit normal towards the
 # surface; distance inf: no contact in that row), written before each force evaluation by
 # :func:`mesh_contacts`. Triangles are in the mesh's reference frame (its place at t = 0); the
-# frame moves rigidly: x = C + V t + R(Omega t) (X - C).
+# frame moves rigidly: x = C + D(t) + R(Omega t) (X - C), D(t) = V t + A (sin(w t + phi) - sin phi)
+# (a constant velocity, a prescribed oscillation, or both), turning about its moving centre.
 
 # per-mesh floats (Walls.mm) and ints (Walls.mmi)
 MM = slots("MM", (
@@ -474,6 +475,9 @@ MM = slots("MM", (
     ("cx", 3, "centre of the rotation C (m, at t = 0)"),
     ("lo", 3, "lower corner of the triangle bins (reference frame)"),
     ("cell", "bin size (m)"),
+    ("ax", 3, "amplitude A of a prescribed oscillation (m)"),
+    ("osc", "its angular frequency 2 pi f (rad/s; 0: none)"),
+    ("phase", "its phase (rad)"),
 ))
 MMI = slots("MMI", (
     ("row0", "first wall row of the mesh"),
@@ -503,11 +507,41 @@ def _turn(ox, oy, oz, t, vx, vy, vz, sign):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def to_mesh_frame(mm, m, x0, x1, x2, t):
-    """A point at time t in the reference frame of mesh m: X = C + R(-Omega t) (x - C - V t)."""
+def mesh_centre(mm, m, t):
+    """C + D(t): where the centre of mesh m's rotation is at time t."""
     cx = mm[m, MM.cx] + mm[m, MM.vx] * t
     cy = mm[m, MM.cx + 1] + mm[m, MM.vx + 1] * t
     cz = mm[m, MM.cx + 2] + mm[m, MM.vx + 2] * t
+    w = mm[m, MM.osc]
+    if w != 0.0:
+        s = math.sin(w * t + mm[m, MM.phase]) - math.sin(mm[m, MM.phase])
+        cx += mm[m, MM.ax] * s
+        cy += mm[m, MM.ax + 1] * s
+        cz += mm[m, MM.ax + 2] * s
+    return cx, cy, cz
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def mesh_velocity(mm, m, px, py, pz, t):
+    """Velocity of mesh m's surface at the point p at time t: V + A w cos(w t + phi)
+    + Omega x (p - C - D(t))."""
+    cx, cy, cz = mesh_centre(mm, m, t)
+    vx, vy, vz = mm[m, MM.vx], mm[m, MM.vx + 1], mm[m, MM.vx + 2]
+    w = mm[m, MM.osc]
+    if w != 0.0:
+        c = w * math.cos(w * t + mm[m, MM.phase])
+        vx += mm[m, MM.ax] * c
+        vy += mm[m, MM.ax + 1] * c
+        vz += mm[m, MM.ax + 2] * c
+    ox, oy, oz = mm[m, MM.ox], mm[m, MM.ox + 1], mm[m, MM.ox + 2]
+    rx, ry, rz = px - cx, py - cy, pz - cz
+    return vx + oy * rz - oz * ry, vy + oz * rx - ox * rz, vz + ox * ry - oy * rx
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def to_mesh_frame(mm, m, x0, x1, x2, t):
+    """A point at time t in the reference frame of mesh m: X = C + R(-Omega t) (x - C - D(t))."""
+    cx, cy, cz = mesh_centre(mm, m, t)
     rx, ry, rz = _turn(mm[m, MM.ox], mm[m, MM.ox + 1], mm[m, MM.ox + 2], t, x0 - cx, x1 - cy, x2 - cz, -1.0)
     return mm[m, MM.cx] + rx, mm[m, MM.cx + 1] + ry, mm[m, MM.cx + 2] + rz
 
@@ -685,6 +719,10 @@ def mesh_frame_points(w, x, t):
     :func:`to_mesh_frame`, for many points, in Python)."""
     c = np.asarray(w["rotation_center"], float)
     rel = np.asarray(x, float) - c - np.asarray(w["velocity"], float) * t
+    osc = w.get("oscillation")
+    if osc:
+        om, ph = 2.0 * math.pi * osc["frequency"], math.radians(osc["phase"])
+        rel = rel - np.asarray(osc["amplitude"], float) * (math.sin(om * t + ph) - math.sin(ph))
     a = -np.asarray(w["angular_velocity"], float) * t
     th = float(np.linalg.norm(a))
     if th == 0.0:
@@ -692,6 +730,25 @@ def mesh_frame_points(w, x, t):
     k = a / th
     return c + (rel * math.cos(th) + np.cross(k, rel) * math.sin(th)
                 + np.outer(rel @ k, k) * (1.0 - math.cos(th)))
+
+
+def placed_vertices(w, t):
+    """The vertices of scene mesh wall ``w`` where they are at time t (the inverse of
+    :func:`mesh_frame_points`): C + D(t) + R(Omega t) (X - C)."""
+    X = w["surface"].verts
+    c = np.asarray(w["rotation_center"], float)
+    rel = X - c
+    a = np.asarray(w["angular_velocity"], float) * t
+    th = float(np.linalg.norm(a))
+    if th > 0.0:
+        k = a / th
+        rel = rel * math.cos(th) + np.cross(k, rel) * math.sin(th) + np.outer(rel @ k, k) * (1.0 - math.cos(th))
+    d = np.asarray(w["velocity"], float) * t
+    osc = w.get("oscillation")
+    if osc:
+        om, ph = 2.0 * math.pi * osc["frequency"], math.radians(osc["phase"])
+        d = d + np.asarray(osc["amplitude"], float) * (math.sin(om * t + ph) - math.sin(ph))
+    return c + d + rel
 
 
 SLOTS = 4   # wall rows of a mesh: the contacts a sphere keeps with one mesh at once (a corner of
