@@ -792,15 +792,12 @@ def _check_meshes(v, walls, x, r, ids, ratio, part=None, totals=None):
         if w["type"] != "mesh":
             continue
         s = w["surface"]
-        if len(x):
-            d, tri = nearest(x, r, s.verts, s.faces, s.bins(float(2.0 * r.max())))
-            bad = np.flatnonzero((r - d) > ratio * r)
-        else:
-            bad = np.zeros(0, np.int64)
+        d, tri = nearest(x, r, s.verts, s.faces, s.bins(float(2.0 * r.max(initial=1e-3))))
+        bad = np.flatnonzero((r - d) > ratio * r)
         q = int(bad[0]) if bad.size else None
         key = None if q is None else (int(totals["grow"][q]) if part is not None else q)
 
-        def text(q=q, d=d if len(x) else None, tri=tri if len(x) else None):
+        def text(q=q, w=w, d=d, tri=tri):
             return (f"{w['file']}: particle id {ids[q]} at {x[q].tolist()} (radius {r[q]:g} m) overlaps "
                     f"triangle {int(tri[q]) + 1} by {(r[q] - d[q]) / r[q]:.3g} of its radius initially "
                     f"(allowed: simulation.initial_overlap_ratio = {ratio}); move the particles or the mesh")

@@ -565,21 +565,25 @@ def _query(W, m, px, py, pz, reach):
     return near_xyz(px, py, pz, reach, mesh_bins(W, m), stamp, tag, W.mout)
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def distance2(px, py, pz, verts, faces, t):
+    """The squared distance from the point p to triangle t (its closest point, Ericson)."""
+    a = faces[t, 0]
+    b = faces[t, 1]
+    c = faces[t, 2]
+    qx, qy, qz, _, _ = closest_on_triangle(px, py, pz, verts[a, 0], verts[a, 1], verts[a, 2],
+                                           verts[b, 0], verts[b, 1], verts[b, 2],
+                                           verts[c, 0], verts[c, 1], verts[c, 2])
+    return (qx - px) ** 2 + (qy - py) ** 2 + (qz - pz) ** 2
+
+
 @njit(cache=True, error_model="numpy")
 def mesh_near(W, m, x0, x1, x2, reach, t):
     """Whether a surface point of mesh m lies within ``reach`` of the point x at time t."""
     px, py, pz = to_mesh_frame(W.mm, m, x0, x1, x2, t)
     nt = _query(W, m, px, py, pz, reach)
-    verts, faces = W.mv, W.mfc
     for q in range(nt):
-        tr = W.mout[q]
-        a = faces[tr, 0]
-        b = faces[tr, 1]
-        c = faces[tr, 2]
-        qx, qy, qz, _, _ = closest_on_triangle(px, py, pz, verts[a, 0], verts[a, 1], verts[a, 2],
-                                               verts[b, 0], verts[b, 1], verts[b, 2],
-                                               verts[c, 0], verts[c, 1], verts[c, 2])
-        if (qx - px) ** 2 + (qy - py) ** 2 + (qz - pz) ** 2 < reach * reach:
+        if distance2(px, py, pz, W.mv, W.mfc, W.mout[q]) < reach * reach:
             return True
     return False
 
@@ -691,13 +695,7 @@ def _nearest(x, reach, verts, faces, bins, stamp, out):
         nt = near_triangles(x[i], reach[i], bins, stamp, i + 1, out)
         for q in range(nt):
             t = out[q]
-            a = faces[t, 0]
-            b = faces[t, 1]
-            c = faces[t, 2]
-            qx, qy, qz, _, _ = closest_on_triangle(x[i, 0], x[i, 1], x[i, 2], verts[a, 0], verts[a, 1], verts[a, 2],
-                                                   verts[b, 0], verts[b, 1], verts[b, 2],
-                                                   verts[c, 0], verts[c, 1], verts[c, 2])
-            e = math.sqrt((qx - x[i, 0]) ** 2 + (qy - x[i, 1]) ** 2 + (qz - x[i, 2]) ** 2)
+            e = math.sqrt(distance2(x[i, 0], x[i, 1], x[i, 2], verts, faces, t))
             if e < d[i]:
                 d[i] = e
                 tri[i] = t
@@ -714,41 +712,38 @@ def nearest(x, reach, verts, faces, bins):
     return _nearest(x, reach, verts, faces, bins, stamp, out)
 
 
-def mesh_frame_points(w, x, t):
-    """Points x (n, 3) at time t in the reference frame of scene mesh wall ``w`` (as
-    :func:`to_mesh_frame`, for many points, in Python)."""
-    c = np.asarray(w["rotation_center"], float)
-    rel = np.asarray(x, float) - c - np.asarray(w["velocity"], float) * t
-    osc = w.get("oscillation")
-    if osc:
-        om, ph = 2.0 * math.pi * osc["frequency"], math.radians(osc["phase"])
-        rel = rel - np.asarray(osc["amplitude"], float) * (math.sin(om * t + ph) - math.sin(ph))
-    a = -np.asarray(w["angular_velocity"], float) * t
-    th = float(np.linalg.norm(a))
-    if th == 0.0:
-        return c + rel
-    k = a / th
-    return c + (rel * math.cos(th) + np.cross(k, rel) * math.sin(th)
-                + np.outer(rel @ k, k) * (1.0 - math.cos(th)))
-
-
-def placed_vertices(w, t):
-    """The vertices of scene mesh wall ``w`` where they are at time t (the inverse of
-    :func:`mesh_frame_points`): C + D(t) + R(Omega t) (X - C)."""
-    X = w["surface"].verts
-    c = np.asarray(w["rotation_center"], float)
-    rel = X - c
-    a = np.asarray(w["angular_velocity"], float) * t
-    th = float(np.linalg.norm(a))
-    if th > 0.0:
-        k = a / th
-        rel = rel * math.cos(th) + np.cross(k, rel) * math.sin(th) + np.outer(rel @ k, k) * (1.0 - math.cos(th))
+def _frame_motion(w, t):
+    """(C, D(t), Omega t) of scene mesh wall ``w``: the centre of its rotation at t = 0, its
+    displacement (velocity and oscillation) and its rotation vector at time t."""
     d = np.asarray(w["velocity"], float) * t
     osc = w.get("oscillation")
     if osc:
         om, ph = 2.0 * math.pi * osc["frequency"], math.radians(osc["phase"])
         d = d + np.asarray(osc["amplitude"], float) * (math.sin(om * t + ph) - math.sin(ph))
-    return c + d + rel
+    return np.asarray(w["rotation_center"], float), d, np.asarray(w["angular_velocity"], float) * t
+
+
+def _rotate(v, a):
+    """Rows of v (n, 3) turned by the rotation vector a (Rodrigues)."""
+    th = float(np.linalg.norm(a))
+    if th == 0.0:
+        return v
+    k = a / th
+    return v * math.cos(th) + np.cross(k, v) * math.sin(th) + np.outer(v @ k, k) * (1.0 - math.cos(th))
+
+
+def mesh_frame_points(w, x, t):
+    """Points x (n, 3) at time t in the reference frame of scene mesh wall ``w`` (as
+    :func:`to_mesh_frame`, for many points, in Python): C + R(-Omega t) (x - C - D(t))."""
+    c, d, a = _frame_motion(w, t)
+    return c + _rotate(np.asarray(x, float) - c - d, -a)
+
+
+def placed_vertices(w, t):
+    """The vertices of scene mesh wall ``w`` where they are at time t (the inverse of
+    :func:`mesh_frame_points`): C + D(t) + R(Omega t) (X - C)."""
+    c, d, a = _frame_motion(w, t)
+    return c + d + _rotate(w["surface"].verts - c, a)
 
 
 SLOTS = 4   # wall rows of a mesh: the contacts a sphere keeps with one mesh at once (a corner of
