@@ -402,7 +402,10 @@ def validate(path, arrays, record, subset=False):
                 continue  # an older checkpoint: the loader fills it (Simulation.load_checkpoint)
             on = feats.get(f.when, None) if f.when is not None else True
             full = f.shape(rows, W1, slots) if owner != "wall" else (W1,)
-            if owner == "param":
+            if f.when == "flow":   # one row per inlet and outlet of the record
+                fl = record.get("flow") or {}
+                full = (len(fl.get("inlets", [])) + len(fl.get("outlets", [])), 3)
+            elif owner == "param":
                 from .thermal.heat import TOT
                 full = (TOT.SIZE,)
             if on is None:  # an older checkpoint: either form
@@ -416,6 +419,12 @@ def validate(path, arrays, record, subset=False):
     if feats.get("heat"):
         declared("wall", N)
         declared("param", N)
+    elif feats.get("flow"):   # the particles in and out (dem.flow), with or without heat
+        fl = record.get("flow") or {}
+        need("flow_tot", F8, (len(fl.get("inlets", [])) + len(fl.get("outlets", [])), 3))
+    if feats.get("flow"):
+        need("flow_next_id", I8, ())
+        need("flow_owed", F8, (len((record.get("flow") or {}).get("inlets", [])),))
     ids = arrays["state_id"]
     mat = arrays["state_material"]
     if np.unique(ids).size != N:
@@ -537,7 +546,9 @@ def scene_record(sim):
                        sources=_plain(th["sources"]))
     simulation = {k: _plain(v) for k, v in sc.simulation.items()}
     from . import schema as S
-    return dict(particles=dict(n=int(sim.n_particles), digests=particle_digests(sc)),
+    flow = sim.world.flow.record() if sim.world.flow is not None else None
+    return dict(particles=dict(n=int(sim.n_particles), n0=int(sc.n_total), digests=particle_digests(sc)),
+                flow=flow,
                 step_count=int(sim.step_count), time=float(sim.time), dt=float(sim.dt),
                 reach=float(sim.world.reach), simulation=simulation, domain=_plain(sc.domain),
                 contact=_plain(sc.contact), materials=mats, walls=walls, thermal=thermal,
@@ -601,11 +612,18 @@ def plan_restart(sim, ck_path, arrays, record):
     changes to apply, or :class:`dem.scene.SceneError` naming the first refused key."""
     now = scene_record(sim)
     plan = Plan()
-    n_ck = int(record["particles"]["n"])
-    if n_ck != sim.n_particles:
+    n_ck = int(record["particles"].get("n0", record["particles"]["n"]))   # the scene's, not the flow's
+    if n_ck != sim.scene.n_total:
         raise SceneError(sim.scene.file, "particles",
-                         f"the scene defines {sim.n_particles} particles, the checkpoint {ck_path} holds "
-                         f"{n_ck}; particles cannot be added or removed on restart (start a new run)")
+                         f"the scene defines {sim.scene.n_total} particles, the checkpoint {ck_path} was written by a "
+                         f"scene of {n_ck}; particles cannot be added or removed on restart (start a new run, or "
+                         f"add an [[inlets]] entry)")
+    old_flow, new_flow = record.get("flow"), now.get("flow")
+    if (old_flow or None) != (new_flow or None):
+        raise SceneError(sim.scene.file, "inlets" if (new_flow or old_flow or {}).get("inlets") else "outlets",
+                         f"the inlets and outlets {_fmt(new_flow)} differ from those of the run that wrote the "
+                         f"checkpoint {ck_path} ({_fmt(old_flow)}); their names cannot change on restart (their "
+                         f"totals continue); their rates, regions and intervals can")
     _plan_simulation(sim, ck_path, record, now, plan)
     for k in ("min", "max", "periodic"):
         if record["domain"][k] != now["domain"][k]:

@@ -40,18 +40,25 @@ class Checkpointer:
         """The run's scalars a checkpoint holds beside the arrays."""
         st = self.state
         w = self.world
-        return dict(fp_tbuild=np.float64(st.fp[K.FP.tbuild]), fp_skin=np.float64(st.fp[K.FP.skin]),
-                    fp_gapd=np.float64(st.fp[K.FP.gapd]), step_count=np.int64(w.step_count),
-                    dt=np.float64(w.dt), forces_ready=np.bool_(self.stepper.forces_ready),
-                    scene_file=np.str_(os.path.abspath(w.scene.file)),
-                    ranks=np.int64(1 if self.par is None else self.par.size))
+        out = dict(fp_tbuild=np.float64(st.fp[K.FP.tbuild]), fp_skin=np.float64(st.fp[K.FP.skin]),
+                   fp_gapd=np.float64(st.fp[K.FP.gapd]), step_count=np.int64(w.step_count),
+                   dt=np.float64(w.dt), forces_ready=np.bool_(self.stepper.forces_ready),
+                   scene_file=np.str_(os.path.abspath(w.scene.file)),
+                   ranks=np.int64(1 if self.par is None else self.par.size))
+        if w.flow is not None:   # the next id and the inlets' debts (the same on every rank)
+            out.update(w.flow.saved())
+        return out
+
+    def _total_fields(self):
+        """The run totals' declared arrays: heat per mechanism and per wall (with heat), the
+        particles in and out (dem.flow)."""
+        fs = self._checkpointed("wall") + self._checkpointed("param")
+        return fs if self.world.thermal is not None else [f for f in fs if f.when == "flow"]
 
     def _totals(self):
         """The run totals (heat per mechanism and per wall), summed over the ranks (collective)."""
         st = self.state
-        if self.world.thermal is None:
-            return {}
-        totals = {f.checkpoint: getattr(st, f.name) for f in self._checkpointed("wall") + self._checkpointed("param")}
+        totals = {f.checkpoint: getattr(st, f.name) for f in self._total_fields()}
         return totals if self.par is None else {k: self.par.allsum(v) for k, v in totals.items()}
 
     def _records(self):
@@ -177,6 +184,7 @@ class Checkpointer:
         _, arrays, record, plan, subset = self._ready
         self._ready = None
         ckpt.apply_edits(arrays, plan, self.sim)
+        self.world.n_total = int(record["particles"]["n"])   # (the particles of that time: dem.flow)
         z = ckpt.ArrayView(arrays)
         self._recompute = False
         if self.par is not None or int(z["ranks"]) != 1 or "nb" not in z.files or plan.rebuild:
@@ -215,6 +223,7 @@ class Checkpointer:
         st = self.state
         for f in self._checkpointed("particle") + self._checkpointed("pair"):
             self._load_array(f, z, None)
+        st.n_owned = st.id.shape[0]   # (particles enter and leave: dem.flow)
         st.allocate()  # what an older checkpoint lacks (dem.checkpoint.ADDED_LATER)
         self._load_totals(z, root=True)
         st.fp[K.FP.tbuild] = float(z["fp_tbuild"])
@@ -233,12 +242,13 @@ class Checkpointer:
         st.fp[K.FP.gapd] = float(z["fp_gapd"]) if "fp_gapd" in z.files else 0.0
 
     def _load_totals(self, z, root):
-        """Run totals (heat per mechanism and per wall): on the root only, zero elsewhere."""
-        if self.world.thermal is None:
-            return
+        """Run totals (heat per mechanism and per wall, particles in and out): on the root only,
+        zero elsewhere; the flow's next id and debts on every rank."""
         st = self.state
-        for f in self._checkpointed("wall") + self._checkpointed("param"):
+        for f in self._total_fields():
             getattr(st, f.name)[:] = z[f.checkpoint] if root and f.checkpoint in z.files else 0.0
+        if self.world.flow is not None and "flow_next_id" in z.files:
+            self.world.flow.load(z)
 
     def _load_portable(self, path, z, subset=False):
         """Continue from a checkpoint written on any number of ranks: per-particle arrays by

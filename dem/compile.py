@@ -378,7 +378,7 @@ def mpi_entry_points():
     sim = Simulation.from_dict(_thermal())
     st = sim.state
     sim.warmup()
-    K.outside(st.position, st.lo, st.hi, st.periodic, st.n_owned)
+    K.outside(st.position, st.lo, st.hi, st.periodic, st.n_owned, st.ip[K.IP.openfaces])
     cross_rates(st.n_owned, st.inv_heat_capacity, st.nb, st.nnb, st.Hd, st.Hi, st.work)
 
 

@@ -135,6 +135,8 @@ def inputs_of(world):
         why.append("gravity along a periodic axis")
     if st.features.get("fluid"):
         why.append("fluid forces")
+    if world.flow is not None:
+        why.append("particles enter or leave")
     return why
 
 

@@ -27,6 +27,7 @@ Order. At every pause the due operations run in the order of the list, then the 
 by the root under MPI are settled (Simulation.settle_writes: one collective point, every rank
 raises the same OutputError). :func:`standard` composes the list in this fixed order:
 
+    0. FlowEvents    at each inlet's and outlet's interval (dem.flow: particles out, then in)
     1. EnergyCheck   at output, checkpoint and sort steps and the end step (dem.energy_guard)
     2. Sorter        every sort_interval steps (Simulation.sort_particles)
     3. extra operations given to Simulation.run (in their order)
@@ -180,6 +181,18 @@ class Operation:
 
     def close(self, run):
         pass
+
+
+class FlowEvents(Operation):
+    """Particles leave by the outlets and enter by the inlets (dem.flow) at the multiples of
+    each one's interval, before anything else looks at the step (collective)."""
+
+    def __init__(self, flow):
+        self.flow = flow
+        self.trigger = AnyOf(*[Every(n) for n in sorted(set(flow.steps()))])
+
+    def act(self, run, event):
+        self.flow.apply(run.sim.stepper, run.sim.step_count)
 
 
 class EnergyCheck(Operation):
@@ -406,7 +419,8 @@ def intervals(sim):
 def standard(sim, end_step, out_dir=None, restarted=False, progress=None, log=None, extra=()):
     """The operations of ``Simulation.run`` in their fixed order (module docstring)."""
     out_every, ck_every, sort_every = intervals(sim)
-    ops = [EnergyCheck(out_every, ck_every, sort_every, end_step), Sorter(sort_every)]
+    ops = [FlowEvents(sim.world.flow)] if sim.world.flow is not None else []
+    ops += [EnergyCheck(out_every, ck_every, sort_every, end_step), Sorter(sort_every)]
     ops += list(extra)
     if out_dir is not None:
         initial = sim.step_count == 0 or not restarted
@@ -480,6 +494,6 @@ def execute(sim, operations, end_step):
 
 
 __all__ = ["Trigger", "Every", "At", "EachPause", "AtEnd", "OnStop", "OnFailure", "AnyOf", "Operation",
-           "EnergyCheck", "Sorter", "HistoryWriter", "VTKWriter", "FinalState", "FailedState",
+           "FlowEvents", "EnergyCheck", "Sorter", "HistoryWriter", "VTKWriter", "FinalState", "FailedState",
            "CheckpointWriter", "ProgressBar", "Run", "standard", "open_output", "execute", "next_pause",
            "intervals", "PAUSE", "END", "STOP", "FAIL"]

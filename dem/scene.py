@@ -12,6 +12,7 @@ import numpy as np
 from .contact.registry import CONTACT_MODELS, ROLLING_MODELS, DAMPING_MODELS, TANGENTIAL_MODELS
 from .errors import SceneError
 from .parcels import parcel_factors
+from .regions import check_region_in_domain, radius_spec, region, region_volume, spec_bounds
 
 
 _NUM = (int, float)
@@ -144,7 +145,7 @@ CONTACT_KEYS = {"model", "rolling", "damping", "tangential", "normal_stiffness",
 OUTPUT_KEYS = {"vtk"}
 PARALLEL_KEYS = {"decomposition", "slab_axis", "balance_threshold", "pair_weight", "insertion_block"}
 TOP_KEYS = {"simulation", "domain", "materials", "particles", "walls", "contact", "output",
-            "thermal", "gas", "parallel"}
+            "thermal", "gas", "parallel", "inlets", "outlets"}
 
 # Time-step limits (documented in docs/models.md): dt <= 0.3 t_Rayleigh and
 # dt <= t_Hertz / 10 at the characteristic impact velocity, unless [simulation] force = true.
@@ -214,24 +215,6 @@ def _read_particle_file(v, fname, path, base_dir, part=None):
 DENSEST_PACKING = math.pi / (3 * math.sqrt(2))
 
 
-def _check_region_in_domain(v, p, reg, spec, lo, hi, periodic):
-    """The centres an insertion region can receive must lie inside the domain (non-periodic
-    axes): its box (or the box around its cylinder) shrunk by the smallest radius."""
-    rmin = float(spec["value"] if spec["distribution"] == "constant" else spec["min"])
-    if reg["type"] == "box":
-        a, b = np.asarray(reg["min"], float), np.asarray(reg["max"], float)
-    else:
-        ax = np.asarray(reg["axis"], float) / np.linalg.norm(reg["axis"])
-        ext = np.abs(ax) * float(reg["length"]) / 2 + np.sqrt(np.maximum(0.0, 1 - ax ** 2)) * float(reg["radius"])
-        a, b = np.asarray(reg["center"], float) - ext, np.asarray(reg["center"], float) + ext
-    tol = 1e-9 * float(np.max(hi - lo))
-    for k in range(3):
-        if periodic[k]:
-            continue
-        if a[k] + rmin < lo[k] - tol or b[k] - rmin > hi[k] + tol:
-            v.err(p + ".region", f"reaches outside the domain on axis {'xyz'[k]} (region {a[k]:g} .. {b[k]:g} m, "
-                                 f"domain {lo[k]:g} .. {hi[k]:g} m): particles could be placed outside; keep "
-                                 "the region inside [domain]")
 
 
 def _check_count(v, p, reg, spec, n, force, block=None, ranks=1):
@@ -239,12 +222,8 @@ def _check_count(v, p, reg, spec, n, force, block=None, ranks=1):
     the distribution) than the densest packing of the region, or more memory than the
     machine has for the candidate arrays (dem.memory)."""
     from .memory import check_insertion
-    if reg["type"] == "box":
-        vol = float(np.prod(np.asarray(reg["max"], float) - np.asarray(reg["min"], float)))
-    else:
-        vol = math.pi * float(reg["radius"]) ** 2 * float(reg["length"])
-    rmin = float(spec["value"] if spec["distribution"] == "constant" else spec["min"])
-    rmax = float(spec["value"] if spec["distribution"] == "constant" else spec["max"])
+    vol = region_volume(reg)
+    rmin, rmax = spec_bounds(spec)
     need = n * 4.0 / 3.0 * math.pi * rmin ** 3
     if need > DENSEST_PACKING * vol:
         v.err(p + ".count", f"{n} spheres of radius >= {rmin:g} m hold {need:.3g} m3, more than the "
@@ -450,54 +429,17 @@ def parse(data, file="<dict>", base_dir=".", end_time=None, comm="auto"):
             n = len(pos)
         else:
             n = v.integer(g, "count", p, lo=1, required=True)
-            rs = g.get("radius")
-            if rs is None:
-                v.err(p + ".radius", "missing required key (a number, or a table with distribution = "
-                                     "constant|uniform|normal|lognormal)")
-            if isinstance(rs, dict):
-                v.table(rs, p + ".radius", {"distribution", "value", "min", "max", "mean", "std"},
-                        required=("distribution",))
-                dist = v.string(rs, "distribution", p + ".radius",
-                                choices=["constant", "uniform", "normal", "lognormal"], required=True)
-                if dist == "constant":
-                    v.num(rs, "value", p + ".radius", lo=0, lo_open=True, required=True)
-                else:
-                    a = v.num(rs, "min", p + ".radius", lo=0, lo_open=True, required=True)
-                    b = v.num(rs, "max", p + ".radius", lo=0, lo_open=True, required=True)
-                    if b < a:
-                        v.err(p + ".radius.max", f"must be >= min ({a}), got {b}")
-                    if dist in ("normal", "lognormal"):
-                        mean = v.num(rs, "mean", p + ".radius", lo=0, lo_open=True, required=True)
-                        v.num(rs, "std", p + ".radius", lo=0, lo_open=True, required=True)
-                        if not a <= mean <= b:
-                            v.err(p + ".radius.mean", f"must lie in [min, max] = [{a}, {b}], got {mean}")
-                spec = rs
-            else:
-                spec = dict(distribution="constant", value=v.num(g, "radius", p, lo=0, lo_open=True, required=True))
-            reg = g.get("region")
-            if reg is None:
-                v.err(p + ".region", "missing required key (a table with type = box|cylinder)")
-            v.table(reg, p + ".region", {"type", "min", "max", "center", "axis", "radius", "length"}, required=("type",))
-            rt = v.string(reg, "type", p + ".region", choices=["box", "cylinder"], required=True)
-            if rt == "box":
-                a = v.vec(reg, "min", p + ".region", required=True)
-                b = v.vec(reg, "max", p + ".region", required=True)
-                if np.any(b <= a):
-                    v.err(p + ".region.max", "must be larger than region.min on every axis")
-            else:
-                v.vec(reg, "center", p + ".region", required=True)
-                v.unit(reg, "axis", p + ".region")
-                v.num(reg, "radius", p + ".region", lo=0, lo_open=True, required=True)
-                v.num(reg, "length", p + ".region", lo=0, lo_open=True, required=True)
+            spec = radius_spec(v, g, p)
+            reg = region(v, g, p)
             # the checks see the parcels' radii
             spec_p = {key: (val * cg if key in ("value", "min", "max", "mean", "std") else val)
                       for key, val in spec.items()}
-            _check_region_in_domain(v, p, reg, spec_p, lo, hi, periodic)
+            check_region_in_domain(v, p, reg, spec_p, lo, hi, periodic)
             gidx = None
             if n > block:   # by blocks: the same particles on any number of ranks, serial included
-                if rt != "box":
+                if reg["type"] != "box":
                     v.err(p + ".count", f"{n} particles, more than parallel.insertion_block = {block}, in a "
-                                        f"{rt} region: insertion by blocks takes a box region; use a box, split "
+                                        f"{reg['type']} region: insertion by blocks takes a box region; use a box, split "
                                         "the group, or give a packing file")
                 _check_count(v, p, reg, spec_p, n, sim["force"], block=block,
                              ranks=1 if part is None else part.size)
@@ -625,6 +567,16 @@ def parse(data, file="<dict>", base_dir=".", end_time=None, comm="auto"):
         _check_periodic_length(v, lo, hi, periodic, np.array([rmax]))
         _check_walls(v, walls, x, ids, periodic, part, totals)
         _check_meshes(v, walls, x, r, ids, sim["initial_overlap_ratio"], part, totals)
+    from . import flow as flow_mod
+    inlets, outlets = flow_mod.parse(v, data, sim, lo, hi, periodic, mat_ref, materials, len(parts))
+    if (inlets or outlets) and not sim["mechanics"]:
+        v.err("inlets" if inlets else "outlets", "particles enter and leave a moving bed: not with "
+                                                 "simulation.mechanics = false (a frozen packing)")
+    if inlets and any(c != 1.0 for c in P["cgv"]):
+        v.err("inlets", "an inlet's particles are real particles: not with coarse-grained [[particles]] "
+                        "(particles[].coarse_graining) in the same scene")
+    flow_rmax = max([i["rmax"] for i in inlets], default=0.0)
+    next_id = int(ids.max(initial=0)) + 1 if part is None else int(part.max(int(ids.max(initial=0)))) + 1
     o = v.table(data.get("output", {}), "output", OUTPUT_KEYS)
     output = dict(vtk=v.boolean(o, "vtk", "output", default=True))
     pa = v.table(data.get("parallel", {}), "parallel", PARALLEL_KEYS)
@@ -636,7 +588,7 @@ def parse(data, file="<dict>", base_dir=".", end_time=None, comm="auto"):
     # "auto" (the default): chosen at each build up to 0.2 r_max (dem.neighbors.adaptive_skin)
     sim["neighbor_skin_auto"] = sim["neighbor_skin"] is None
     if sim["neighbor_skin"] is None:
-        sim["neighbor_skin"] = 0.2 * rmax
+        sim["neighbor_skin"] = 0.2 * max(rmax, flow_rmax)
     sc = Scene(file=file, base_dir=base_dir, simulation=sim, domain=dict(min=lo, max=hi, periodic=periodic),
                materials=materials, material_index=names, contact=contact, walls=walls, output=output,
                parallel=parallel, id=ids, position=x, radius=r, velocity=np.ascontiguousarray(np.concatenate(P["v"])),
@@ -644,7 +596,8 @@ def parse(data, file="<dict>", base_dir=".", end_time=None, comm="auto"):
                material=np.concatenate(P["mat"]), group=group, coarse_graining=np.concatenate(P["cg"]),
                temperature=P["T"], raw=data, thermal=None, end_time_in_file="end_time" in s,
                n_total=n, rmax=rmax, group_cg=list(P["cgv"]),
-               materials_used=sorted(set(np.unique(np.concatenate(P["mat"])).tolist())), distributed=False)
+               materials_used=sorted(set(np.unique(np.concatenate(P["mat"])).tolist())), distributed=False,
+               inlets=inlets, outlets=outlets, flow_rmax=flow_rmax, next_id=next_id)
     if part is None:
         _check_overlaps(v, sc)
     else:   # the overlaps are checked once the particles sit on their owners (dem.parallel.setup)

@@ -183,6 +183,9 @@ FIELDS = (
     _f("periodic", "param", B1, doc="periodic axes"),
     _f("srcbox", "param", F8, (7,), doc="volumetric heat-source boxes: min, max, W/m^3"),
     _f("tot", "param", F8, checkpoint="th_tot", doc="heat per mechanism since the start (J; slots: dem.thermal.heat TOT)"),
+    _f("flow", "param", F8, (None, 3), when="flow", checkpoint="flow_tot", kernel=False,
+       doc="particles that entered by each inlet, then left by each outlet: number, mass (kg), enthalpy m c T (J) "
+           "since the start (dem.flow; this rank's, summed over the ranks in output and checkpoints)"),
     _f("xcnt", "param", I8, scratch=True,
        doc="pairs across blocks of rows, kept between neighbour builds (dem.step.interact_blocks; slots: XC)"),
 )
@@ -218,7 +221,7 @@ Params = _bundle("param", "Switches, scalars, domain and run totals.")
 
 # what enables an array; a feature a scene does not name is off
 FEATURES = ("heat", "fluid", "fluid_torque", "virtual_mass", "epsd", "contact_age", "friction_heat",
-            "group_sources", "indirect", "radiation", "coarse_graining", "mesh")
+            "group_sources", "indirect", "radiation", "coarse_graining", "mesh", "flow")
 
 
 # features a coupling sets before each interval (its arrays are not checkpointed: the coupling

@@ -54,6 +54,8 @@ IP = slots("IP", (
     ("autoskin", "1: the skin chosen at each build (neighbor_skin = \"auto\", dem.neighbors.adaptive_skin); "
                  "0: the scene's"),
     ("nmesh", "triangle-mesh walls (dem.contact.mesh; each is WI rows of type MESH)"),
+    ("openfaces", "faces of the domain that are outlets (dem.flow): bit 2 axis + (0 min, 1 max); a particle "
+                  "beyond one is not 'outside' (the outlet removes it)"),
 ), size=12)
 # float parameters (Params.fp)
 FP = slots("FP", (
@@ -1073,11 +1075,15 @@ def drift(P, prm, nown, t):
 
 
 @njit(cache=True, error_model="numpy")
-def outside(x, lo, hi, periodic, nown):
-    """(row, axis) of the first owned particle outside the domain along a closed axis, or (-1, -1)."""
+def outside(x, lo, hi, periodic, nown, openfaces):
+    """(row, axis) of the first owned particle outside the domain along a closed axis, or (-1, -1);
+    beyond a face that is an outlet (bit 2 k + side of ``openfaces``) is not outside."""
     for i in range(nown):
         for k in range(3):
-            if not periodic[k] and (x[i, k] < lo[k] or x[i, k] > hi[k]):
+            if periodic[k]:
+                continue
+            if (x[i, k] < lo[k] and not (openfaces >> (2 * k)) & 1) or \
+                    (x[i, k] > hi[k] and not (openfaces >> (2 * k + 1)) & 1):
                 return i, k
     return -1, -1
 
@@ -1226,7 +1232,7 @@ def advance(nsteps, s0, n, P, C, W, TB, prm, hon, xon, ton, phases):
             if drift(P, prm, nown, t):
                 if not phases & PH_REBUILD:
                     return step, REBUILD_DUE, -1, -1, 0.0, ncont, nreb, C
-                i, k = outside(P.position, prm.lo, prm.hi, prm.periodic, nown)
+                i, k = outside(P.position, prm.lo, prm.hi, prm.periodic, nown, prm.ip[IP.openfaces])
                 if i >= 0:
                     return step + 1, LEFT_DOMAIN, i, -1, P.position[i, k], ncont, nreb, C
                 C = rebuild(P, C, W, prm, n, t)

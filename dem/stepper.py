@@ -221,6 +221,39 @@ class Stepper:
         self.init_neighbors()
         records.restore(rec, self.state, int(self.state.id.max(initial=0)) + 1)
 
+    # ------------------------------------------------------------------ particles in and out
+    def change_particles(self, keep, new):
+        """Particles leave and enter (dem.flow, at an event between two chunks): the owned rows
+        where ``keep`` is False go, the rows of ``new`` (every enabled per-particle array of
+        dem.schema) come after the rest; then the neighbour lists are built again at the
+        current time with the contact history kept by id (dem.parallel.records), as after a
+        migration. Collective under MPI."""
+        from .parallel import records
+        st = self.state
+        rec = records.extract(st)
+        n = st.n_owned
+        gone = st.id[:n][~keep]
+        if gone.size and rec["a"] is not None:   # the history of the pairs with a particle gone goes too
+            rec = records.subset(rec, ~(np.isin(rec["a"], gone) | np.isin(rec["b"], gone)))
+        for f in S.of("particle"):
+            if S.enabled(f, st.features):
+                a = getattr(st, f.name)
+                setattr(st, f.name, np.ascontiguousarray(np.concatenate([a[:n][keep], new[f.name]])))
+        st.n_owned = st.id.shape[0]
+        st.n_ghost = 0
+        st.ip[K.IP.nown] = st.n_owned
+        self._rebuild_with(rec)
+        th = self.world.thermal
+        if th is not None and th.voronoi:
+            th.update_porosity(self.world.time)
+            self.forward_porosity()
+
+    def _rebuild_with(self, rec):
+        from .parallel import records
+        st = self.state
+        self.rebuild(self.world.step_count, st.lo, st.hi, st.periodic)
+        records.restore(rec, st, 0)
+
     def forward_porosity(self):
         """Send the owned particles' porosity to the ghosts (nothing to do in one process)."""
 
@@ -323,7 +356,7 @@ class ParallelStepper(Stepper):
                                                   fp[K.FP.skinmax])
         if not initial:
             nown = st.n_owned
-            i, k = K.outside(st.position, st.lo, st.hi, st.periodic, nown)
+            i, k = K.outside(st.position, st.lo, st.hi, st.periodic, nown, st.ip[K.IP.openfaces])
             if i >= 0 and self._pending is None:
                 self._pending = (K.LEFT_DOMAIN, self.instability_message(K.LEFT_DOMAIN, int(i), -1,
                                                                          float(st.position[i, k])))
@@ -347,6 +380,9 @@ class ParallelStepper(Stepper):
             elif resort_vor:
                 th.update_porosity(w.time)
                 self.forward_porosity()
+
+    def _rebuild_with(self, rec):
+        self._exchange_rebuild(self.world.step_count, rec=rec, weights_from_list=False)
 
     def _note(self, status, who, other, value):
         if status != K.OK and self._pending is None:

@@ -55,8 +55,8 @@ class World:
         if self.nmeshes:
             st.enable(mesh=True)
             st.mcon[:, :, 0] = math.inf
-            mesh_tables(st, scene.walls, 2.0 * float(getattr(scene, "rmax", 0.0) or st.radius.max(initial=0.0))
-                        + float(scene.simulation["neighbor_skin"]))
+            rmax = max(float(getattr(scene, "rmax", 0.0) or st.radius.max(initial=0.0)), scene.flow_rmax)
+            mesh_tables(st, scene.walls, 2.0 * rmax + float(scene.simulation["neighbor_skin"]))
         self.wall_speed = max([wall_surface_speed(w) for w in scene.walls], default=0.0)
         st.ip, st.fp = self._params()
         self.thermal = None
@@ -66,6 +66,10 @@ class World:
         else:
             from .thermal.kernel import no_heat_tables
             no_heat_tables(st)
+        self.flow = None
+        if scene.inlets or scene.outlets:   # particles enter and leave (dem.flow)
+            from .flow import Flow
+            self.flow = Flow(self)
         self.reach = self.thermal.reach if self.thermal is not None else 0.0
         st.fp[K.FP.reach] = self.reach
         if getattr(scene, "distributed", False):   # set up per rank (MPI): the run's totals
@@ -74,6 +78,7 @@ class World:
         else:
             self.rmax = float(st.radius.max(initial=0.0))
             self.n_total = st.n_owned  # every rank holds the whole scene at this point
+        self.rmax = max(self.rmax, scene.flow_rmax)   # an inlet's particles may be larger
         # how far beyond contact a coupled run's particle void fraction looks for neighbours
         # (coupling.particle_void): the ghost layer covers it; the pair list does not
         reach_of = getattr(scene, "ghost_reach", None)
@@ -87,6 +92,8 @@ class World:
         ip[K.IP.tangential] = TANGENTIAL_MODELS[sc.contact["tangential"]]
         ip[K.IP.nwalls] = self.nwalls
         ip[K.IP.nmesh] = self.nmeshes
+        from .flow import open_faces
+        ip[K.IP.openfaces] = open_faces(sc.outlets)
         ip[K.IP.mech] = 1 if sc.simulation["mechanics"] else 0
         ip[K.IP.nown] = self.state.n_owned
         ip[K.IP.threads] = 1

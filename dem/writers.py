@@ -94,6 +94,8 @@ class Writers:
         cols = ["time", "kinetic_energy", "rotational_energy", "contacts", "max_overlap_ratio"]
         if self.world.thermal is not None:
             cols += self.world.thermal.history_columns()
+        if self.world.flow is not None:
+            cols += self.world.flow.history_columns()
         return cols
 
     def history_row(self):
@@ -108,6 +110,8 @@ class Writers:
                        contacts=self.stepper.last_contacts, max_overlap_ratio=maxov)
             if th is not None:
                 row.update(th.history_row())
+            if w.flow is not None:
+                row.update(zip(w.flow.history_columns(), w.flow.history_values()))
             return row
         p = self.par
         n = st.n_owned
@@ -131,6 +135,8 @@ class Writers:
             for wall in w.scene.walls:
                 row[f"E_wall_{wall['name']}"] = tot[k]
                 k += 1
+        if w.flow is not None:
+            row.update(zip(w.flow.history_columns(), p.allsum(np.array(w.flow.history_values()))))
         return row
 
     def _overlap_stats(self):

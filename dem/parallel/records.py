@@ -62,6 +62,9 @@ def restore(rec, st, key_base):
     if rec is None or rec["a"].size == 0:
         return 0
     nb, nnb, ids = st.nb, st.nnb, st.id
+    # every id of the list and of the records below the base (particles created during the run
+    # have ids above the set-up's largest)
+    key_base = max(int(key_base), int(ids.max(initial=0)) + 1, int(rec["b"].max(initial=0)) + 1)
     S_ = nb.shape[1]
     valid = np.arange(S_)[None, :] < nnb[:, None]
     i, s = np.nonzero(valid)

@@ -105,6 +105,7 @@ class ThermalModel:
         # cut-off, radiation range, in radii), and one radius for the local porosity
         selected = {m: th[m] for m in ("direct", "indirect", "convection", "radiation")}
         rmax = float(sc.rmax) if getattr(sc, "distributed", False) else float(st.radius.max())
+        rmax = max(rmax, getattr(sc, "flow_rmax", 0.0))   # an inlet's particles may be larger
         reach = R.neighbour_reach(selected, self.gas, rmax)
         if self.local_porosity:
             reach = max(reach, rmax)
@@ -386,8 +387,9 @@ class ThermalModel:
         n = st.n_owned
         C = 1.0 / st.inv_heat_capacity[:n]
         T = st.temperature[:n]
-        row = dict(thermal_energy=float(np.sum(C * T)), T_mean=float(T.mean()), T_min=float(T.min()),
-                   T_max=float(T.max()))
+        nan = float("nan")   # (no particle left: every outlet took them)
+        row = dict(thermal_energy=float(np.sum(C * T)), T_mean=float(T.mean()) if n else nan,
+                   T_min=float(T.min()) if n else nan, T_max=float(T.max()) if n else nan)
         for k, m in enumerate(MECHANISMS):
             row[f"E_{m}"] = float(self.tot[k])
         from ..contact.walls import per_wall

@@ -195,6 +195,11 @@ def parse_thermal(v, sc, data):
             tg = np.full(n, T0)
         temps.append(np.asarray(tg, float))
     th["temperature"] = np.concatenate(temps) if temps else np.zeros(0)
+    th["initial_temperature"] = T0
+    for k, inlet in enumerate(getattr(sc, "inlets", [])):
+        if inlet["temperature"] is None and T0 is None:
+            v.err(f"inlets[{k}].temperature", "missing: give the inlet's particles a temperature or set "
+                                              "thermal.initial_temperature")
     regs = t.get("initial_regions", [])
     if not isinstance(regs, list):
         v.err("thermal.initial_regions", "must be an array of tables {min, max, temperature}")

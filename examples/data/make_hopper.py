@@ -1,8 +1,14 @@
-"""Writes examples/data/hopper.stl, the vessel of examples/hopper_fill.toml: a cylinder of
-radius 20 mm from z = 40 to 80 mm on a cone (its wall 25 degrees from the axis) down to a flat
-bottom of radius 6 mm at z = 10 mm, in millimetres (the scene
-scales by 0.001), 72 segments around, as a CAD program would export it. Deterministic:
-`python3 examples/data/make_hopper.py` writes the same bytes."""
+"""Writes the vessels of the examples, in millimetres (the scenes scale by 0.001), 72 segments
+around, as a CAD program would export them. Deterministic: `python3 examples/data/make_hopper.py`
+writes the same bytes.
+
+hopper.stl (examples/hopper_fill.toml): a cylinder of radius 20 mm from z = 40 to 80 mm on a
+cone (its wall 25 degrees from the axis) down to a flat bottom of radius 6 mm at z = 10 mm.
+
+discharge_D6.stl, discharge_D8.stl, discharge_D10.stl (examples/hopper_discharge.toml,
+benchmarks/hopper_discharge.py): a cylinder of radius 15 mm from z = 30 to 70 mm on a cone of
+half-angle 30 degrees open at the bottom, a round orifice of diameter D mm (the cone ends where
+its radius is D / 2: at z = 30 - (15 - D / 2) / tan 30 degrees)."""
 import os
 import sys
 
@@ -15,10 +21,20 @@ SEG = 72
 RINGS = [(0.0, 10.0), (6.0, 10.0), (20.0, 40.0), (20.0, 80.0)]   # (radius, z) from the bottom's centre up
 
 
-def hopper():
+DISCHARGE_WIDTHS = (6, 8, 10)   # orifice diameters (mm)
+HALF_ANGLE = 30.0                # degrees from the axis
+
+
+def discharge_rings(d):
+    """(radius, z) of the discharge hopper with an orifice of diameter d mm, bottom up."""
+    z0 = 30.0 - (15.0 - d / 2.0) / np.tan(np.radians(HALF_ANGLE))
+    return [(d / 2.0, z0), (15.0, 30.0), (15.0, 70.0)]
+
+
+def hopper(rings=RINGS):
     th = np.linspace(0.0, 2 * np.pi, SEG + 1)
     tris = []
-    for (r0, z0), (r1, z1) in zip(RINGS[:-1], RINGS[1:]):
+    for (r0, z0), (r1, z1) in zip(rings[:-1], rings[1:]):
         for a, b in zip(th[:-1], th[1:]):
             p00 = [r0 * np.cos(a), r0 * np.sin(a), z0]
             p01 = [r0 * np.cos(b), r0 * np.sin(b), z0]
@@ -32,6 +48,10 @@ def hopper():
 
 
 if __name__ == "__main__":
-    out = os.path.join(os.path.dirname(os.path.abspath(__file__)), "hopper.stl")
-    write_stl(out, hopper(), binary=True, name="hopper")
-    print(out)
+    here = os.path.dirname(os.path.abspath(__file__))
+    write_stl(os.path.join(here, "hopper.stl"), hopper(), binary=True, name="hopper")
+    print(os.path.join(here, "hopper.stl"))
+    for d in DISCHARGE_WIDTHS:
+        out = os.path.join(here, f"discharge_D{d}.stl")
+        write_stl(out, hopper(discharge_rings(d)), binary=True, name=f"discharge_D{d}")
+        print(out)
