@@ -392,6 +392,17 @@ def insertion():
     scene.parse(data, "<compile>")
 
 
+def flow():
+    """The overlap tests of an inlet's batch (dem.flow: against the particles, the plane and
+    cylinder walls), as an insertion event calls them."""
+    import numpy as np
+    from .contact.walls import WF, WI
+    from .flow import clashes, plane_wall_clashes
+    x, r = np.zeros((1, 3)), np.full(1, 1e-3)
+    clashes(x, r, x + 1.0, r)
+    plane_wall_clashes(x, r, np.zeros((1, WF.SIZE)), np.zeros((1, WI.SIZE), np.int64), 1, 0.0)
+
+
 # compute_forces and heat_step are compiled on their own first (by signature, in parallel; the
 # heat step's parallel loops before it, in a job of their own that starts first: the longest chain
 # is theirs, the heat step's and the step with heat), then the step of each heat switch
@@ -406,6 +417,7 @@ DEM_JOBS = (
     Job("dem.mechanics", "dem.compile:mechanics", after=("dem.forces",)),
     Job("dem.heat_step", "dem.compile:heat_step", after=("dem.heat_blocks",)),
     Job("dem.insertion", "dem.compile:insertion"),
+    Job("dem.flow", "dem.compile:flow"),
     Job("dem.mechanics_full", "dem.compile:mechanics", (True,), after=("dem.forces_full", "dem.mechanics")),
     Job("dem.heat", "dem.compile:heat", after=("dem.forces_heat", "dem.heat_step", "dem.mechanics")),
     Job("dem.heat_full", "dem.compile:heat", (True,), after=("dem.forces_heat_full", "dem.heat",

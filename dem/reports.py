@@ -91,6 +91,16 @@ def models_report(world, par):
                     f"triangles)" if nm else ""))
     else:
         skipped.append("walls: none in the scene")
+    for d in sc.inlets:
+        unit = "particles/s" if d["kind"] == "rate" else "kg/s"
+        runs.append(f"inlet {d['name']}: {d['rate']:g} {unit}, a batch every {d['interval']:.4g} s "
+                    f"({d['steps']} steps) in a {d['region']['type']} region, from t = {d['start']:g} s")
+    for d in sc.outlets:
+        where = {"face": lambda: f"beyond the domain face {d.get('face')}",
+                 "plane": lambda: f"beyond the plane through {list(map(float, d['point']))} "
+                                  f"(normal {list(map(float, d['normal']))})"}.get(
+            d["type"], lambda: f"inside a {d['type']} region")()
+        runs.append(f"outlet {d['name']}: particles {where} removed every {d['steps']} steps")
     if not sc.simulation["mechanics"]:
         runs[0] = "mechanics frozen (simulation.mechanics = false): contacts computed once"
     if par is not None:
@@ -132,6 +142,7 @@ def time_scales(world, par=None):
     for k, m in enumerate(sc.materials):
         sel = st.material[:n] == k
         rmin = _over_ranks(par, "min", float(st.radius[:n][sel].min(initial=math.inf)))
+        rmin = min([rmin] + [i["rmin"] for i in sc.inlets if i["material"] == k])   # what the inlets bring
         if rmin == math.inf:   # no particle of this material
             continue
         G = m["youngs_modulus"] / (2 * (1 + m["poisson_ratio"]))

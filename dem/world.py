@@ -131,7 +131,8 @@ class World:
             om = float(np.linalg.norm(w["angular_velocity"]))
             if om > 0:
                 vw = max(vw, om * (w.get("radius") or float(np.max(st.hi - st.lo))))
-        return max(v0, vw, math.sqrt(2 * g * h), 1e-3)
+        vin = max([float(np.linalg.norm(i["velocity"])) for i in self.scene.inlets], default=0.0)
+        return max(v0, vw, vin, math.sqrt(2 * g * h), 1e-3)
 
     def halo(self, bound=False):
         """Ghost layer width: the longest pair reach 2 r_max + reach + skin, or further when
