@@ -32,16 +32,21 @@ class Diagnostics:
 
     @staticmethod
     def particle_records(sim):
-        """[E_particles, E_conv, E_walls, E_sources] (J) of the particles, summed over the ranks
-        (collective): their thermal energy sum(C T) and what they received since the DEM's start
-        by convection, through the walls, and by radiation, generation and sources."""
+        """[E_particles, E_conv, E_walls, E_sources, E_flow] (J) of the particles, summed over the
+        ranks (collective): their thermal energy sum(C T) and what they received since the DEM's
+        start by convection, through the walls, by radiation, generation and sources, and the
+        enthalpy the inlets brought less what the outlets took (dem.flow)."""
         from dem.thermal.heat import TOT
-        a = np.zeros(4)
+        a = np.zeros(5)
         if sim.thermal is not None:
             st, tot = sim.state, sim.thermal.tot
             n = st.n_owned
-            a[:] = (float((st.temperature[:n] / st.inv_heat_capacity[:n]).sum()), tot[TOT.conv], tot[TOT.wall],
-                    tot[TOT.rad] + tot[TOT.gen] + tot[TOT.src])
+            a[:4] = (float((st.temperature[:n] / st.inv_heat_capacity[:n]).sum()), tot[TOT.conv], tot[TOT.wall],
+                     tot[TOT.rad] + tot[TOT.gen] + tot[TOT.src])
+            flow = sim.world.flow
+            if flow is not None:
+                ni = len(flow.inlets)
+                a[4] = float(st.flow[:ni, 2].sum() - st.flow[ni:, 2].sum())
         if sim.par is not None:
             a = np.asarray(sim.par.allsum(a), float)
         return a

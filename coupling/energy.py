@@ -28,7 +28,11 @@ is exactly what the step's discrete balance used. :class:`EnergyLedger` integrat
 the run and writes coupling.csv's balance:
 
     balance_error = (E_particles - E_particles(0)) + (E_gas - E_gas(0))
-                    - (E_walls_particles + E_walls_gas + E_open + E_sources_particles)
+                    - (E_walls_particles + E_walls_gas + E_open + E_sources_particles
+                       + E_flow_particles)
+
+(E_flow_particles: the enthalpy m c T of the particles the inlets brought less what the outlets
+took, dem.flow),
 
 which is made of two known parts and a residual:
 
@@ -330,24 +334,26 @@ class EnergyLedger:
 
     def row(self, scalars, particles) -> dict:
         """coupling.csv's balance columns. ``particles`` = [E_particles, E_conv, E_walls,
-        E_sources] of the particles (J, the DEM's records since its start)."""
+        E_sources, E_flow] of the particles (J, the DEM's records since its start)."""
         e = 2 * self.n_patches
         s = np.asarray(scalars, float)
         ref = self.ref if self.ref is not None else np.r_[s[e], np.asarray(particles, float)]
+        if ref.size < np.asarray(particles).size + 1:   # a restart point written before the inlets' column
+            ref = np.r_[ref, np.zeros(np.asarray(particles).size + 1 - ref.size)]
         P = np.asarray(particles, float) - ref[1:]
         dEg = float(s[e] - ref[0])
         cond, adv = self.acc[self._cond()], self.acc[self._adv()]
         walls_gas = float(cond[self.wall].sum())
         open_ = float(cond[~self.wall].sum() + adv.sum())
-        bal = P[0] + dEg - (P[2] + walls_gas + open_ + P[3])
+        bal = P[0] + dEg - (P[2] + walls_gas + open_ + P[3] + P[4])
         mism = P[1] + float(self.acc[e + 2])
         cont = float(self.acc[e + 1])
         return dict(E_gas_solver=float(s[e]), E_walls_particles=float(P[2]), E_walls_gas=walls_gas,
-                    E_open=open_, E_sources_particles=float(P[3]), balance_error=bal,
+                    E_open=open_, E_sources_particles=float(P[3]), E_flow_particles=float(P[4]), balance_error=bal,
                     E_exchange_mismatch=mism, E_continuity=cont, balance_residual=bal - mism - cont)
 
 
-BALANCE_COLUMNS = ["E_gas_solver", "E_walls_particles", "E_walls_gas", "E_open", "E_sources_particles",
+BALANCE_COLUMNS = ["E_gas_solver", "E_walls_particles", "E_walls_gas", "E_open", "E_sources_particles", "E_flow_particles",
                    "balance_error", "E_exchange_mismatch", "E_continuity", "balance_residual"]
 
 

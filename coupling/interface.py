@@ -231,6 +231,11 @@ class CouplingInterface:
             self.hint = None  # particles moved between ranks: rows changed
             self._map_cache = None
             self._exchanges_seen = par.exchanges
+        flow = self.sim.world.flow
+        if flow is not None and flow.changes != getattr(self, "_flow_seen", -1):
+            self.hint = None  # particles entered or left: rows changed
+            self._map_cache = None
+            self._flow_seen = flow.changes
         pos, rad = st.position[:n], st.radius[:n]
         prev = self._map_cache
         same = (prev is not None and prev[0].shape == pos.shape and np.array_equal(prev[0], pos)
@@ -412,8 +417,20 @@ class CouplingInterface:
         return self._frame
 
     def advance_dem(self, k: int) -> None:
+        """The DEM's ``k`` steps of a coupling interval; with inlets or outlets (dem.flow) in pieces
+        up to each of their events, which then act (a new particle feels the gas from the next
+        interval on: its fluid force and drag are zero until then)."""
+        sim = self.sim
+        flow = sim.world.flow
         with self.timer("dem"):
-            self.sim.step(k)
+            if flow is None:
+                sim.step(k)
+                return
+            end = sim.step_count + k
+            while sim.step_count < end:
+                nxt = min(flow.next_due(sim.step_count), end)
+                sim.step(nxt - sim.step_count)
+                flow.apply(sim.stepper, sim.step_count)
 
 
 # --------------------------------------------------------------------------- kernels

@@ -274,11 +274,17 @@ class Flow:
         self.warned = np.zeros(len(self.inlets), bool)
         self.next_id = int(sc.next_id)
         self.seed = int(sc.simulation["seed"])
+        self.changes = 0   # events that changed the particles (their rows: a coupled run's cell hints go)
 
     # -------------------------------------------------------------------- schedule
     def steps(self):
         """The step intervals of the events (one per inlet and outlet)."""
         return [d["steps"] for d in self.outlets + self.inlets]
+
+    def next_due(self, step):
+        """The first step after ``step`` at which an inlet or outlet acts (a coupled run advances
+        its DEM interval in pieces between them: coupling.interface.advance_dem)."""
+        return min((step // n + 1) * n for n in self.steps())
 
     def due(self, step):
         outs = [o for o in self.outlets if step % o["steps"] == 0]
@@ -318,6 +324,7 @@ class Flow:
         if tot[0] == 0 and added == 0:
             return 0, 0
         stepper.change_particles(~gone, new)
+        self.changes += 1
         w.n_total += added - int(tot[0])
         return int(tot[0]), added
 
@@ -418,8 +425,14 @@ class Flow:
                 arr["temperature"][:] = self.temperature(inlet)
                 arr["inv_heat_capacity"][:] = 1.0 / (mass * th.tmat[inlet["material"], R.CP])
                 arr["por"][:] = th.gas[R.POROSITY_GLOBAL]
-                arr["tf"][:] = th.gas[R.T_F] if math.isfinite(th.gas[R.T_F]) else 0.0
-                arr["uf"][:] = w.scene.thermal["gas_velocity"]
+                if st.features.get("fluid"):   # a coupled run: the gas at the particle is known from the
+                    # next interval on (coupling.interface); until then no exchange (the gas's sources
+                    # of this interval do not hold it either)
+                    arr["tf"][:] = arr["temperature"]
+                    arr["uf"][:] = arr["velocity"]
+                else:
+                    arr["tf"][:] = th.gas[R.T_F] if math.isfinite(th.gas[R.T_F]) else 0.0
+                    arr["uf"][:] = w.scene.thermal["gas_velocity"]
                 f[2] += float(np.sum(arr["temperature"] / arr["inv_heat_capacity"]))
             for name, a in arr.items():
                 parts[name].append(a)
