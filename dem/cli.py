@@ -136,7 +136,7 @@ def cmd_run(args):
                   + (f"; set-up per rank: at most {setup[0]} packing-file rows read and {setup[1]} particle "
                      f"rows held before the distribution" if setup else ""))
         print(f"done: t = {sim.time:.6g} s, {steps} steps, {n} particles{ranks}, wall {wall:.2f} s "
-              f"(kernels compile/load {c:.2f} s), {n * max(sim.steps_run, 1) / max(sim.wall_seconds, 1e-9):.3g} "
+              f"(kernels compile/load {c:.2f} s), {max(sim.particle_steps, n) / max(sim.wall_seconds, 1e-9):.3g} "
               f"particle-steps/s; output in {out}")
     return 0
 

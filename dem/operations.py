@@ -378,6 +378,7 @@ class ProgressBar(Operation):
                             enabled=self.enabled and sim.is_root, stream=self.stream)
 
     def act(self, run, event):
+        self.bar.n = run.sim.n_particles   # (inlets and outlets change it)
         self.bar.update(run.sim.step_count)
 
     def close(self, run):
@@ -459,6 +460,7 @@ def execute(sim, operations, end_step):
     from .errors import SimulationError
     run = Run(sim, operations, end_step)
     first = sim.step_count     # (a restart's step, its checkpoint loaded)
+    sim.particle_steps = 0
     for op in run.operations:
         op.start(run)
     sim.settle_writes()
@@ -472,7 +474,9 @@ def execute(sim, operations, end_step):
                 s = sim.step_count
                 nxt = next_pause(run.operations, s, end_step)
                 clock.start()
-                clock.done(sim.step(min(nxt - s, chunk)))
+                done = sim.step(min(nxt - s, chunk))
+                sim.particle_steps += done * sim.n_particles   # (the particles of this chunk: dem.flow
+                clock.done(done)                               # changes them between chunks only)
                 run.fire(PAUSE)
                 sim.settle_writes()
     except StopRequested as stop:

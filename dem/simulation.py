@@ -56,6 +56,7 @@ class Simulation:
         self.compile_seconds = None
         self.wall_seconds = None
         self.steps_run = 0         # steps of the last run() (a restarted run: from its checkpoint on)
+        self.particle_steps = 0    # the particles of each of those steps, summed (inlets and outlets change them)
         self.threads = 1
         t0 = time.perf_counter()
         self.stepper.init_neighbors()   # the first call of the step kernel: compiled or loaded here
@@ -95,7 +96,7 @@ class Simulation:
 
     @property
     def n_particles(self):
-        """Particles in the whole run (all ranks; constant: no particle is added or removed)."""
+        """Particles in the whole run now (all ranks; [[inlets]] and [[outlets]] change it: dem.flow)."""
         return self.world.n_total
 
     @property
