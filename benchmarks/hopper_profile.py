@@ -51,7 +51,7 @@ def main(argv=None):
     P, C, W, TB, prm = st.bundles()
     t0 = time.perf_counter()
     for _ in range(a.steps // 4):
-        M.mesh_contacts(P, W, st.n_owned, prm.fp[K.FP.reach], sim.time, False, False)
+        M.mesh_contacts(P, W, st.n_owned, prm.fp[K.FP.reach], 0.0, sim.time, False, False)
     pre = (time.perf_counter() - t0) / (a.steps // 4)
     near = int(np.count_nonzero(st.wnn[:st.n_owned] > 0))
     print(f"beads {n0}, within reach of the mesh {near}; step {step_s * 1e6:.0f} us "

@@ -851,8 +851,8 @@ def compute_forces(P, C, W, TB, prm, n, t, hon, xon, ton):
         raise ValueError("internal error: the interact phase was compiled for the other tangential model "
                          "than the scene's (ip[IP.tangential], dem.stepper.Stepper.ton)")
     if xon is not None and prm.ip[IP.nmesh] > 0:   # the mesh walls' contacts of this step
-        mesh_contacts(P, W, prm.ip[IP.nown], prm.fp[FP.reach], t, prm.ip[IP.rolling] == 2,
-                      P.wage.shape[0] > 0)
+        mesh_contacts(P, W, prm.ip[IP.nown], prm.fp[FP.reach], mesh_radiation_range(prm), t,
+                      prm.ip[IP.rolling] == 2, P.wage.shape[0] > 0)
     nblk = blocks(prm.ip)
     if nblk == 1:
         maxov, who_i, who_j, ncont, e_dir, e_ind, e_wall, _ = interact_rows(
@@ -870,13 +870,27 @@ def compute_forces(P, C, W, TB, prm, n, t, hon, xon, ton):
     return maxov, who_i, who_j, ncont
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def mesh_radiation_range(prm):
+    """How far (in radii) a mesh wall's contact records must reach: the sphere of influence of
+    the radiation (thermal.radiation_range) when a wall radiates, else 0 (the heat models' reach
+    alone: dem.contact.mesh.mesh_contacts)."""
+    thi = prm.thi
+    if thi[TI.heat] == 1 and thi[TI.rad] >= 0 and thi[TI.wrad] == 1:
+        return prm.thf[TF.radrange]
+    return 0.0
+
+
 @njit(cache=True, error_model="numpy")
-def build_wall_list(x, r, n, W, nwalls, reach, t, wnb, wnn, whist, wrhist, mcon):
+def build_wall_list(P, n, W, nwalls, reach, skin, srange, t):
     """Walls within reach of each particle; histories of the others are cleared. A mesh wall's
-    rows are listed together, when a point of its surface is within reach (dem.contact.mesh);
-    without, their contact records end (``mcon``)."""
+    rows are listed together, when a point of its surface is within reach (dem.contact.mesh; with
+    a radiating wall, within ``srange`` radii too: :func:`mesh_radiation_range`); without, their
+    contact records end (``mcon``). ``reach`` beyond contact, plus the ``skin``."""
     wf, wi = W.wf, W.wi
+    x, r, wnb, wnn, whist, wrhist, mcon = P.position, P.radius, P.wnb, P.wnn, P.whist, P.wrhist, P.mcon
     rolling = wrhist.shape[0] > 0
+    rs = reach + skin
     for i in range(n):
         c = 0
         near = False
@@ -884,7 +898,7 @@ def build_wall_list(x, r, n, W, nwalls, reach, t, wnb, wnn, whist, wrhist, mcon)
             if wi[wl, WI.type] == MESH:
                 m = wi[wl, WI.mesh]
                 if wl == W.mmi[m, MMI.row0]:   # the mesh's first row decides for all of them
-                    near = mesh_near(W, m, x[i, 0], x[i, 1], x[i, 2], r[i] + reach, t)
+                    near = mesh_near(W, m, x[i, 0], x[i, 1], x[i, 2], max(r[i] + rs, srange * r[i] + skin), t)
                 if near:
                     wnb[i, c] = wl
                     c += 1
@@ -896,7 +910,7 @@ def build_wall_list(x, r, n, W, nwalls, reach, t, wnb, wnn, whist, wrhist, mcon)
                             wrhist[i, wl, k] = 0.0
                 continue
             dist, nx, ny, nz = wall_distance(wf, wi, wl, x[i, 0], x[i, 1], x[i, 2], t)
-            if dist < r[i] + reach and dist > -r[i]:
+            if dist < r[i] + rs and dist > -r[i]:
                 wnb[i, c] = wl
                 c += 1
             else:
@@ -1121,8 +1135,7 @@ def after_build(P, C, W, prm, n, nown, t, carry):
             rhist = np.zeros(hist.shape)
         if heat and thi[TI.age] != 0:
             age = np.zeros((nb.shape[0], nb.shape[1], 2))
-    build_wall_list(x, P.radius, nown, W, ip[IP.nwalls], fp[FP.reach] + fp[FP.skin], t, P.wnb, P.wnn,
-                    P.whist, P.wrhist, P.mcon)
+    build_wall_list(P, nown, W, ip[IP.nwalls], fp[FP.reach], fp[FP.skin], mesh_radiation_range(prm), t)
     if ip[IP.autoskin] != 0:  # what the skin alone brought into the list (a serial run's gap density;
         # a run on several ranks sums nfar and the owned rows over the ranks: dem.stepper)
         nfar = pairs_beyond(x, P.radius, nb, nnb, nown, prm.lo, prm.hi, prm.periodic, fp[FP.reach])

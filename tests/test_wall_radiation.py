@@ -241,3 +241,33 @@ def test_tangent_plane_against_the_exact_cylinder():
     for inside in (False, True):   # first order in s / a
         for k in range(2):
             assert errs[10e-3, inside][k] / errs[5e-3, inside][k] == pytest.approx(0.5, abs=0.05)
+
+
+@pytest.mark.parametrize("model", ["zhou_2009", "krause_2017"])
+@pytest.mark.parametrize("integ", ["euler", "implicit"])
+def test_a_radiating_stl_floor_is_the_radiating_plane(tmp_path, model, integ):
+    """The bed of the test above on its hot floor given as an STL plane of 288 jittered triangles
+    (issue 50): the mesh wall is its tangent plane at the nearest contact record, which the mesh
+    pre-pass keeps out to the sphere of influence (radiation_range radii, beyond the heat models'
+    reach), so every particle's radiation weights, the temperatures and the wall's records by path
+    are the plane's to round-off (the closest point of a triangle against the plane's dot
+    product: 1e-12 of the heat moved)."""
+    from dem.contact.mesh import write_stl
+    from test_mesh_walls import plane_mesh
+    ov = 2e-5
+    xs = [(-2 * R + 2 * ov) * 1.0, 0.0, 2 * R - 2 * ov]
+    # (the last bead 2.58 R from the floor: beyond the heat models' reach, 2 R, inside the sphere, 3 R)
+    pos = [[x, 0.0, 0.0] for x in xs] + [[x, 0.0, 2 * R - 2 * ov] for x in xs] + [[0.0, 4 * R, 1.6 * R]]
+    stl = tmp_path / "floor.stl"   # z = -(R - ov) over the domain's section, 12 x 12 squares
+    write_stl(str(stl), plane_mesh(n=12, size=2 * L, jitter=0.3) - [L, L, R - ov], binary=False)
+    mesh = dict(_wall(R - ov), type="mesh", file=str(stl))
+    for k in ("point", "normal"):
+        mesh.pop(k)
+    a, Ca, Ta = _run(tmp_path, "plane", pos, model, integ, 0.01, 0.5, [_wall(R - ov)])
+    b, Cb, Tb = _run(tmp_path, "mesh", pos, model, integ, 0.01, 0.5, [mesh])
+    gain = float((Ca * (a.state.temperature - Ta)).sum())
+    assert a.state.wrad.sum() > 0.01 * gain
+    assert np.abs(b.state.temperature - a.state.temperature).max() <= 1e-12 * (TW - T0)
+    wa, wb = read(tmp_path / "plane" / "wall_heat.csv"), read(tmp_path / "mesh" / "wall_heat.csv")
+    for path in ("contact", "gas_gap", "radiation", "total"):
+        assert wb[("floor", path)][-1, 1] == pytest.approx(wa[("floor", path)][-1, 1], abs=1e-12 * gain), path

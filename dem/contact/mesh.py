@@ -589,10 +589,11 @@ def mesh_near(W, m, x0, x1, x2, reach, t):
 
 
 @njit(cache=True, error_model="numpy")
-def mesh_contacts(P, W, nown, reach, t, rolling, age):
+def mesh_contacts(P, W, nown, reach, srange, t, rolling, age):
     """Before a force evaluation: the contacts of each owned particle with each mesh wall in
     its wall list (surface points within its radius + ``reach``, the heat models' range), the
-    ``nslot`` nearest, each into the wall row whose previous contact's normal is closest to
+    ``nslot`` nearest (out to ``srange`` radii when a wall radiates: its sphere of influence,
+    dem.thermal.heat.wall_radiation_weights), each into the wall row whose previous contact's normal is closest to
     its own (within 60 degrees: the same contact, sliding or rolling from one triangle to the
     next, keeps its spring); a new contact takes a free row, whose springs start at zero.
     Writes P.mcon (rows without a contact: distance inf)."""
@@ -610,7 +611,7 @@ def mesh_contacts(P, W, nown, reach, t, rolling, age):
             row0 = mmi[m, MMI.row0]
             ns = mmi[m, MMI.nslot]
             px, py, pz = to_mesh_frame(mm, m, x[i, 0], x[i, 1], x[i, 2], t)
-            cut = r[i] + reach
+            cut = max(r[i] + reach, srange * r[i])
             nt = _query(W, m, px, py, pz, cut)
             k = sphere_contacts(px, py, pz, cut, W.mv, W.mfc, W.mev, W.mvv, W.mout, nt, W.mraw, cbuf)
             # the nearest first (insertion sort: k is a few)

@@ -224,7 +224,7 @@ def wall_radiation_now(P, C, W, TB, prm, nown, t, k, out):
     wgt = np.zeros((nown, wth.shape[0]))
     aw0 = np.zeros(nown)
     aw1 = np.zeros(nown)
-    wall_radiation_weights(rad, 0, nown, x, r, W, t, prm.thf[TF.radrange], wgt, aw0, aw1)
+    wall_radiation_weights(rad, 0, nown, P, W, t, prm.thf[TF.radrange], wgt, aw0, aw1)
     for i in range(nown):
         if wgt[i, k] <= 0.0:
             continue
@@ -235,12 +235,16 @@ def wall_radiation_now(P, C, W, TB, prm, nown, t, k, out):
 
 
 @njit(cache=True, error_model="numpy")
-def wall_radiation_weights(rad, i0, i1, x, r, W, t, srange, wgt, aw0, aw1):
+def wall_radiation_weights(rad, i0, i1, P, W, t, srange, wgt, aw0, aw1):
     """The radiating walls ``W`` (dem.schema Walls) in each sphere of influence
-    (dem.thermal.radiation, walls): for rows [i0, i1), wgt[i, w] the weight of wall w (fixed
-    temperature, emissivity > 0, its surface within srange r_i of the centre) and the wall
-    accumulators (aw0, aw1) of particle i."""
-    wf, wi, wth, wtab = W.wf, W.wi, W.wth, W.wtab
+    (dem.thermal.radiation, walls): for rows [i0, i1) of the particles ``P``, wgt[i, w] the weight
+    of wall row w (fixed temperature, emissivity > 0, its surface within srange r_i of the centre)
+    and the wall accumulators (aw0, aw1) of particle i. A mesh wall is its tangent plane at the
+    nearest of the particle's contact records (P.mcon, written by dem.contact.mesh.mesh_contacts
+    out to srange r_i when a wall radiates), on its first row (the others weigh nothing): one
+    surface, as a plane."""
+    wf, wi, wth, wtab, mmi = W.wf, W.wi, W.wth, W.wtab, W.mmi
+    x, r, mcon = P.position, P.radius, P.mcon
     nw = wth.shape[0]
     for i in range(i0, i1):
         s = srange * r[i]
@@ -248,7 +252,15 @@ def wall_radiation_weights(rad, i0, i1, x, r, W, t, srange, wgt, aw0, aw1):
             ew = wth[w, WT.emis]
             if ew <= 0.0 or wth[w, WT.cond] != 1.0:
                 continue
-            d, _, _, _ = wall_distance(wf, wi, w, x[i, 0], x[i, 1], x[i, 2], t)
+            if wi[w, WI.type] == MESH:
+                m = wi[w, WI.mesh]
+                if w != mmi[m, MMI.row0]:
+                    continue
+                d = math.inf
+                for q in range(mmi[m, MMI.nslot]):
+                    d = min(d, mcon[i, w + q, 0])
+            else:
+                d, _, _, _ = wall_distance(wf, wi, w, x[i, 0], x[i, 1], x[i, 2], t)
             g = radiation_wall_weight(rad, ew, d, s)
             if g > 0.0:
                 wgt[i, w] = g
@@ -422,7 +434,7 @@ def _link_rows(P, W, TB, prm, i0, i1, dt, t, fused, expo, links, rec):
     wr = rad >= 0 and thi[TI.wrad] == 1
     acc0, acc1, wgt, aw0, aw1, hs, hts, hconv, hrad, tenv = links
     if wr:
-        wall_radiation_weights(rad, i0, i1, x, r, W, t, prm.thf[TF.radrange], wgt, aw0, aw1)
+        wall_radiation_weights(rad, i0, i1, P, W, t, prm.thf[TF.radrange], wgt, aw0, aw1)
     if not fused:
         for i in range(i0, i1):
             for q in range(wnn[i]):
@@ -658,7 +670,7 @@ def _implicit_assemble(P, C, W, TB, prm, m, dt_diag, dt, t, has_ind, b, dg):
     qw = np.zeros((m if wr else 0, nw))
     om = np.zeros((m if wr else 0, nw))
     if wr:
-        wall_radiation_weights(rad, 0, m, x, r, W, t, prm.thf[TF.radrange], wgt, aw0, aw1)
+        wall_radiation_weights(rad, 0, m, P, W, t, prm.thf[TF.radrange], wgt, aw0, aw1)
     if rad >= 0:
         for i in range(m):
             walls_i = wr and aw1[i] > 0.0

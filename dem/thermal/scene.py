@@ -246,9 +246,6 @@ def parse_thermal(v, sc, data):
         if W["emissivity"] > 0.0 and cond != "fixed_temperature":
             v.err(p + ".emissivity", f"only a fixed_temperature wall radiates (the DEM knows no temperature of "
                                      f"a {cond} wall, which is taken as reradiating); remove the key")
-        if W["emissivity"] > 0.0 and w["type"] == "mesh":
-            v.err(p + ".emissivity", "radiation to a mesh wall is not modelled (a plane or a cylinder "
-                                     "radiates); remove the key, or model the radiating surface as a plane")
         if W["emissivity"] > 0.0 and th["radiation_id"] < 0:
             v.err(p + ".emissivity", "needs a radiation model: [thermal] radiation = \"zhou_2009\" or "
                                      "\"krause_2017\"")
