@@ -8,7 +8,10 @@ cone (its wall 25 degrees from the axis) down to a flat bottom of radius 6 mm at
 discharge_D6.stl, discharge_D8.stl, discharge_D10.stl (examples/hopper_discharge.toml,
 benchmarks/hopper_discharge.py): a cylinder of radius 15 mm from z = 30 to 70 mm on a cone of
 half-angle 30 degrees open at the bottom, a round orifice of diameter D mm (the cone ends where
-its radius is D / 2: at z = 30 - (15 - D / 2) / tan 30 degrees)."""
+its radius is D / 2: at z = 30 - (15 - D / 2) / tan 30 degrees).
+
+kiln.stl (examples/kiln_feed.toml): the shell of a rotary kiln, a tube of radius 25 mm from x = 0
+to 100 mm along the x axis, open at both ends."""
 import os
 import sys
 
@@ -47,10 +50,24 @@ def hopper(rings=RINGS):
     return np.array(tris)
 
 
+def kiln(radius=25.0, length=100.0):
+    """The kiln's shell: 72 segments around the x axis, one quad (two triangles) each."""
+    th = np.linspace(0.0, 2 * np.pi, SEG + 1)
+    tris = []
+    for a, b in zip(th[:-1], th[1:]):
+        p0 = [0.0, radius * np.cos(a), radius * np.sin(a)]
+        p1 = [0.0, radius * np.cos(b), radius * np.sin(b)]
+        q0, q1 = [length, p0[1], p0[2]], [length, p1[1], p1[2]]
+        tris += [[p0, q1, p1], [p0, q0, q1]]
+    return np.array(tris)
+
+
 if __name__ == "__main__":
     here = os.path.dirname(os.path.abspath(__file__))
     write_stl(os.path.join(here, "hopper.stl"), hopper(), binary=True, name="hopper")
     print(os.path.join(here, "hopper.stl"))
+    write_stl(os.path.join(here, "kiln.stl"), kiln(), binary=True, name="kiln")
+    print(os.path.join(here, "kiln.stl"))
     for d in DISCHARGE_WIDTHS:
         out = os.path.join(here, f"discharge_D{d}.stl")
         write_stl(out, hopper(discharge_rings(d)), binary=True, name=f"discharge_D{d}")
