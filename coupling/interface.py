@@ -421,16 +421,11 @@ class CouplingInterface:
         up to each of their events, which then act (a new particle feels the gas from the next
         interval on: its fluid force and drag are zero until then)."""
         sim = self.sim
-        flow = sim.world.flow
         with self.timer("dem"):
-            if flow is None:
+            if sim.world.flow is None:
                 sim.step(k)
-                return
-            end = sim.step_count + k
-            while sim.step_count < end:
-                nxt = min(flow.next_due(sim.step_count), end)
-                sim.step(nxt - sim.step_count)
-                flow.apply(sim.stepper, sim.step_count)
+            else:
+                sim.world.flow.advance(sim, k)
 
 
 # --------------------------------------------------------------------------- kernels

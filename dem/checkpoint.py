@@ -363,6 +363,9 @@ def validate(path, arrays, record, subset=False):
         nw = sum(int(w.get("slots", 1)) for w in record["walls"])   # wall rows (a mesh wall has several)
         nmat = len(record["materials"])
         feats = _features(record)
+        flow = record.get("flow") or {}   # the inlets and outlets by name (dem.flow)
+        n_in = len(flow.get("inlets", []))
+        n_flow = n_in + len(flow.get("outlets", []))
     except (KeyError, TypeError, ValueError, AttributeError):
         raise CheckpointError(path, "checkpoint is damaged: its record lacks particles, walls or materials") \
             from None
@@ -403,8 +406,7 @@ def validate(path, arrays, record, subset=False):
             on = feats.get(f.when, None) if f.when is not None else True
             full = f.shape(rows, W1, slots) if owner != "wall" else (W1,)
             if f.when == "flow":   # one row per inlet and outlet of the record
-                fl = record.get("flow") or {}
-                full = (len(fl.get("inlets", [])) + len(fl.get("outlets", [])), 3)
+                full = (n_flow, 3)
             elif owner == "param":
                 from .thermal.heat import TOT
                 full = (TOT.SIZE,)
@@ -420,11 +422,10 @@ def validate(path, arrays, record, subset=False):
         declared("wall", N)
         declared("param", N)
     elif feats.get("flow"):   # the particles in and out (dem.flow), with or without heat
-        fl = record.get("flow") or {}
-        need("flow_tot", F8, (len(fl.get("inlets", [])) + len(fl.get("outlets", [])), 3))
+        need("flow_tot", F8, (n_flow, 3))
     if feats.get("flow"):
         need("flow_next_id", I8, ())
-        need("flow_owed", F8, (len((record.get("flow") or {}).get("inlets", [])),))
+        need("flow_owed", F8, (n_in,))
     ids = arrays["state_id"]
     mat = arrays["state_material"]
     if np.unique(ids).size != N:

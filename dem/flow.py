@@ -44,7 +44,8 @@ from numba import njit
 
 from . import schema as S
 from .contact.walls import WI, MESH, wall_distance
-from .regions import check_region_in_domain, radius_spec, region, region_volume, spec_bounds
+from .state import sphere_masses
+from .regions import check_region_in_domain, radius_spec, region, region_box, region_volume, spec_bounds
 
 FACES = {"xmin": (0, 0), "xmax": (0, 1), "ymin": (1, 0), "ymax": (1, 1), "zmin": (2, 0), "zmax": (2, 1)}
 INLET_KEYS = {"name", "material", "radius", "rate", "mass_rate", "region", "velocity", "temperature", "interval",
@@ -66,11 +67,10 @@ def parse(v, data, sim, lo, hi, periodic, mat_ref, materials, groups):
     checked dicts. ``groups``: the number of [[particles]] groups (an inlet's particles get
     group groups + its index)."""
     inlets, outlets, names = [], [], {}
-    for key, allowed in (("inlets", INLET_KEYS), ("outlets", OUTLET_KEYS)):
+    for key in ("inlets", "outlets"):
         if not isinstance(data.get(key, []), list):
             v.err(key, f"must be an array of tables [[{key}]]")
     dt = sim["time_step"]
-    g = float(np.linalg.norm(sim["gravity"]))
     for k, d in enumerate(data.get("inlets", [])):
         p = f"inlets[{k}]"
         v.table(d, p, INLET_KEYS, required=("material", "radius", "region"))
@@ -86,15 +86,16 @@ def parse(v, data, sim, lo, hi, periodic, mat_ref, materials, groups):
         rate = v.num(d, rates[0], p, lo=0, lo_open=True)
         vel = v.vec(d, "velocity", p, default=np.zeros(3))
         vol = region_volume(reg)
-        interval = _default_interval(reg, vel, sim["gravity"]) if "interval" not in d else None
-        if interval is None:
-            interval = v.num(d, "interval", p, lo=dt, required="interval" in d or g == 0.0)
+        interval = _default_interval(reg, vel, sim["gravity"])
+        if "interval" in d or interval is None:   # (None: neither the velocity nor gravity moves it)
+            interval = v.num(d, "interval", p, lo=dt, required=True)
         rmin, rmax = spec_bounds(spec)
         vmean = mean_volume(spec)
         rho = materials[mat]["density"]
-        per = rate * interval / (1.0 if rates[0] == "rate" else rho * vmean)   # particles per insertion
+        unit_of_rate = 1.0 if rates[0] == "rate" else rho * vmean   # a particle in the rate's unit
+        per = rate * interval / unit_of_rate   # particles per insertion
         if per * vmean > FILL_LIMIT * vol:
-            most = FILL_LIMIT * vol / vmean / interval * (1.0 if rates[0] == "rate" else rho * vmean)
+            most = FILL_LIMIT * vol / vmean / interval * unit_of_rate
             unit = "particles/s" if rates[0] == "rate" else "kg/s"
             v.err(f"{p}.{rates[0]}", f"{rate:g} {unit} at one insertion every {interval:g} s is {per:.4g} particles "
                                      f"a batch, {per * vmean / vol:.3g} of the region's {vol:.3g} m3; random "
@@ -161,16 +162,6 @@ def _default_interval(reg, vel, gravity):
         u = np.asarray(gravity, float) / gn
         return math.sqrt(2.0 * float(np.abs(u) @ (hi - lo)) / gn)
     return None
-
-
-def region_box(reg):
-    """(lo, hi) of the box around a region."""
-    if reg["type"] == "box":
-        return np.asarray(reg["min"], float), np.asarray(reg["max"], float)
-    ax = np.asarray(reg["axis"], float) / np.linalg.norm(reg["axis"])
-    ext = np.abs(ax) * float(reg["length"]) / 2 + np.sqrt(np.maximum(0.0, 1 - ax ** 2)) * float(reg["radius"])
-    c = np.asarray(reg["center"], float)
-    return c - ext, c + ext
 
 
 def mean_volume(spec):
@@ -286,6 +277,15 @@ class Flow:
         its DEM interval in pieces between them: coupling.interface.advance_dem)."""
         return min((step // n + 1) * n for n in self.steps())
 
+    def advance(self, sim, nsteps):
+        """``nsteps`` steps of ``sim`` (dem.Simulation) with the events on the way: in pieces up to
+        each, which then acts (what a run's FlowEvents operation does, for callers that step the
+        simulation themselves: a coupled run's DEM interval, coupling.interface.advance_dem)."""
+        end = sim.step_count + nsteps
+        while sim.step_count < end:
+            sim.step(min(self.next_due(sim.step_count), end) - sim.step_count)
+            self.apply(sim.stepper, sim.step_count)
+
     def due(self, step):
         outs = [o for o in self.outlets if step % o["steps"] == 0]
         t = step * self.world.dt
@@ -308,14 +308,15 @@ class Flow:
         x = st.position[:n]
         gone = np.zeros(n, bool)
         for o in outs:
-            hit = inside(o, x, st.lo, st.hi) & ~gone
-            self._tally(len(self.inlets) + self.outlets.index(o), np.nonzero(hit)[0])
-            gone |= hit
+            hit = np.nonzero(inside(o, x, st.lo, st.hi) & ~gone)[0]
+            self._tally(len(self.inlets) + self.outlets.index(o), st.mass[hit],
+                        st.temperature[hit] if st.thermal else None, st.inv_heat_capacity[hit] if st.thermal else None)
+            gone[hit] = True
         batches = [(k, inlet, self._batch(k, inlet, step, par)) for k, inlet in ins]
         new = self.rows(batches)
         local = [float(gone.sum())]
         for k, inlet, b in batches:
-            local += [float(b["id"].size), float(b["mass"])]
+            local += [float(b["id"].size), float(b["masses"][0].sum())]
         tot = np.array(local) if par is None else np.asarray(par.allsum(np.array(local)), float)
         for q, (k, inlet, b) in enumerate(batches):
             got = tot[1 + 2 * q] if inlet["kind"] == "rate" else tot[2 + 2 * q]
@@ -328,14 +329,14 @@ class Flow:
         w.n_total += added - int(tot[0])
         return int(tot[0]), added
 
-    def _tally(self, row, rows):
-        """Add the particles of ``rows`` (this rank's) to row ``row`` of the totals."""
-        st = self.world.state
-        f = st.flow[row]
-        f[0] += rows.size
-        f[1] += float(st.mass[rows].sum())
-        if st.thermal:
-            f[2] += float(np.sum(st.temperature[rows] / st.inv_heat_capacity[rows]))
+    def _tally(self, row, mass, T, inv_c):
+        """Add particles (this rank's: their masses, and with heat their temperatures and
+        1 / (m c)) to row ``row`` of the totals: number, mass, enthalpy m c T."""
+        f = self.world.state.flow[row]
+        f[0] += mass.size
+        f[1] += float(mass.sum())
+        if T is not None:
+            f[2] += float(np.sum(T / inv_c))
 
     def _batch(self, k, inlet, step, par):
         """This rank's new particles of inlet k at step ``step``: id, position, radius, and what the
@@ -351,7 +352,7 @@ class Flow:
         else:   # draws until the next would pass the mass asked for
             guess = max(8, int(2 * want / (rho * mean_volume(inlet["radius"]))) + 8)
             radii = sample_radii(inlet["radius"], guess, rng)
-            m = np.cumsum(4.0 / 3.0 * math.pi * radii ** 3 * rho)
+            m = np.cumsum(sphere_masses(radii, rho)[0])
             radii = radii[:int(np.searchsorted(m, want * (1.0 + 1e-12), side="right"))]
         x, keep, _ = insert(inlet["region"], radii, rng, np.zeros((0, 3)), np.zeros(0))
         ids = self.next_id + np.arange(radii.size, dtype=np.int64)
@@ -373,7 +374,7 @@ class Flow:
         sel = np.nonzero(ok)[0]
         r = radii[sel]
         return dict(id=ids[sel], position=np.ascontiguousarray(x[sel]), radius=r, want=want, made=int(keep.sum()),
-                    mass=float(np.sum(4.0 / 3.0 * math.pi * r ** 3 * rho)))
+                    masses=sphere_masses(r, rho))
 
     def _settle(self, k, inlet, b, got, placed, par):
         """The debt of inlet k after a batch that placed ``got`` (particles or kg) over the ranks."""
@@ -405,35 +406,28 @@ class Flow:
         for k, inlet, b in batches:
             m = b["id"].size
             arr = {f.name: np.zeros((m,) + getattr(st, f.name).shape[1:], f.dtype) for f in declared}
-            rho = w.scene.materials[inlet["material"]]["density"]
-            r = b["radius"]
-            mass = 4.0 / 3.0 * math.pi * r ** 3 * rho
-            arr.update(id=b["id"], position=b["position"], radius=r, mass=mass, inv_mass=1.0 / mass,
-                       inv_inertia=1.0 / (0.4 * mass * r ** 2), x_build=b["position"].copy())
+            mass, inv_mass, inv_inertia = b["masses"]
+            arr.update(id=b["id"], position=b["position"], radius=b["radius"], mass=mass, inv_mass=inv_mass,
+                       inv_inertia=inv_inertia, x_build=b["position"].copy())
             arr["velocity"][:] = inlet["velocity"]
             arr["material"][:] = inlet["material"]
             arr["group"][:] = inlet["group"]
             arr["force"][:] = mass[:, None] * st.fp[FP.gx:FP.gz + 1]   # no contact: gravity alone
             if "mcon" in arr and m:
                 arr["mcon"][:, :, 0] = math.inf
-            f = st.flow[k]
-            f[0] += m
-            f[1] += float(mass.sum())
             if st.thermal:
                 th = w.thermal
                 from .thermal import registry as R
                 arr["temperature"][:] = self.temperature(inlet)
                 arr["inv_heat_capacity"][:] = 1.0 / (mass * th.tmat[inlet["material"], R.CP])
-                arr["por"][:] = th.gas[R.POROSITY_GLOBAL]
+                arr["por"][:], arr["tf"][:], arr["uf"][:] = th.gas_at_start()
                 if st.features.get("fluid"):   # a coupled run: the gas at the particle is known from the
                     # next interval on (coupling.interface); until then no exchange (the gas's sources
                     # of this interval do not hold it either)
                     arr["tf"][:] = arr["temperature"]
                     arr["uf"][:] = arr["velocity"]
-                else:
-                    arr["tf"][:] = th.gas[R.T_F] if math.isfinite(th.gas[R.T_F]) else 0.0
-                    arr["uf"][:] = w.scene.thermal["gas_velocity"]
-                f[2] += float(np.sum(arr["temperature"] / arr["inv_heat_capacity"]))
+            self._tally(k, mass, arr["temperature"] if st.thermal else None,
+                        arr["inv_heat_capacity"] if st.thermal else None)
             for name, a in arr.items():
                 parts[name].append(a)
         return {name: np.concatenate(v) for name, v in parts.items()}

@@ -68,16 +68,22 @@ def region_volume(reg):
         return float(np.prod(np.asarray(reg["max"], float) - np.asarray(reg["min"], float)))
     return math.pi * float(reg["radius"]) ** 2 * float(reg["length"])
 
+def region_box(reg):
+    """(lo, hi) of the box around a checked region (a cylinder's: its axis' extent plus the
+    radius across it)."""
+    if reg["type"] == "box":
+        return np.asarray(reg["min"], float), np.asarray(reg["max"], float)
+    ax = np.asarray(reg["axis"], float) / np.linalg.norm(reg["axis"])
+    ext = np.abs(ax) * float(reg["length"]) / 2 + np.sqrt(np.maximum(0.0, 1 - ax ** 2)) * float(reg["radius"])
+    c = np.asarray(reg["center"], float)
+    return c - ext, c + ext
+
+
 def check_region_in_domain(v, p, reg, spec, lo, hi, periodic):
     """The centres an insertion region can receive must lie inside the domain (non-periodic
     axes): its box (or the box around its cylinder) shrunk by the smallest radius."""
     rmin = float(spec["value"] if spec["distribution"] == "constant" else spec["min"])
-    if reg["type"] == "box":
-        a, b = np.asarray(reg["min"], float), np.asarray(reg["max"], float)
-    else:
-        ax = np.asarray(reg["axis"], float) / np.linalg.norm(reg["axis"])
-        ext = np.abs(ax) * float(reg["length"]) / 2 + np.sqrt(np.maximum(0.0, 1 - ax ** 2)) * float(reg["radius"])
-        a, b = np.asarray(reg["center"], float) - ext, np.asarray(reg["center"], float) + ext
+    a, b = region_box(reg)
     tol = 1e-9 * float(np.max(hi - lo))
     for k in range(3):
         if periodic[k]:

@@ -12,7 +12,7 @@ import numpy as np
 from .contact.registry import CONTACT_MODELS, ROLLING_MODELS, DAMPING_MODELS, TANGENTIAL_MODELS
 from .errors import SceneError
 from .parcels import parcel_factors
-from .regions import check_region_in_domain, radius_spec, region, region_volume, spec_bounds
+from .regions import check_region_in_domain, radius_spec, region, region_box, region_volume, spec_bounds
 
 
 _NUM = (int, float)
@@ -791,16 +791,6 @@ def _thermal_hook(v, sc, data):
 INSERTION_BLOCK = 131072
 
 
-def _region_box(reg):
-    """The box around an insertion region."""
-    if reg["type"] == "box":
-        return np.asarray(reg["min"], float), np.asarray(reg["max"], float)
-    ax = np.asarray(reg["axis"], float) / np.linalg.norm(reg["axis"])
-    ext = np.abs(ax) * float(reg["length"]) / 2 + np.sqrt(np.maximum(0.0, 1 - ax ** 2)) * float(reg["radius"])
-    c = np.asarray(reg["center"], float)
-    return c - ext, c + ext
-
-
 def _insert_part(v, p, part, reg, rad, rng, P, k_ins):
     """A ``count`` group under MPI: inserted on one rank (the k-th count group on rank k % N)
     with the serial algorithm and random stream (every rank advances the stream by the same
@@ -812,7 +802,7 @@ def _insert_part(v, p, part, reg, rad, rng, P, k_ins):
     ex_x = np.concatenate(P["x"]) if P["x"] else np.zeros((0, 3))
     ex_r = np.concatenate(P["r"]) if P["r"] else np.zeros(0)
     reach = float(rad.max()) + float(part.max(ex_r.max(initial=0.0)))
-    blo, bhi = _region_box(reg)
+    blo, bhi = region_box(reg)
     near = part.gather_near(ex_x, ex_r, blo - reach, bhi + reach, root)
     if part.rank == root:
         part.largest_read = max(part.largest_read, near[1].size + n)

@@ -13,6 +13,13 @@ import numpy as np
 from . import schema as S
 
 
+def sphere_masses(radius, density):
+    """(mass, 1 / mass, 1 / (2/5 m R^2)) of spheres of the given radii and densities: the rows a
+    scene's particles start with (State) and an inlet's get (dem.flow)."""
+    mass = 4.0 / 3.0 * np.pi * radius ** 3 * density
+    return mass, 1.0 / mass, 1.0 / (0.4 * mass * radius ** 2)
+
+
 class State:
     def __init__(self, ids, position, velocity, angular_velocity, radius, material, group, densities,
                  walls=0):
@@ -30,10 +37,8 @@ class State:
         self.radius = np.ascontiguousarray(radius, float).copy()
         self.material = np.ascontiguousarray(material, np.int32)
         self.group = np.ascontiguousarray(group, np.int32)
-        rho = np.asarray(densities, float)[self.material]
-        self.mass = 4.0 / 3.0 * np.pi * self.radius ** 3 * rho
-        self.inv_mass = 1.0 / self.mass
-        self.inv_inertia = 1.0 / (0.4 * self.mass * self.radius ** 2)
+        self.mass, self.inv_mass, self.inv_inertia = sphere_masses(self.radius,
+                                                                   np.asarray(densities, float)[self.material])
         self.allocate()
         self.x_build = self.position.copy()
 

@@ -242,17 +242,11 @@ class Stepper:
         st.n_owned = st.id.shape[0]
         st.n_ghost = 0
         st.ip[K.IP.nown] = st.n_owned
-        self._rebuild_with(rec)
+        self.restore_neighbors(rec)   # (on several ranks: the exchange sends each its ghosts again)
         th = self.world.thermal
         if th is not None and th.voronoi:
             th.update_porosity(self.world.time)
             self.forward_porosity()
-
-    def _rebuild_with(self, rec):
-        from .parallel import records
-        st = self.state
-        self.rebuild(self.world.step_count, st.lo, st.hi, st.periodic)
-        records.restore(rec, st, 0)
 
     def forward_porosity(self):
         """Send the owned particles' porosity to the ghosts (nothing to do in one process)."""
@@ -380,9 +374,6 @@ class ParallelStepper(Stepper):
             elif resort_vor:
                 th.update_porosity(w.time)
                 self.forward_porosity()
-
-    def _rebuild_with(self, rec):
-        self._exchange_rebuild(self.world.step_count, rec=rec, weights_from_list=False)
 
     def _note(self, status, who, other, value):
         if status != K.OK and self._pending is None:

@@ -47,6 +47,13 @@ class World:
         for k in range(3):  # wrap periodic axes
             if st.periodic[k]:
                 st.position[:, k] = st.lo[k] + np.mod(st.position[:, k] - st.lo[k], L[k])
+        if getattr(scene, "distributed", False):   # set up per rank (MPI): the run's totals
+            self.rmax = float(scene.rmax)
+            self.n_total = int(scene.n_total)
+        else:
+            self.rmax = float(st.radius.max(initial=0.0))
+            self.n_total = st.n_owned  # every rank holds the whole scene at this point
+        self.rmax = max(self.rmax, scene.flow_rmax)   # the run's largest radius: an inlet's may be larger
         st.tab, self.pair_tables = pair_tables(scene)
         st.wf, st.wi = wall_tables(scene.walls)
         self.nwalls = int(self.wall_of_row.size)   # wall rows (the kernels' walls)
@@ -55,14 +62,13 @@ class World:
         if self.nmeshes:
             st.enable(mesh=True)
             st.mcon[:, :, 0] = math.inf
-            rmax = max(float(getattr(scene, "rmax", 0.0) or st.radius.max(initial=0.0)), scene.flow_rmax)
-            mesh_tables(st, scene.walls, 2.0 * rmax + float(scene.simulation["neighbor_skin"]))
+            mesh_tables(st, scene.walls, 2.0 * self.rmax + float(scene.simulation["neighbor_skin"]))
         self.wall_speed = max([wall_surface_speed(w) for w in scene.walls], default=0.0)
         st.ip, st.fp = self._params()
         self.thermal = None
         if scene.thermal is not None:
             from .thermal.kernel import ThermalModel
-            self.thermal = ThermalModel(scene, st)
+            self.thermal = ThermalModel(scene, st, self.rmax)
         else:
             from .thermal.kernel import no_heat_tables
             no_heat_tables(st)
@@ -72,13 +78,6 @@ class World:
             self.flow = Flow(self)
         self.reach = self.thermal.reach if self.thermal is not None else 0.0
         st.fp[K.FP.reach] = self.reach
-        if getattr(scene, "distributed", False):   # set up per rank (MPI): the run's totals
-            self.rmax = float(scene.rmax)
-            self.n_total = int(scene.n_total)
-        else:
-            self.rmax = float(st.radius.max(initial=0.0))
-            self.n_total = st.n_owned  # every rank holds the whole scene at this point
-        self.rmax = max(self.rmax, scene.flow_rmax)   # an inlet's particles may be larger
         # how far beyond contact a coupled run's particle void fraction looks for neighbours
         # (coupling.particle_void): the ghost layer covers it; the pair list does not
         reach_of = getattr(scene, "ghost_reach", None)

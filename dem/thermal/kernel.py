@@ -44,7 +44,7 @@ class ThermalModel:
     """The thermal configuration of a run: switches, tables, reports and output columns. The
     arrays themselves live in the run's state (dem.state.State, declared in dem.schema)."""
 
-    def __init__(self, scene, state):
+    def __init__(self, scene, state, rmax):
         self.scene = scene
         sc = scene
         th = sc.thermal
@@ -104,8 +104,6 @@ class ThermalModel:
         # reach of the neighbour list: the largest of the selected models' records (indirect
         # cut-off, radiation range, in radii), and one radius for the local porosity
         selected = {m: th[m] for m in ("direct", "indirect", "convection", "radiation")}
-        rmax = float(sc.rmax) if getattr(sc, "distributed", False) else float(st.radius.max())
-        rmax = max(rmax, getattr(sc, "flow_rmax", 0.0))   # an inlet's particles may be larger
         reach = R.neighbour_reach(selected, self.gas, rmax)
         if self.local_porosity:
             reach = max(reach, rmax)
@@ -144,13 +142,18 @@ class ThermalModel:
         st.thi, st.thf, st.tmat, st.gas, st.ereal, st.keff = thi, thf, self.tmat, self.gas, self.ereal, self.keff
         st.rcf = self.rcf
         st.srcbox, st.tot = np.array(boxes, float).reshape(-1, 7), np.zeros(TOT.SIZE)
-        st.por[:] = self.gas[R.POROSITY_GLOBAL]
-        st.tf[:] = self.gas[R.T_F] if math.isfinite(self.gas[R.T_F]) else 0.0
-        st.uf[:] = th["gas_velocity"]
+        st.por[:], st.tf[:], st.uf[:] = self.gas_at_start()
         if st.qsrc.shape[0]:
             st.qsrc[:] = qsrc
         self.E0 = None
         self.auto = None   # auto's choice on a frozen packing (choose_integrator)
+
+    def gas_at_start(self):
+        """(porosity, gas temperature, gas velocity) a particle starts with: the scene's global
+        porosity and [gas] (gas temperature 0 without one); the local porosity, the Voronoi cells
+        and a coupled run's gas replace them."""
+        T_f = self.gas[R.T_F]
+        return self.gas[R.POROSITY_GLOBAL], T_f if math.isfinite(T_f) else 0.0, self.cfg["gas_velocity"]
 
     # -------------------------------------------------------------- run totals
     @property
