@@ -228,6 +228,8 @@ class Checkpointer:
         self._load_totals(z, root=True)
         st.fp[K.FP.tbuild] = float(z["fp_tbuild"])
         self._load_skin(z)
+        if st.mtn.shape[0]:   # the mesh walls' candidate triangles of the saved lists (not saved)
+            self.stepper.phases(K.PH_CANDIDATES, 0)
         self._load_clock(z)
 
     def _load_skin(self, z):

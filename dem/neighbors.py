@@ -186,28 +186,6 @@ def cell_grid(x, r, n, glo, ghi, gwrap, reach, skin):
 
 
 @njit(cache=True, error_model="numpy")
-def _lower_bound(a, v):
-    """First index q with a[q] >= v (a sorted)."""
-    lo = 0
-    hi = a.shape[0]
-    while lo < hi:
-        mid = (lo + hi) >> 1
-        if a[mid] < v:
-            lo = mid + 1
-        else:
-            hi = mid
-    return lo
-
-
-@njit(cache=True, error_model="numpy")
-def _key_range(table, dense, k0, k1):
-    """Slots [q0, q1) of ``order`` holding the particles of cell keys k0..k1."""
-    if dense:
-        return table[k0], table[k1 + 1]
-    return _lower_bound(table, k0), _lower_bound(table, k1 + 1)
-
-
-@njit(cache=True, error_model="numpy")
 def _axis_cell(c, o, ncell, wrap, cmin, ext):
     """Neighbour cell c + o along an axis (wrapped), or -1 when it holds no particle."""
     if ncell == 1 and o != 0:
@@ -221,65 +199,88 @@ def _axis_cell(c, o, ncell, wrap, cmin, ext):
 
 
 @njit(cache=True, error_model="numpy")
-def _scan(i, q0, q1, order, x, r, length, periodic, reach, skin, nb, cnt):
-    """Add the particles j > i of order[q0:q1] within the list cut-off to row i (counted in
-    ``cnt``, stored while the row's slots, nb.shape[1], last)."""
-    slots = nb.shape[1]
-    for q in range(q0, q1):
-        j = order[q]
-        if j <= i:
-            continue
-        dx = _min_image(x[j, 0] - x[i, 0], length[0], periodic[0])
-        dy = _min_image(x[j, 1] - x[i, 1], length[1], periodic[1])
-        dz = _min_image(x[j, 2] - x[i, 2], length[2], periodic[2])
-        rc = r[i] + r[j] + reach + skin
-        if dx * dx + dy * dy + dz * dz < rc * rc:
-            if cnt < slots:
-                nb[i, cnt] = j
-            cnt += 1
-    return cnt
-
-
-@njit(cache=True, error_model="numpy", inline="always")
-def _row_neighbours(i, grid, x, r, box, cutoff, nb, zc):
-    """Row i of the half list (the particles j > i of the 27 cells around i's within the list
-    cut-off, in cell order); returns how many there are (those beyond nb's slots are counted,
-    not stored). Writes row i of ``nb`` only, so rows can be built at once on several threads.
-    ``grid``: (cc, ncell, gwrap, cmin, ext, table, dense, order) of :func:`cell_grid`;
-    ``box``: (length, periodic) of the minimum image; ``cutoff``: (reach, skin); ``zc``: 3
-    integers of scratch, one array per thread (a tuple indexed at run time built the shared
-    50k bed's list 24 % slower)."""
+def _rows_block(i0, i1, grid, x, r, box, cutoff, nb, nnb, rowc):
+    """Rows [i0, i1) of the half list: row i the particles j > i of the 27 cells around i's
+    within the list cut-off, in cell order (the z cells of a column scanned as runs of
+    consecutive keys); rowc[i] how many there are, nnb[i] how many fit in nb's slots (those
+    beyond are counted, not stored). Writes rows [i0, i1) only, so blocks can be built at once
+    on several threads. ``grid``: (cc, ncell, gwrap, cmin, ext, table, dense, order) of
+    :func:`cell_grid`; ``box``: (length, periodic) of the minimum image; ``cutoff``: (reach,
+    skin). The arrays are taken once for the block and the scan calls no function taking an
+    array: in this loop each array a called function takes counts its references up and down,
+    which made the build 2.4 times as long (docs/benchmarks.md, "Hopper discharge")."""
     cc, ncell, gwrap, cmin, ext, table, dense, order = grid
     length, periodic = box
     reach, skin = cutoff
-    cnt = np.int64(0)  # (a literal 0 would compile _scan twice)
-    for ox in range(-1, 2):
-        ax = _axis_cell(cc[i, 0], ox, ncell[0], gwrap[0], cmin[0], ext[0])
-        if ax < 0:
-            continue
-        for oy in range(-1, 2):
-            ay = _axis_cell(cc[i, 1], oy, ncell[1], gwrap[1], cmin[1], ext[1])
-            if ay < 0:
+    slots = nb.shape[1]
+    zc = np.empty(3, np.int64)
+    l0, l1, l2 = length[0], length[1], length[2]
+    p0, p1, p2 = periodic[0], periodic[1], periodic[2]
+    for i in range(i0, i1):
+        cnt = np.int64(0)
+        xi0 = x[i, 0]
+        xi1 = x[i, 1]
+        xi2 = x[i, 2]
+        ri = r[i]
+        for ox in range(-1, 2):
+            ax = _axis_cell(cc[i, 0], ox, ncell[0], gwrap[0], cmin[0], ext[0])
+            if ax < 0:
                 continue
-            # the z cells in offset order, scanned as runs of consecutive keys
-            nz = 0
-            for oz in range(-1, 2):
-                az = _axis_cell(cc[i, 2], oz, ncell[2], gwrap[2], cmin[2], ext[2])
-                if az >= 0:
-                    zc[nz] = az
-                    nz += 1
-            base = ((ax - cmin[0]) * ext[1] + (ay - cmin[1])) * ext[2] - cmin[2]
-            t = 0
-            while t < nz:
-                za = zc[t]
-                zb = za
-                while t + 1 < nz and zc[t + 1] == zb + 1:
+            for oy in range(-1, 2):
+                ay = _axis_cell(cc[i, 1], oy, ncell[1], gwrap[1], cmin[1], ext[1])
+                if ay < 0:
+                    continue
+                nz = 0
+                for oz in range(-1, 2):
+                    az = _axis_cell(cc[i, 2], oz, ncell[2], gwrap[2], cmin[2], ext[2])
+                    if az >= 0:
+                        zc[nz] = az
+                        nz += 1
+                base = ((ax - cmin[0]) * ext[1] + (ay - cmin[1])) * ext[2] - cmin[2]
+                t = 0
+                while t < nz:
+                    za = zc[t]
+                    zb = za
+                    while t + 1 < nz and zc[t + 1] == zb + 1:
+                        t += 1
+                        zb = zc[t]
                     t += 1
-                    zb = zc[t]
-                t += 1
-                q0, q1 = _key_range(table, dense, base + za, base + zb)
-                cnt = _scan(i, q0, q1, order, x, r, length, periodic, reach, skin, nb, cnt)
-    return cnt
+                    k0 = base + za
+                    k1 = base + zb
+                    if dense:
+                        q0 = table[k0]
+                        q1 = table[k1 + 1]
+                    else:   # (the lower bounds of k0 and k1 + 1 in the sorted keys)
+                        q0 = 0
+                        hi = table.shape[0]
+                        while q0 < hi:
+                            mid = (q0 + hi) >> 1
+                            if table[mid] < k0:
+                                q0 = mid + 1
+                            else:
+                                hi = mid
+                        q1 = q0
+                        hi = table.shape[0]
+                        while q1 < hi:
+                            mid = (q1 + hi) >> 1
+                            if table[mid] < k1 + 1:
+                                q1 = mid + 1
+                            else:
+                                hi = mid
+                    for q in range(q0, q1):
+                        j = order[q]
+                        if j <= i:
+                            continue
+                        dx = _min_image(x[j, 0] - xi0, l0, p0)
+                        dy = _min_image(x[j, 1] - xi1, l1, p1)
+                        dz = _min_image(x[j, 2] - xi2, l2, p2)
+                        rc = ri + r[j] + reach + skin
+                        if dx * dx + dy * dy + dz * dz < rc * rc:
+                            if cnt < slots:
+                                nb[i, cnt] = j
+                            cnt += 1
+        rowc[i] = cnt
+        nnb[i] = min(cnt, slots)
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -317,17 +318,12 @@ def _carry_row(i, nb, nnb, hist, rhist, age, nb_old, nnb_old, hist_old, rhist_ol
 
 @njit(cache=True, error_model="numpy", parallel=True)
 def _rows_threaded(nown, nthreads, grid, x, r, box, cutoff, nb, nnb, rowc):
-    """The rows of the half list (:func:`_row_neighbours`) on ``nthreads`` threads: equal blocks
+    """The rows of the half list (:func:`_rows_block`) on ``nthreads`` threads: equal blocks
     of rows, each row written by one thread only, so the list is the same bit for bit as on one
-    thread. ``rowc[i]``: row i's count (the caller takes their largest)."""
-    slots = nb.shape[1]
+    thread."""
     bounds = block_bounds(nown, nown, nthreads)
     for b in prange(nthreads):
-        zc = np.empty(3, np.int64)
-        for i in range(bounds[b], bounds[b + 1]):
-            cnt = _row_neighbours(i, grid, x, r, box, cutoff, nb, zc)
-            rowc[i] = cnt
-            nnb[i] = min(cnt, slots)
+        _rows_block(bounds[b], bounds[b + 1], grid, x, r, box, cutoff, nb, nnb, rowc)
 
 
 @njit(cache=True, error_model="numpy", parallel=True)
@@ -441,7 +437,6 @@ def build_half_list(x, r, n, nown, dom, grid, reach, skin, slots, old, nthreads)
     rolling = rhist_old.shape[0] == nb_old.shape[0] and rhist_old.shape[0] > 0
     use_age = age_old.shape[0] == nb_old.shape[0] and age_old.shape[0] > 0
     threaded = nthreads > 1 and nown >= 2 * nthreads
-    zc = np.empty(3, np.int64)
     grid = (cc, ncell, gwrap, cmin, ext, table, dense, order)
     box = (length, periodic)
     cutoff = (reach, skin)
@@ -452,18 +447,14 @@ def build_half_list(x, r, n, nown, dom, grid, reach, skin, slots, old, nthreads)
         raw = np.empty((n, width), np.int32)
         nraw = np.zeros(n, np.int32)
         maxr = 0
+        rowc = np.zeros(nown, np.int64)
         if threaded:
-            rowc = np.zeros(nown, np.int64)
             _rows_threaded(nown, nthreads, grid, x, r, box, cutoff, raw, nraw, rowc)
-            for i in range(nown):
-                if rowc[i] > maxr:
-                    maxr = rowc[i]
         else:
-            for i in range(nown):
-                cnt = _row_neighbours(i, grid, x, r, box, cutoff, raw, zc)
-                if cnt > maxr:
-                    maxr = cnt
-                nraw[i] = min(cnt, width)
+            _rows_block(0, nown, grid, x, r, box, cutoff, raw, nraw, rowc)
+        for i in range(nown):
+            if rowc[i] > maxr:
+                maxr = rowc[i]
         if maxr <= width:
             break
         width = maxr + 2

@@ -131,6 +131,12 @@ FIELDS = (
     _f("mcon", "particle", F8, ("W", 4), when="mesh", checkpoint="mcon",
        doc="contact with a mesh wall's row: distance from the centre (inf: none), unit normal towards the "
            "surface (dem.contact.mesh.mesh_contacts; the normal is how the next step finds the same contact)"),
+    _f("mtri", "particle", I4, (8,), when="mesh",
+       doc="the triangles of every mesh wall within reach + skin of the particle at the last neighbour build, by "
+           "index (dem.contact.mesh.mesh_candidates; what the contacts of each step look at). Not saved: a "
+           "restart finds them again from the build's positions and time (x_build, fp_tbuild)"),
+    _f("mtn", "particle", I4, when="mesh",
+       doc="how many of mtri are used; -1: more than its columns (the bins are searched at each step)"),
     # ---------------------------------------------------------------- pairs (neighbour slots)
     _f("nb", "pair", I4, ("S",), checkpoint="nb", doc="half neighbour list (row of the other particle)"),
     _f("nnb", "pair", I4, checkpoint="nnb", doc="used slots of each row"),
@@ -159,9 +165,13 @@ FIELDS = (
     _f("mvv", "mesh", I8, when="mesh", doc="triangles holding each vertex"),
     _f("mm", "mesh", F8, (None,), when="mesh", doc="per mesh: motion and bins (columns: dem.contact.mesh MM)"),
     _f("mmi", "mesh", I8, (None,), when="mesh", doc="per mesh: rows and bins (columns: dem.contact.mesh MMI)"),
+    _f("mpl", "mesh", F8, (4,), when="mesh", doc="triangles: unit normal n and offset n . a of their plane (the "
+       "step's pre-test: a triangle whose plane is beyond the sphere cannot touch it)"),
     _f("mkeys", "mesh", I8, when="mesh", doc="occupied bins of each mesh, sorted"),
     _f("mstart", "mesh", I8, when="mesh", doc="each mesh's bin k: triangles mitems[mstart[k0 + m + k]:... + 1]"),
     _f("mitems", "mesh", I8, when="mesh", doc="the triangles of the bins"),
+    _f("mdense", "mesh", I4, when="mesh", doc="each mesh's bin grid as a dense map, cell -> its bin in mkeys (-1: "
+       "empty), for the grids of at most dem.contact.mesh.DENSE_MAX cells (MMI.d0)"),
     _f("mstamp", "mesh", I8, when="mesh", scratch=True, doc="search scratch: a tag per triangle, the last tag at the end"),
     _f("mout", "mesh", I8, when="mesh", scratch=True, doc="search scratch: the candidate triangles"),
     _f("mraw", "mesh", F8, (8,), when="mesh", scratch=True, doc="search scratch: the candidates' closest points"),

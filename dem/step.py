@@ -28,8 +28,8 @@ from .contact.hertz_mindlin import hertz_mindlin
 from .contact.linear import linear_spring_dashpot
 from .contact.rolling import constant_torque, epsd
 from .contact.tangential import luding_2008_turn, silbert_2001_turn, TANGENTIAL_PROJECTED
-from .contact.walls import wall_distance, wall_velocity, particle_wall, WI, MESH
-from .contact.mesh import mesh_contacts, mesh_near, mesh_velocity, MMI
+from .contact.walls import wall_distance, wall_velocity, WI, MESH
+from .contact.mesh import mesh_contacts, mesh_candidates, mesh_velocity, MMI
 from .blocks import block_bounds, block_count, cross_counts, keep_cross_counts, kept_cross_counts
 from .neighbors import build_half_list, Box, adaptive_skin, pairs_beyond
 from .schema import Pairs, XC, slots
@@ -113,6 +113,7 @@ OK, OVERLAP, NONFINITE, LEFT_DOMAIN, BAD_TEMPERATURE, REBUILD_DUE = 0, 1, 2, 3, 
 # phases of one step (advance's ``phases`` bits): a serial run asks for all of them, an MPI run
 # for one group at a time with the ghost messages between the calls (dem.simulation)
 PH_DRIFT, PH_REBUILD, PH_FORCES, PH_KICK, PH_HEAT, PH_AFTER_BUILD = 1, 2, 4, 8, 16, 32
+PH_CANDIDATES = 64   # (alone, no step: the mesh walls' candidate triangles of the last build, found again)
 PH_STEP = PH_DRIFT | PH_REBUILD | PH_FORCES | PH_KICK | PH_HEAT
 
 
@@ -182,24 +183,26 @@ def _contact_heat(fric, mu, thf, vtx, vty, vtz, ftx, fty, ftz, fn, vn):
     return friction_heat(fric, mu, thf[TF.chi], vtm, fn, ftv, thf[TF.ct], thf[TF.cn], ftv, abs(fn * vn))
 
 
-@njit(cache=True, error_model="numpy")
-def _rotate_history(h, i, s, ux, uy, uz, inv_u2, ton):
-    """The spring stored in slot (i, s) of ``h`` turned onto the plane normal to (ux, uy, uz),
-    whose squared length is 1 / inv_u2, by the tangential model ``ton`` (dem.contact.tangential:
-    None keeping its length, Luding 2008; True projected, Silbert 2001). The pair loop gives the
-    centre line and 1/d^2 (the turn then waits neither for the root of d^2 nor for a division by
-    d); the walls and the rolling spring give the unit normal and 1. The rolling spring always
-    keeps its length (None)."""
+@njit(cache=True, error_model="numpy", inline="always")
+def _rotate_history(h0, h1, h2, ux, uy, uz, inv_u2, ton):
+    """The spring (h0, h1, h2) turned onto the plane normal to (ux, uy, uz), whose squared
+    length is 1 / inv_u2, by the tangential model ``ton`` (dem.contact.tangential: None keeping
+    its length, Luding 2008; True projected, Silbert 2001). The pair loop gives the centre line
+    and 1/d^2 (the turn then waits neither for the root of d^2 nor for a division by d); the
+    walls and the rolling spring give the unit normal and 1. The rolling spring always keeps
+    its length (None). Scalars in and out: in the contact loops a function taking an array
+    counts its references up and down at each call."""
     if ton is not None:   # (removed before typing for the other model)
-        return silbert_2001_turn(h[i, s, 0], h[i, s, 1], h[i, s, 2], ux, uy, uz, inv_u2)
-    return luding_2008_turn(h[i, s, 0], h[i, s, 1], h[i, s, 2], ux, uy, uz, inv_u2)
+        return silbert_2001_turn(h0, h1, h2, ux, uy, uz, inv_u2)
+    return luding_2008_turn(h0, h1, h2, ux, uy, uz, inv_u2)
 
 
 @njit(cache=True, error_model="numpy")
 def full_form(ip, thi, periodic):
     """Whether a scene needs the full form of the interact phase (``xon`` = True): rolling
-    resistance, a periodic direction, a triangle-mesh wall, or with heat the models the lean form (``xon`` = None)
-    leaves out: indirect conduction, radiation, frictional heating, contact age, a direct
+    resistance, a periodic direction, or with heat the models the lean form (``xon`` = None)
+    leaves out (a triangle-mesh wall runs in both forms: its rows are a run-time branch of the wall
+    loop, a few per particle near it): indirect conduction, radiation, frictional heating, contact age, a direct
     conduction law other than Batchelor & O'Brien (the default), and the contact radii that are
     not a pair constant times sqrt(R* delta) or the geometric radius
     (dem.thermal.contact_radius.lean_radius: under the linear law the force-based radii, and a
@@ -209,7 +212,7 @@ def full_form(ip, thi, periodic):
     interact phase about 10 % faster (docs/notebook.md, "The lean form of the contact loops").
     dem.stepper.Stepper.xon asks this; dem.step.compute_forces refuses the lean form for a
     scene that needs the full one."""
-    if ip[IP.rolling] != 0 or periodic[0] or periodic[1] or periodic[2] or ip[IP.nmesh] > 0:
+    if ip[IP.rolling] != 0 or periodic[0] or periodic[1] or periodic[2]:
         return True
     if thi[TI.heat] == 0:
         return False
@@ -249,7 +252,7 @@ def interact_rows(P, C, W, TB, prm, n, t, hon, xon, ton, blk):
     x, v, w, r, m, mat, f, tq = (P.position, P.velocity, P.angular_velocity, P.radius, P.mass, P.material,
                                  P.force, P.torque)
     inv_m = P.inv_mass
-    fext, wnb, wnn, whist, wrhist = P.external_force, P.wnb, P.wnn, P.whist, P.wrhist
+    fext, wnb, wnn, whist, wrhist, mcon = P.external_force, P.wnb, P.wnn, P.whist, P.wrhist, P.mcon
     nb, nnb, hist, rhist, age, Hd, Hi, rnear = C.nb, C.nnb, C.hist, C.rhist, C.age, C.Hd, C.Hi, C.rnear
     wf, wi, tab, ip, fp, lo, hi, periodic = W.wf, W.wi, TB.tab, prm.ip, prm.fp, prm.lo, prm.hi, prm.periodic
     thi = prm.thi
@@ -447,7 +450,7 @@ def interact_rows(P, C, W, TB, prm, n, t, hon, xon, ton, blk):
             vtx = vrx - vn * nx
             vty = vry - vn * ny
             vtz = vrz - vn * nz
-            hx, hy, hz = _rotate_history(hist, i, s, dx, dy, dz, invd2, ton)
+            hx, hy, hz = _rotate_history(hist[i, s, 0], hist[i, s, 1], hist[i, s, 2], dx, dy, dz, invd2, ton)
             rstar = ri * rj / rs
             mstar = 1.0 / (inv_m[i] + inv_m[j])
             fn, ftx, fty, ftz, hx, hy, hz, kn = _pair_law(
@@ -578,7 +581,7 @@ def interact_rows(P, C, W, TB, prm, n, t, hon, xon, ton, blk):
                 if rolling == 1:
                     mx, my, mz = constant_torque(wx, wy, wz, rstar, fn, mur)
                 else:
-                    qx, qy, qz = _rotate_history(rhist, i, s, nx, ny, nz, 1.0, None)
+                    qx, qy, qz = _rotate_history(rhist[i, s, 0], rhist[i, s, 1], rhist[i, s, 2], nx, ny, nz, 1.0, None)
                     ii = 1.4 * m[i] * ri * ri
                     ij = 1.4 * m[j] * rj * rj
                     ir = 1.0 / (1.0 / ii + 1.0 / ij)
@@ -605,8 +608,12 @@ def interact_rows(P, C, W, TB, prm, n, t, hon, xon, ton, blk):
         mi = np.uint32(mat[i])
         for q in range(wnn[i]):
             wl = np.uint32(wnb[i, q])
-            if xon is not None:   # a mesh row's contact is the particle's own (P.mcon)
-                dist, nx, ny, nz = particle_wall(wf, wi, P.mcon, wl, i, x[i, 0], x[i, 1], x[i, 2], t)
+            if wi[wl, WI.type] == MESH:   # the particle's own contact record (P.mcon;
+                # read here: a function taking the arrays would count their references at each row)
+                dist = mcon[i, wl, 0]
+                nx = mcon[i, wl, 1]
+                ny = mcon[i, wl, 2]
+                nz = mcon[i, wl, 3]
             else:
                 dist, nx, ny, nz = wall_distance(wf, wi, wl, x[i, 0], x[i, 1], x[i, 2], t)
             if not (dist < ri) or dist < -ri:
@@ -652,7 +659,7 @@ def interact_rows(P, C, W, TB, prm, n, t, hon, xon, ton, blk):
             cpx = x[i, 0] + dist * nx
             cpy = x[i, 1] + dist * ny
             cpz = x[i, 2] + dist * nz
-            if xon is not None and wi[wl, WI.type] == MESH:   # a mesh may also oscillate
+            if wi[wl, WI.type] == MESH:   # a mesh may also oscillate
                 uwx, uwy, uwz = mesh_velocity(W.mm, wi[wl, WI.mesh], cpx, cpy, cpz, t)
             else:
                 uwx, uwy, uwz = wall_velocity(wf, wl, cpx, cpy, cpz, t)
@@ -666,7 +673,7 @@ def interact_rows(P, C, W, TB, prm, n, t, hon, xon, ton, blk):
             vtx = vrx - vn * nx
             vty = vry - vn * ny
             vtz = vrz - vn * nz
-            hx, hy, hz = _rotate_history(whist, i, wl, nx, ny, nz, 1.0, ton)
+            hx, hy, hz = _rotate_history(whist[i, wl, 0], whist[i, wl, 1], whist[i, wl, 2], nx, ny, nz, 1.0, ton)
             fn, ftx, fty, ftz, hx, hy, hz, kn = _pair_law(
                 law.model, delta, vn, vtx, vty, vtz, hx, hy, hz, ri, m[i],
                 tab[TAB.estar, mi, mw], tab[TAB.gstar, mi, mw], tab[TAB.damp, mi, mw],
@@ -738,7 +745,8 @@ def interact_rows(P, C, W, TB, prm, n, t, hon, xon, ton, blk):
                 if rolling == 1:
                     mx, my, mz = constant_torque(wx, wy, wz, ri, fn, mur)
                 else:
-                    qx, qy, qz = _rotate_history(wrhist, i, wl, nx, ny, nz, 1.0, None)
+                    qx, qy, qz = _rotate_history(wrhist[i, wl, 0], wrhist[i, wl, 1], wrhist[i, wl, 2], nx, ny, nz, 1.0,
+                                                 None)
                     ir = 1.4 * m[i] * ri * ri
                     mx, my, mz, qx, qy, qz = epsd(wx, wy, wz, qx, qy, qz, ri, fn, kn,
                                                   mur, etar, ir, dt)
@@ -850,7 +858,7 @@ def compute_forces(P, C, W, TB, prm, n, t, hon, xon, ton):
     if (ton is not None) != (prm.ip[IP.tangential] == TANGENTIAL_PROJECTED):
         raise ValueError("internal error: the interact phase was compiled for the other tangential model "
                          "than the scene's (ip[IP.tangential], dem.stepper.Stepper.ton)")
-    if xon is not None and prm.ip[IP.nmesh] > 0:   # the mesh walls' contacts of this step
+    if prm.ip[IP.nmesh] > 0:   # the mesh walls' contacts of this step
         mesh_contacts(P, W, prm.ip[IP.nown], prm.fp[FP.reach], mesh_radiation_range(prm), t,
                       prm.ip[IP.rolling] == 2, P.wage.shape[0] > 0)
     nblk = blocks(prm.ip)
@@ -891,15 +899,14 @@ def build_wall_list(P, n, W, nwalls, reach, skin, srange, t):
     x, r, wnb, wnn, whist, wrhist, mcon = P.position, P.radius, P.wnb, P.wnn, P.whist, P.wrhist, P.mcon
     rolling = wrhist.shape[0] > 0
     rs = reach + skin
+    near_mesh = np.zeros((n, W.mmi.shape[0]), np.bool_)
+    if P.mtn.shape[0] >= n:   # the triangles the contacts look at until the next build
+        mesh_candidates(P, W, n, x, t, reach, skin, srange, near_mesh)
     for i in range(n):
         c = 0
-        near = False
         for wl in range(nwalls):
-            if wi[wl, WI.type] == MESH:
-                m = wi[wl, WI.mesh]
-                if wl == W.mmi[m, MMI.row0]:   # the mesh's first row decides for all of them
-                    near = mesh_near(W, m, x[i, 0], x[i, 1], x[i, 2], max(r[i] + rs, srange * r[i] + skin), t)
-                if near:
+            if wi[wl, WI.type] == MESH:   # a mesh's rows together, when a point of it is near
+                if near_mesh[i, wi[wl, WI.mesh]]:
                     wnb[i, c] = wl
                     c += 1
                 else:
@@ -919,6 +926,19 @@ def build_wall_list(P, n, W, nwalls, reach, skin, srange, t):
                     if rolling:
                         wrhist[i, wl, k] = 0.0
         wnn[i] = c
+
+
+@njit(cache=True, error_model="numpy")
+def candidates_at_build(P, W, prm, nown):
+    """The mesh walls' candidate triangles of every owned particle (P.mtri, P.mtn) found again
+    as the last neighbour build found them (:func:`build_wall_list`): from the positions and the
+    time of that build (P.x_build, fp[FP.tbuild]) and its skin. A restart calls this
+    (advance's PH_CANDIDATES) instead of saving them: the same triangles, in the same order."""
+    if P.mtn.shape[0] < nown:
+        return
+    fp = prm.fp
+    mesh_candidates(P, W, nown, P.x_build, fp[FP.tbuild], fp[FP.reach], fp[FP.skin], mesh_radiation_range(prm),
+                    np.zeros((nown, W.mmi.shape[0]), np.bool_))
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -1235,6 +1255,8 @@ def advance(nsteps, s0, n, P, C, W, TB, prm, hon, xon, ton, phases):
     wj_ = -1
     thi = prm.thi
     heat = hon is not None and thi[TI.heat] != 0
+    if phases & PH_CANDIDATES:
+        candidates_at_build(P, W, prm, nown)
     for step in range(nsteps):
         t = (s0 + step + 1) * prm.fp[FP.dt]
         if phases & PH_AFTER_BUILD:  # the lists of C were just built from Python (a first build, or

@@ -191,14 +191,14 @@ def mesh_tables(st, walls, cell):
     """The Walls bundle's mesh arrays (dem.schema owner "mesh"): every mesh wall's vertices,
     faces, valences and triangle bins (cubes of ``cell``, the particles' cell size) concatenated,
     its motion and rows (dem.contact.mesh MM, MMI)."""
-    from .contact.mesh import MM, MMI
+    from .contact.mesh import MM, MMI, DENSE_MAX
     first, _ = W.wall_rows(walls)
     meshes = [(k, w) for k, w in enumerate(walls) if w["type"] == "mesh"]
     nm = len(meshes)
     mm = np.zeros((nm, MM.SIZE))
     mmi = np.zeros((nm, MMI.SIZE), np.int64)
-    mv, mfc, mev, mvv, keys, start, items = [], [], [], [], [], [], []
-    nv = nt = nk = ni = 0
+    mv, mfc, mev, mvv, keys, start, items, dense = [], [], [], [], [], [], [], [np.zeros(0, np.int32)]
+    nv = nt = nk = ni = nd = 0
     for m, (k, w) in enumerate(meshes):
         s = w["surface"]
         lo, c, dims, bk, bs, bi = s.bins(float(cell))
@@ -217,6 +217,17 @@ def mesh_tables(st, walls, cell):
         mmi[m, MMI.dims:MMI.dims + 3] = dims
         mmi[m, MMI.k0] = nk
         mmi[m, MMI.nk] = len(bk)
+        mmi[m, MMI.t0] = nt
+        ncell = int(np.prod(dims))
+        if ncell <= DENSE_MAX:
+            mmi[m, MMI.d0] = nd
+            d = np.full(ncell, -1, np.int32)
+            d[bk] = np.arange(len(bk), dtype=np.int32)
+            dense.append(d)
+            nd += ncell
+        else:
+            mmi[m, MMI.d0] = -1
+        mmi[m, MMI.nt] = len(s.faces)
         mv.append(s.verts)
         mfc.append(s.faces + nv)
         mev.append(s.edge_val)
@@ -232,6 +243,11 @@ def mesh_tables(st, walls, cell):
     st.mv, st.mfc, st.mev, st.mvv = cat(mv, float), cat(mfc, np.int64), cat(mev, np.int64), cat(mvv, np.int64)
     st.mkeys, st.mstart, st.mitems = cat(keys, np.int64), cat(start, np.int64), cat(items, np.int64)
     st.mm, st.mmi = mm, mmi
+    st.mdense = cat(dense, np.int32)
+    a, b, c = (st.mv[st.mfc[:, k]] for k in range(3))
+    nrm = np.cross(b - a, c - a)
+    nrm /= np.linalg.norm(nrm, axis=1)[:, None]   # (no degenerate triangle: dem.contact.mesh.check_triangles)
+    st.mpl = np.ascontiguousarray(np.c_[nrm, np.einsum("ij,ij->i", nrm, a)])
     st.mstamp = np.zeros(nt + 1, np.int64)
     st.mout = np.empty(nt, np.int64)
     st.mraw = np.empty((nt, 8))

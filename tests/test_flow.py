@@ -264,7 +264,10 @@ def test_one_rank_and_two_ranks_insert_the_same_particles(run, tmp_path):
     assert p.returncode == 0, p.stderr
     a, b = final(out), final(two)
     assert np.array_equal(a["id"], b["id"])
-    assert np.abs(a["position"] - b["position"]).max() <= 1e-10
+    # one process keeps its lists when particles only leave (dem.stepper.Stepper.remove_rows), the
+    # ranks build theirs again: the same forces summed in another order, whose round-off the
+    # collisions then grow (1.8e-10 m measured over this run, 1e-7 of a radius)
+    assert np.abs(a["position"] - b["position"]).max() <= 1e-8
     assert np.abs(a["temperature"] - b["temperature"]).max() <= 1e-8
     ha, hb = history(out), history(two)
     for col in ("particles", "n_in_feed", "n_out_side"):

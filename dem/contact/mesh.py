@@ -485,7 +485,11 @@ MMI = slots("MMI", (
     ("dims", 3, "bins along x, y, z"),
     ("k0", "first of the mesh's occupied bins in mkeys"),
     ("nk", "occupied bins"),
+    ("d0", "first of the mesh's cells in the dense map mdense (-1: none, the keys are searched)"),
+    ("t0", "first triangle of the mesh (in mfc)"),
+    ("nt", "triangles of the mesh"),
 ))
+DENSE_MAX = 1 << 22   # cells of a mesh's bin grid up to which the grid has a dense map (4 bytes a cell)
 MATCH_COS = 0.5   # a contact keeps its row (and its spring) when its normal turned less than 60 degrees
 KMAX = 16         # contacts of one sphere with one mesh examined at once (the nslot nearest are kept)
 
@@ -578,14 +582,83 @@ def distance2(px, py, pz, verts, faces, t):
 
 
 @njit(cache=True, error_model="numpy")
-def mesh_near(W, m, x0, x1, x2, reach, t):
-    """Whether a surface point of mesh m lies within ``reach`` of the point x at time t."""
-    px, py, pz = to_mesh_frame(W.mm, m, x0, x1, x2, t)
-    nt = _query(W, m, px, py, pz, reach)
-    for q in range(nt):
-        if distance2(px, py, pz, W.mv, W.mfc, W.mout[q]) < reach * reach:
-            return True
-    return False
+def mesh_candidates(P, W, n, xs, t, reach, skin, srange, near):
+    """At a neighbour build: for each particle i < n (centre xs[i] at time t) and each mesh m,
+    the triangles within its radius + ``reach`` (the heat models' range) + ``skin``, or
+    ``srange`` radii + ``skin`` when a wall radiates, as its candidates P.mtri[i, :P.mtn[i]]
+    (every mesh's, sorted by index: the order the contacts of each step see them in, whatever
+    the bins' order; P.mtn[i] = -1 when they do not fit, and the step then searches the bins),
+    and near[i, m]: whether any triangle of mesh m is that near. Until the next build a particle
+    moves less than half the skin from the walls (dem.step.drift), so no other triangle comes
+    within its radius + reach (dem.contact.mesh.mesh_contacts). The bins are read through
+    their dense map where the mesh has one (MMI.d0), else by a search of the sorted keys; the
+    arrays are taken once, outside the particle loop."""
+    mtri, mtn, r = P.mtri, P.mtn, P.radius
+    mv, mfc, mm, mmi = W.mv, W.mfc, W.mm, W.mmi
+    mkeys, mstart, mitems, mdense, stamp = W.mkeys, W.mstart, W.mitems, W.mdense, W.mstamp
+    cap = mtri.shape[1]
+    last = stamp.shape[0] - 1
+    tag = stamp[last]
+    for i in range(n):
+        mtn[i] = 0
+    for m in range(mmi.shape[0]):
+        lo0, lo1, lo2 = mm[m, MM.lo], mm[m, MM.lo + 1], mm[m, MM.lo + 2]
+        cell = mm[m, MM.cell]
+        n0, n1, n2 = mmi[m, MMI.dims], mmi[m, MMI.dims + 1], mmi[m, MMI.dims + 2]
+        k0 = mmi[m, MMI.k0]
+        keys = mkeys[k0:k0 + mmi[m, MMI.nk]]
+        d0 = mmi[m, MMI.d0]
+        for i in range(n):
+            h = max(r[i] + reach + skin, srange * r[i] + skin)
+            px, py, pz = to_mesh_frame(mm, m, xs[i, 0], xs[i, 1], xs[i, 2], t)
+            tag += 1
+            found = False
+            j0 = max(np.int64(math.floor((px - h - lo0) / cell)), 0)
+            j1 = min(np.int64(math.floor((px + h - lo0) / cell)), n0 - 1)
+            l0 = max(np.int64(math.floor((py - h - lo1) / cell)), 0)
+            l1 = min(np.int64(math.floor((py + h - lo1) / cell)), n1 - 1)
+            z0 = max(np.int64(math.floor((pz - h - lo2) / cell)), 0)
+            z1 = min(np.int64(math.floor((pz + h - lo2) / cell)), n2 - 1)
+            for iz in range(z0, z1 + 1):
+                for iy in range(l0, l1 + 1):
+                    for ix in range(j0, j1 + 1):
+                        key = ix + n0 * (iy + n1 * np.int64(iz))
+                        if d0 >= 0:
+                            at = np.int64(mdense[d0 + key])
+                            if at < 0:
+                                continue
+                        else:
+                            at = np.searchsorted(keys, key)
+                            if at >= keys.size or keys[at] != key:
+                                continue
+                        for q in range(mstart[k0 + m + at], mstart[k0 + m + at + 1]):
+                            tri = mitems[q]
+                            if stamp[tri] == tag:
+                                continue
+                            stamp[tri] = tag
+                            a = mfc[tri, 0]
+                            b = mfc[tri, 1]
+                            c = mfc[tri, 2]
+                            qx, qy, qz, _, _ = closest_on_triangle(
+                                px, py, pz, mv[a, 0], mv[a, 1], mv[a, 2], mv[b, 0], mv[b, 1], mv[b, 2],
+                                mv[c, 0], mv[c, 1], mv[c, 2])
+                            if not (qx - px) ** 2 + (qy - py) ** 2 + (qz - pz) ** 2 < h * h:
+                                continue
+                            found = True
+                            k = mtn[i]
+                            if k < 0:
+                                continue
+                            if k >= cap:
+                                mtn[i] = -1
+                                continue
+                            s = k
+                            while s > 0 and mtri[i, s - 1] > tri:
+                                mtri[i, s] = mtri[i, s - 1]
+                                s -= 1
+                            mtri[i, s] = tri
+                            mtn[i] = k + 1
+            near[i, m] = found
+    stamp[last] = tag
 
 
 @njit(cache=True, error_model="numpy")
@@ -596,9 +669,19 @@ def mesh_contacts(P, W, nown, reach, srange, t, rolling, age):
     dem.thermal.heat.wall_radiation_weights), each into the wall row whose previous contact's normal is closest to
     its own (within 60 degrees: the same contact, sliding or rolling from one triangle to the
     next, keeps its spring); a new contact takes a free row, whose springs start at zero.
-    Writes P.mcon (rows without a contact: distance inf)."""
+    Writes P.mcon (rows without a contact: distance inf).
+
+    The triangles looked at are the particle's candidates of the last neighbour build
+    (:func:`mesh_candidates`) whose plane passes within the reach (the closest point of a
+    triangle is no nearer than its plane; the margin keeps a contact at the rounding of the
+    reach), or, for a particle whose candidates did not fit, the bins' triangles near it. The
+    arrays are taken once here and the loop calls :func:`sphere_contacts` only for two
+    triangles or more: in a loop, each array a called function takes costs a reference count
+    up and down (about 10 ns; docs/benchmarks.md, "Hopper discharge")."""
     mcon, wnb, wnn, whist, wrhist, wage, x, r = P.mcon, P.wnb, P.wnn, P.whist, P.wrhist, P.wage, P.position, P.radius
+    mtri, mtn = P.mtri, P.mtn
     wi, mm, mmi = W.wi, W.mm, W.mmi
+    mv, mfc, mev, mvv, mout, mraw, pl = W.mv, W.mfc, W.mev, W.mvv, W.mout, W.mraw, W.mpl
     cbuf = np.empty((KMAX, 8))
     used = np.zeros(KMAX, np.bool_)
     slot = np.empty(KMAX, np.int64)
@@ -612,8 +695,48 @@ def mesh_contacts(P, W, nown, reach, srange, t, rolling, age):
             ns = mmi[m, MMI.nslot]
             px, py, pz = to_mesh_frame(mm, m, x[i, 0], x[i, 1], x[i, 2], t)
             cut = max(r[i] + reach, srange * r[i])
-            nt = _query(W, m, px, py, pz, cut)
-            k = sphere_contacts(px, py, pz, cut, W.mv, W.mfc, W.mev, W.mvv, W.mout, nt, W.mraw, cbuf)
+            nc = mtn[i]
+            if nc < 0:   # more candidates than mtri holds: the bins
+                nt = _query(W, m, px, py, pz, cut)
+            else:
+                t0 = mmi[m, MMI.t0]
+                t1 = t0 + mmi[m, MMI.nt]
+                lim = cut * (1.0 + 1e-9)
+                nt = 0
+                for a in range(nc):
+                    tri = mtri[i, a]
+                    if tri < t0 or tri >= t1:
+                        continue
+                    if abs(pl[tri, 0] * px + pl[tri, 1] * py + pl[tri, 2] * pz - pl[tri, 3]) > lim:
+                        continue
+                    mout[nt] = tri
+                    nt += 1
+            k = 0
+            if nt == 1:   # one triangle (most particles on a wall): sphere_contacts's rule without its
+                # call. Its closest point counts if on the face, or on an edge or vertex no other
+                # triangle holds: another would be nearer than the reach, and so a candidate here
+                tri = mout[0]
+                a = mfc[tri, 0]
+                b = mfc[tri, 1]
+                e = mfc[tri, 2]
+                qx, qy, qz, kind, idx = closest_on_triangle(
+                    px, py, pz, mv[a, 0], mv[a, 1], mv[a, 2], mv[b, 0], mv[b, 1], mv[b, 2], mv[e, 0], mv[e, 1], mv[e, 2])
+                dx, dy, dz = qx - px, qy - py, qz - pz
+                d = math.sqrt(dx * dx + dy * dy + dz * dz)
+                if d < cut and d >= 1e-300:
+                    kind, idx = _snap(qx, qy, qz, mv, a, b, e, kind, idx)
+                    if kind == FACE or (mev[tri, idx] if kind == EDGE else mvv[mfc[tri, idx]]) == 1:
+                        cbuf[0, 0] = d
+                        cbuf[0, 1] = dx / d
+                        cbuf[0, 2] = dy / d
+                        cbuf[0, 3] = dz / d
+                        k = 1
+            elif nt > 1:
+                k = sphere_contacts(px, py, pz, cut, mv, mfc, mev, mvv, mout, nt, mraw, cbuf)
+            if k == 0:   # no contact: the rows' contacts end (their springs start at zero when taken)
+                for s in range(ns):
+                    mcon[i, row0 + s, 0] = math.inf
+                continue
             # the nearest first (insertion sort: k is a few)
             for a in range(1, k):
                 b = a
