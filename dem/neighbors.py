@@ -186,6 +186,29 @@ def cell_grid(x, r, n, glo, ghi, gwrap, reach, skin):
 
 
 @njit(cache=True, error_model="numpy")
+def _lower_bound(a, v):
+    """First index q with a[q] >= v (a sorted)."""
+    lo = 0
+    hi = a.shape[0]
+    while lo < hi:
+        mid = (lo + hi) >> 1
+        if a[mid] < v:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
+
+
+@njit(cache=True, error_model="numpy")
+def _key_range(table, dense, k0, k1):
+    """Slots [q0, q1) of ``order`` holding the particles of cell keys k0..k1 (the cages of
+    coupling.particle_void; the neighbour rows search inline: :func:`_rows_block`)."""
+    if dense:
+        return table[k0], table[k1 + 1]
+    return _lower_bound(table, k0), _lower_bound(table, k1 + 1)
+
+
+@njit(cache=True, error_model="numpy")
 def _axis_cell(c, o, ncell, wrap, cmin, ext):
     """Neighbour cell c + o along an axis (wrapped), or -1 when it holds no particle."""
     if ncell == 1 and o != 0:
@@ -283,37 +306,39 @@ def _rows_block(i0, i1, grid, x, r, box, cutoff, nb, nnb, rowc):
         nnb[i] = min(cnt, slots)
 
 
-@njit(cache=True, error_model="numpy", inline="always")
-def _carry_row(i, nb, nnb, hist, rhist, age, nb_old, nnb_old, hist_old, rhist_old, age_old):
-    """Row i's history from the old list: the same pair in row i, else the pair stored the
-    other way round in row j (the spring with its sign turned). Writes row i only."""
+@njit(cache=True, error_model="numpy")
+def _carry_block(i0, i1, nb, nnb, hist, rhist, age, nb_old, nnb_old, hist_old, rhist_old, age_old):
+    """The history of rows [i0, i1) from the old list: the same pair in row i, else the pair
+    stored the other way round in row j (the spring with its sign turned). Writes those rows
+    only. (A block, not a row, a call: each array a call takes counts its references.)"""
     rolling = rhist.shape[0] > 0
     use_age = age.shape[0] > 0
-    for s in range(nnb[i]):
-        j = nb[i, s]
-        found = False
-        for so in range(nnb_old[i]):
-            if nb_old[i, so] == j:
-                for k in range(3):
-                    hist[i, s, k] = hist_old[i, so, k]
-                    if rolling:
-                        rhist[i, s, k] = rhist_old[i, so, k]
-                if use_age:
-                    age[i, s, 0] = age_old[i, so, 0]
-                    age[i, s, 1] = age_old[i, so, 1]
-                found = True
-                break
-        if not found:
-            for so in range(nnb_old[j]):
-                if nb_old[j, so] == i:
+    for i in range(i0, i1):
+        for s in range(nnb[i]):
+            j = nb[i, s]
+            found = False
+            for so in range(nnb_old[i]):
+                if nb_old[i, so] == j:
                     for k in range(3):
-                        hist[i, s, k] = -hist_old[j, so, k]
+                        hist[i, s, k] = hist_old[i, so, k]
                         if rolling:
-                            rhist[i, s, k] = -rhist_old[j, so, k]
+                            rhist[i, s, k] = rhist_old[i, so, k]
                     if use_age:
-                        age[i, s, 0] = age_old[j, so, 0]
-                        age[i, s, 1] = age_old[j, so, 1]
+                        age[i, s, 0] = age_old[i, so, 0]
+                        age[i, s, 1] = age_old[i, so, 1]
+                    found = True
                     break
+            if not found:
+                for so in range(nnb_old[j]):
+                    if nb_old[j, so] == i:
+                        for k in range(3):
+                            hist[i, s, k] = -hist_old[j, so, k]
+                            if rolling:
+                                rhist[i, s, k] = -rhist_old[j, so, k]
+                        if use_age:
+                            age[i, s, 0] = age_old[j, so, 0]
+                            age[i, s, 1] = age_old[j, so, 1]
+                        break
 
 
 @njit(cache=True, error_model="numpy", parallel=True)
@@ -328,18 +353,17 @@ def _rows_threaded(nown, nthreads, grid, x, r, box, cutoff, nb, nnb, rowc):
 
 @njit(cache=True, error_model="numpy", parallel=True)
 def _carry_threaded(n, nthreads, nb, nnb, hist, rhist, age, old):
-    """The history carried over (:func:`_carry_row`) on ``nthreads`` threads, blocks of rows."""
+    """The history carried over (:func:`_carry_block`) on ``nthreads`` threads, blocks of rows."""
     nb_old, nnb_old, hist_old, rhist_old, age_old = old
     bounds = block_bounds(n, n, nthreads)
     for b in prange(nthreads):
-        for i in range(bounds[b], bounds[b + 1]):
-            _carry_row(i, nb, nnb, hist, rhist, age, nb_old, nnb_old, hist_old, rhist_old, age_old)
+        _carry_block(bounds[b], bounds[b + 1], nb, nnb, hist, rhist, age, nb_old, nnb_old, hist_old, rhist_old, age_old)
 
 
 @njit(cache=True, error_model="numpy")
 def balance_rows(raw, nraw, n, nown):
     """The half list with each pair in the shorter of its two rows: the pairs of ``raw`` (row i
-    holding the j > i of :func:`_row_neighbours`, ``nraw`` of them), taken in row order, each
+    holding the j > i of :func:`_rows_block`, ``nraw`` of them), taken in row order, each
     into row j when j is owned (a ghost has no row) and row j holds fewer pairs so far than row
     i, else into row i; then, while it shortens the longest rows, a pair of a longest row moves
     to its other row when that one holds at least 2 fewer; then each row sorted by the other
@@ -474,8 +498,7 @@ def build_half_list(x, r, n, nown, dom, grid, reach, skin, slots, old, nthreads)
         if threaded:
             _carry_threaded(n, nthreads, nb, nnb, hist, rhist, age, (nb_old, nnb_old, hist_old, rhist_old, age_old))
         else:
-            for i in range(n):
-                _carry_row(i, nb, nnb, hist, rhist, age, nb_old, nnb_old, hist_old, rhist_old, age_old)
+            _carry_block(0, n, nb, nnb, hist, rhist, age, nb_old, nnb_old, hist_old, rhist_old, age_old)
     return nb, nnb, hist, rhist, age, maxc
 
 

@@ -18,6 +18,7 @@ checkpointer  dem.checkpointer.Checkpointer: write, verify, load, restart with a
 This class only wires them and runs the operations (dem.operations). The methods below are
 the public API (README, coupling/), each one line into the part that does it.
 """
+import gc
 import time
 
 from . import reports
@@ -247,7 +248,12 @@ class Simulation:
                 ops.open_output(self, out_dir, restart is not None, restart)
             plan = ops.standard(self, end_step, out_dir, restarted=restart is not None, progress=progress,
                                 log=log, extra=operations)
+            # the set-up's objects (Numba's compiled kernels and types, the scene) out of the garbage
+            # collector's reach for the run: its collections then walk only what the run allocates
+            # (walking them all took 3-4 % of the hopper's run, docs/benchmarks.md)
+            gc.freeze()
             ops.execute(self, plan, end_step)
             return self
         finally:
+            gc.unfreeze()
             self.writers.hold = False

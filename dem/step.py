@@ -29,7 +29,7 @@ from .contact.linear import linear_spring_dashpot
 from .contact.rolling import constant_torque, epsd
 from .contact.tangential import luding_2008_turn, silbert_2001_turn, TANGENTIAL_PROJECTED
 from .contact.walls import wall_distance, wall_velocity, WI, MESH
-from .contact.mesh import mesh_contacts, mesh_candidates, mesh_velocity, MMI
+from .contact.mesh import mesh_contacts, mesh_candidates, mesh_motion, mesh_point_velocity, MMI, MO
 from .blocks import block_bounds, block_count, cross_counts, keep_cross_counts, kept_cross_counts
 from .neighbors import build_half_list, Box, adaptive_skin, pairs_beyond
 from .schema import Pairs, XC, slots
@@ -253,6 +253,7 @@ def interact_rows(P, C, W, TB, prm, n, t, hon, xon, ton, blk):
                                  P.force, P.torque)
     inv_m = P.inv_mass
     fext, wnb, wnn, whist, wrhist, mcon = P.external_force, P.wnb, P.wnn, P.whist, P.wrhist, P.mcon
+    mo = mesh_motion(W.mm, t)   # (each mesh's motion as numbers: no array through a call per contact)
     nb, nnb, hist, rhist, age, Hd, Hi, rnear = C.nb, C.nnb, C.hist, C.rhist, C.age, C.Hd, C.Hi, C.rnear
     wf, wi, tab, ip, fp, lo, hi, periodic = W.wf, W.wi, TB.tab, prm.ip, prm.fp, prm.lo, prm.hi, prm.periodic
     thi = prm.thi
@@ -660,7 +661,10 @@ def interact_rows(P, C, W, TB, prm, n, t, hon, xon, ton, blk):
             cpy = x[i, 1] + dist * ny
             cpz = x[i, 2] + dist * nz
             if wi[wl, WI.type] == MESH:   # a mesh may also oscillate
-                uwx, uwy, uwz = mesh_velocity(W.mm, wi[wl, WI.mesh], cpx, cpy, cpz, t)
+                mw_ = wi[wl, WI.mesh]
+                uwx, uwy, uwz = mesh_point_velocity(mo[mw_, MO.ex], mo[mw_, MO.ex + 1], mo[mw_, MO.ex + 2], mo[mw_, MO.ox],
+                                                    mo[mw_, MO.ox + 1], mo[mw_, MO.ox + 2], mo[mw_, MO.ux],
+                                                    mo[mw_, MO.ux + 1], mo[mw_, MO.ux + 2], cpx, cpy, cpz)
             else:
                 uwx, uwy, uwz = wall_velocity(wf, wl, cpx, cpy, cpz, t)
             sx = ri * w[i, 0]

@@ -25,6 +25,10 @@ SCALAR_LAWS = {
     ("dem/thermal/indirect.py", "_rong_horio_pp"),
     ("dem/thermal/indirect.py", "_musser_pp"),
     ("dem/thermal/indirect.py", "_vargas_pp"),
+    # geometry of a mesh contact as numbers: called for each particle and contact, where an array
+    # argument would cost its reference counts (dem.contact.mesh.mesh_contacts)
+    ("dem/contact/mesh.py", "_snap"),
+    ("dem/contact/mesh.py", "frame_point"),
 }
 
 

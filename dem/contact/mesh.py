@@ -206,14 +206,15 @@ def closest_on_triangle(px, py, pz, ax, ay, az, bx, by, bz, cx, cy, cz):
     return (ax + abx * v + acx * w, ay + aby * v + acy * w, az + abz * v + acz * w, FACE, 0)
 
 
-@njit(cache=True, error_model="numpy")
-def _near_segment(qx, qy, qz, verts, a, b, h):
-    ex = verts[b, 0] - verts[a, 0]
-    ey = verts[b, 1] - verts[a, 1]
-    ez = verts[b, 2] - verts[a, 2]
-    rx = qx - verts[a, 0]
-    ry = qy - verts[a, 1]
-    rz = qz - verts[a, 2]
+@njit(cache=True, error_model="numpy", inline="always")
+def _near_segment(qx, qy, qz, ax, ay, az, bx, by, bz, h):
+    """Whether the point q is within h of the segment from a to b."""
+    ex = bx - ax
+    ey = by - ay
+    ez = bz - az
+    rx = qx - ax
+    ry = qy - ay
+    rz = qz - az
     e2 = ex * ex + ey * ey + ez * ez
     s = min(max((rx * ex + ry * ey + rz * ez) / e2, 0.0), 1.0)
     dx = rx - s * ex
@@ -223,25 +224,29 @@ def _near_segment(qx, qy, qz, verts, a, b, h):
 
 
 @njit(cache=True, error_model="numpy")
-def _snap(qx, qy, qz, verts, a, b, c, kind, idx):
-    """The feature of a closest point, decided by distance (within 1e-10 of the triangle's
-    perimeter): a point on a shared edge or vertex gets the same feature from every triangle
-    that holds it, whatever the round-off of each one's region tests."""
-    h = 0.0
-    for u, v in ((a, b), (b, c), (c, a)):
-        h += math.sqrt((verts[v, 0] - verts[u, 0]) ** 2 + (verts[v, 1] - verts[u, 1]) ** 2
-                       + (verts[v, 2] - verts[u, 2]) ** 2)
+def _snap(qx, qy, qz, ax, ay, az, bx, by, bz, cx, cy, cz, kind, idx):
+    """The feature of a closest point q of the triangle (a, b, c), decided by distance (within
+    1e-10 of the triangle's perimeter): a point on a shared edge or vertex gets the same feature
+    from every triangle that holds it, whatever the round-off of each one's region tests.
+    (Scalars only: called for every contact, where arrays would cost their reference counts.)"""
+    h = (math.sqrt((bx - ax) ** 2 + (by - ay) ** 2 + (bz - az) ** 2)
+         + math.sqrt((cx - bx) ** 2 + (cy - by) ** 2 + (cz - bz) ** 2)
+         + math.sqrt((ax - cx) ** 2 + (ay - cy) ** 2 + (az - cz) ** 2))
     h *= 1e-10
-    corners = (a, b, c)
-    for k in range(3):
-        w = corners[k]
-        if (qx - verts[w, 0]) ** 2 + (qy - verts[w, 1]) ** 2 + (qz - verts[w, 2]) ** 2 <= h * h:
-            return VERTEX, k
+    if (qx - ax) ** 2 + (qy - ay) ** 2 + (qz - az) ** 2 <= h * h:
+        return VERTEX, 0
+    if (qx - bx) ** 2 + (qy - by) ** 2 + (qz - bz) ** 2 <= h * h:
+        return VERTEX, 1
+    if (qx - cx) ** 2 + (qy - cy) ** 2 + (qz - cz) ** 2 <= h * h:
+        return VERTEX, 2
     if kind == VERTEX:
         return kind, idx
-    for k in range(3):
-        if _near_segment(qx, qy, qz, verts, corners[k], corners[(k + 1) % 3], h):
-            return EDGE, k
+    if _near_segment(qx, qy, qz, ax, ay, az, bx, by, bz, h):
+        return EDGE, 0
+    if _near_segment(qx, qy, qz, bx, by, bz, cx, cy, cz, h):
+        return EDGE, 1
+    if _near_segment(qx, qy, qz, cx, cy, cz, ax, ay, az, h):
+        return EDGE, 2
     return FACE, 0
 
 
@@ -282,7 +287,8 @@ def sphere_contacts(px, py, pz, radius, verts, faces, edge_val, vert_val, cand, 
         d = math.sqrt(dx * dx + dy * dy + dz * dz)
         if not d < radius or d < 1e-300:
             continue
-        kind, idx = _snap(qx, qy, qz, verts, a, b, c, kind, idx)
+        kind, idx = _snap(qx, qy, qz, verts[a, 0], verts[a, 1], verts[a, 2], verts[b, 0], verts[b, 1], verts[b, 2],
+                          verts[c, 0], verts[c, 1], verts[c, 2], kind, idx)
         f0 = -1
         f1 = -1
         val = 0
@@ -525,21 +531,53 @@ def mesh_centre(mm, m, t):
     return cx, cy, cz
 
 
+# the columns of mesh_motion: where each mesh is at one time
+MO = slots("MO", (
+    ("ex", 3, "C + D(t): the centre of its rotation now (m)"),
+    ("ox", 3, "Omega (rad/s)"),
+    ("cx", 3, "C: the centre of its rotation at t = 0 (reference frame, m)"),
+    ("ux", 3, "V + A w cos(w t + phi): the velocity of its translation now (m/s)"),
+))
+MO_SIZE = MO.SIZE   # (a global int: Numba reads no attribute of the tuple's class)
+
+
+@njit(cache=True, error_model="numpy")
+def mesh_motion(mm, t):
+    """Each mesh's motion at time t (columns :data:`MO`), for the loops over particles to read
+    as numbers: :func:`mesh_point_velocity` and :func:`frame_point` take no array, as a function
+    taking the mesh table in those loops counted its references at each particle."""
+    out = np.empty((mm.shape[0], MO_SIZE))
+    for m in range(mm.shape[0]):
+        cx, cy, cz = mesh_centre(mm, m, t)
+        vx, vy, vz = mm[m, MM.vx], mm[m, MM.vx + 1], mm[m, MM.vx + 2]
+        w = mm[m, MM.osc]
+        if w != 0.0:
+            c = w * math.cos(w * t + mm[m, MM.phase])
+            vx += mm[m, MM.ax] * c
+            vy += mm[m, MM.ax + 1] * c
+            vz += mm[m, MM.ax + 2] * c
+        out[m, MO.ex], out[m, MO.ex + 1], out[m, MO.ex + 2] = cx, cy, cz
+        for k in range(3):
+            out[m, MO.ox + k] = mm[m, MM.ox + k]
+            out[m, MO.cx + k] = mm[m, MM.cx + k]
+        out[m, MO.ux], out[m, MO.ux + 1], out[m, MO.ux + 2] = vx, vy, vz
+    return out
+
+
 @njit(cache=True, error_model="numpy", inline="always")
-def mesh_velocity(mm, m, px, py, pz, t):
-    """Velocity of mesh m's surface at the point p at time t: V + A w cos(w t + phi)
-    + Omega x (p - C - D(t))."""
-    cx, cy, cz = mesh_centre(mm, m, t)
-    vx, vy, vz = mm[m, MM.vx], mm[m, MM.vx + 1], mm[m, MM.vx + 2]
-    w = mm[m, MM.osc]
-    if w != 0.0:
-        c = w * math.cos(w * t + mm[m, MM.phase])
-        vx += mm[m, MM.ax] * c
-        vy += mm[m, MM.ax + 1] * c
-        vz += mm[m, MM.ax + 2] * c
-    ox, oy, oz = mm[m, MM.ox], mm[m, MM.ox + 1], mm[m, MM.ox + 2]
-    rx, ry, rz = px - cx, py - cy, pz - cz
-    return vx + oy * rz - oz * ry, vy + oz * rx - ox * rz, vz + ox * ry - oy * rx
+def mesh_point_velocity(ex, ey, ez, ox, oy, oz, ux, uy, uz, px, py, pz):
+    """Velocity of a mesh's surface at the point p: U + Omega x (p - E), with E = C + D(t) and
+    U = V + A w cos(w t + phi) its row of :func:`mesh_motion`."""
+    rx, ry, rz = px - ex, py - ey, pz - ez
+    return ux + oy * rz - oz * ry, uy + oz * rx - ox * rz, uz + ox * ry - oy * rx
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def frame_point(ex, ey, ez, ox, oy, oz, cx, cy, cz, t, x0, x1, x2):
+    """The point x at time t in the reference frame of a mesh: C + R(-Omega t) (x - E), with
+    E = C + D(t), Omega and C its row of :func:`mesh_motion` (:func:`to_mesh_frame` as numbers)."""
+    rx, ry, rz = _turn(ox, oy, oz, t, x0 - ex, x1 - ey, x2 - ez, -1.0)
+    return cx + rx, cy + ry, cz + rz
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -595,8 +633,9 @@ def mesh_candidates(P, W, n, xs, t, reach, skin, srange, near):
     arrays are taken once, outside the particle loop."""
     mtri, mtn, r = P.mtri, P.mtn, P.radius
     mv, mfc, mm, mmi = W.mv, W.mfc, W.mm, W.mmi
-    mkeys, mstart, mitems, mdense, stamp = W.mkeys, W.mstart, W.mitems, W.mdense, W.mstamp
+    mkeys, mstart, mitems, mdense, stamp, pl = W.mkeys, W.mstart, W.mitems, W.mdense, W.mstamp, W.mpl
     cap = mtri.shape[1]
+    mo = mesh_motion(mm, t)
     last = stamp.shape[0] - 1
     tag = stamp[last]
     for i in range(n):
@@ -610,7 +649,9 @@ def mesh_candidates(P, W, n, xs, t, reach, skin, srange, near):
         d0 = mmi[m, MMI.d0]
         for i in range(n):
             h = max(r[i] + reach + skin, srange * r[i] + skin)
-            px, py, pz = to_mesh_frame(mm, m, xs[i, 0], xs[i, 1], xs[i, 2], t)
+            px, py, pz = frame_point(mo[m, MO.ex], mo[m, MO.ex + 1], mo[m, MO.ex + 2], mo[m, MO.ox], mo[m, MO.ox + 1],
+                                     mo[m, MO.ox + 2], mo[m, MO.cx], mo[m, MO.cx + 1], mo[m, MO.cx + 2], t,
+                                     xs[i, 0], xs[i, 1], xs[i, 2])
             tag += 1
             found = False
             j0 = max(np.int64(math.floor((px - h - lo0) / cell)), 0)
@@ -636,6 +677,8 @@ def mesh_candidates(P, W, n, xs, t, reach, skin, srange, near):
                             if stamp[tri] == tag:
                                 continue
                             stamp[tri] = tag
+                            if abs(pl[tri, 0] * px + pl[tri, 1] * py + pl[tri, 2] * pz - pl[tri, 3]) > h * (1.0 + 1e-9):
+                                continue   # its plane is beyond reach: so is every point of it
                             a = mfc[tri, 0]
                             b = mfc[tri, 1]
                             c = mfc[tri, 2]
@@ -682,6 +725,7 @@ def mesh_contacts(P, W, nown, reach, srange, t, rolling, age):
     mtri, mtn = P.mtri, P.mtn
     wi, mm, mmi = W.wi, W.mm, W.mmi
     mv, mfc, mev, mvv, mout, mraw, pl = W.mv, W.mfc, W.mev, W.mvv, W.mout, W.mraw, W.mpl
+    mo = mesh_motion(mm, t)
     cbuf = np.empty((KMAX, 8))
     used = np.zeros(KMAX, np.bool_)
     slot = np.empty(KMAX, np.int64)
@@ -693,7 +737,9 @@ def mesh_contacts(P, W, nown, reach, srange, t, rolling, age):
                 continue
             row0 = mmi[m, MMI.row0]
             ns = mmi[m, MMI.nslot]
-            px, py, pz = to_mesh_frame(mm, m, x[i, 0], x[i, 1], x[i, 2], t)
+            px, py, pz = frame_point(mo[m, MO.ex], mo[m, MO.ex + 1], mo[m, MO.ex + 2], mo[m, MO.ox], mo[m, MO.ox + 1],
+                                     mo[m, MO.ox + 2], mo[m, MO.cx], mo[m, MO.cx + 1], mo[m, MO.cx + 2], t,
+                                     x[i, 0], x[i, 1], x[i, 2])
             cut = max(r[i] + reach, srange * r[i])
             nc = mtn[i]
             if nc < 0:   # more candidates than mtri holds: the bins
@@ -712,25 +758,23 @@ def mesh_contacts(P, W, nown, reach, srange, t, rolling, age):
                     mout[nt] = tri
                     nt += 1
             k = 0
-            if nt == 1:   # one triangle (most particles on a wall): sphere_contacts's rule without its
-                # call. Its closest point counts if on the face, or on an edge or vertex no other
-                # triangle holds: another would be nearer than the reach, and so a candidate here
+            if nt == 1:   # one triangle (most particles on a wall): its closest point is the contact.
+                # sphere_contacts would drop it only on an edge or vertex another triangle holds,
+                # and that triangle's plane would then pass within the reach too (nt > 1)
                 tri = mout[0]
                 a = mfc[tri, 0]
                 b = mfc[tri, 1]
                 e = mfc[tri, 2]
-                qx, qy, qz, kind, idx = closest_on_triangle(
+                qx, qy, qz, _, _ = closest_on_triangle(
                     px, py, pz, mv[a, 0], mv[a, 1], mv[a, 2], mv[b, 0], mv[b, 1], mv[b, 2], mv[e, 0], mv[e, 1], mv[e, 2])
                 dx, dy, dz = qx - px, qy - py, qz - pz
                 d = math.sqrt(dx * dx + dy * dy + dz * dz)
                 if d < cut and d >= 1e-300:
-                    kind, idx = _snap(qx, qy, qz, mv, a, b, e, kind, idx)
-                    if kind == FACE or (mev[tri, idx] if kind == EDGE else mvv[mfc[tri, idx]]) == 1:
-                        cbuf[0, 0] = d
-                        cbuf[0, 1] = dx / d
-                        cbuf[0, 2] = dy / d
-                        cbuf[0, 3] = dz / d
-                        k = 1
+                    cbuf[0, 0] = d
+                    cbuf[0, 1] = dx / d
+                    cbuf[0, 2] = dy / d
+                    cbuf[0, 3] = dz / d
+                    k = 1
             elif nt > 1:
                 k = sphere_contacts(px, py, pz, cut, mv, mfc, mev, mvv, mout, nt, mraw, cbuf)
             if k == 0:   # no contact: the rows' contacts end (their springs start at zero when taken)
