@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 
 from dem import Simulation
+from dem import step as K
 from dem.contact.mesh import write_stl
 
 from test_mesh_walls import plane_mesh
@@ -212,15 +213,19 @@ def test_heat_through_an_stl_floor_is_the_planes(floor_stl, tmp_path):
 
 
 def test_a_restart_across_mesh_contacts_is_bit_identical(floor_stl, tmp_path):
-    """Stopped at a checkpoint while spheres slide on the mesh and continued: the same bits as
-    one run (the contact records, dem.schema mcon, are saved with the springs)."""
+    """Stopped while spheres touch the mesh (six contacts at t = 13 ms, 1.3 ms after the last
+    neighbour build) and continued: the same bits as one run. The contact records (dem.schema
+    mcon) are saved with the springs; the candidate triangles (mtri) are found again from the
+    last build's positions and time (a restart that left them empty misses those contacts)."""
     from dem.final import read as read_final
     sc = scene([{"type": "mesh", "name": "floor", "file": floor_stl, "material": "m"}], bed_positions(), 0.02)
     sc["simulation"]["checkpoint_interval"] = 0.01
     one = Simulation.from_dict(sc)
     one.run(out_dir=str(tmp_path / "one"), progress=False)
     first = Simulation.from_dict(sc)
-    first.run(end_time=0.01, out_dir=str(tmp_path / "two"), progress=False)
+    first.run(end_time=0.013, out_dir=str(tmp_path / "two"), progress=False)
+    st = first.state
+    assert np.isfinite(st.mcon[:st.n_owned, :, 0]).sum() >= 4 and st.fp[K.FP.tbuild] < first.time - 1e-4
     second = Simulation.from_dict(sc)
     second.run(out_dir=str(tmp_path / "two"), restart=str(tmp_path / "two" / "checkpoint.npz"), progress=False)
     a, b = (read_final(tmp_path / d / "final.npz") for d in ("one", "two"))
