@@ -273,23 +273,9 @@ def _rows_block(i0, i1, grid, x, r, box, cutoff, nb, nnb, rowc):
                     if dense:
                         q0 = table[k0]
                         q1 = table[k1 + 1]
-                    else:   # (the lower bounds of k0 and k1 + 1 in the sorted keys)
-                        q0 = 0
-                        hi = table.shape[0]
-                        while q0 < hi:
-                            mid = (q0 + hi) >> 1
-                            if table[mid] < k0:
-                                q0 = mid + 1
-                            else:
-                                hi = mid
-                        q1 = q0
-                        hi = table.shape[0]
-                        while q1 < hi:
-                            mid = (q1 + hi) >> 1
-                            if table[mid] < k1 + 1:
-                                q1 = mid + 1
-                            else:
-                                hi = mid
+                    else:   # sparse keys (rare: a grid with many empty cells): the binary searches
+                        q0 = _lower_bound(table, k0)
+                        q1 = _lower_bound(table, k1 + 1)
                     for q in range(q0, q1):
                         j = order[q]
                         if j <= i:
