@@ -108,6 +108,8 @@ XV_SIZE = XV.SIZE
 # one block of rows for interact_rows: rows [i0, i1), the cross-block buffer (xj, xv) and its
 # first row k0, and where the block's fused wall heat adds up (wtot, wgap)
 Block = namedtuple("Block", "i0 i1 k0 xj xv wtot wgap")
+# the largest overlap ratio's pre-test in interact_rows: delta > maxov r (1 - 1e-12) before dividing
+OV_MARGIN = 1.0 - 1e-12
 # status
 OK, OVERLAP, NONFINITE, LEFT_DOMAIN, BAD_TEMPERATURE, REBUILD_DUE = 0, 1, 2, 3, 4, 5
 # phases of one step (advance's ``phases`` bits): a serial run asks for all of them, an MPI run
@@ -435,11 +437,17 @@ def interact_rows(P, C, W, TB, prm, n, t, hon, xon, ton, blk):
             nz = dz * invd
             rj = r[j]
             mj = np.uint32(mat[j])
-            ov = delta / min(ri, rj)
-            if ov > maxov:
-                maxov = ov
-                who_i = i
-                who_j = j
+            # the largest overlap ratio, divided only where it may be the largest: fl(delta / r) >
+            # maxov implies delta > maxov r, which the test below keeps (its rounding is 2e-16 of
+            # it), so maxov and its pair are those of dividing at every contact (a division is
+            # ~15 cycles of a contact's latency-bound chain; docs/benchmarks.md, "Hopper discharge")
+            rmin = min(ri, rj)
+            if delta > maxov * rmin * OV_MARGIN:
+                ov = delta / rmin
+                if ov > maxov:
+                    maxov = ov
+                    who_i = i
+                    who_j = j
             # relative velocity of the contact point of i with respect to j
             sx = ri * w[i, 0] + rj * w[j, 0]
             sy = ri * w[i, 1] + rj * w[j, 1]
@@ -651,11 +659,12 @@ def interact_rows(P, C, W, TB, prm, n, t, hon, xon, ton, blk):
                 continue
             ncont += 2
             delta = ri - dist
-            ov = delta / ri
-            if ov > maxov:
-                maxov = ov
-                who_i = i
-                who_j = -1 - wl
+            if delta > maxov * ri * OV_MARGIN:   # (as for the pairs above)
+                ov = delta / ri
+                if ov > maxov:
+                    maxov = ov
+                    who_i = i
+                    who_j = -1 - wl
             mw = np.int32(wi[wl, WI.mat])  # a material index like the particles' (one compiled form per model)
             cpx = x[i, 0] + dist * nx
             cpy = x[i, 1] + dist * ny
@@ -848,7 +857,7 @@ def interact_blocks(P, C, W, TB, prm, n, t, hon, xon, ton, nblk, heat_flags):
     return maxov, who_i, who_j, ncont, e_dir, e_ind, e_wall
 
 
-@njit(cache=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
+@njit(cache=True, error_model="numpy", inline="always")
 def compute_forces(P, C, W, TB, prm, n, t, hon, xon, ton):
     """The interact phase (:func:`interact_rows`) of every row, on one thread (one block, the
     serial order) or on ip[IP.threads] blocks at once (:func:`interact_blocks`); adds the fused
@@ -1074,7 +1083,7 @@ def _kick_drift_blocks(P, prm, n, dt, nblk):
     return part.max()
 
 
-@njit(cache=True, error_model="numpy", no_cpython_wrapper=True, no_cfunc_wrapper=True)
+@njit(cache=True, error_model="numpy", inline="always")
 def kick_drift(P, prm, n, dt):
     """:func:`kick_drift_rows` of rows [0, n), on ip[IP.threads] blocks of rows at once (the
     same arithmetic for each row: the result does not depend on the thread count)."""
