@@ -133,6 +133,9 @@ def cmd_run(args):
                   f"re-balancings, load imbalance {stats['imbalance']:.3f}; exchanges sent "
                   f"{stats['bytes_migrated'] / 1024:.1f} KiB of migrating particles ({stats['records_migrated']} "
                   f"contact records) and {stats['bytes_ghosts'] / 1024:.1f} KiB of ghosts"
+                  + (f"; mesh triangles held per rank {stats['mesh_held'][0]}-{stats['mesh_held'][1]} of "
+                     f"{sum(w['surface'].n_triangles for w in sim.scene.walls if w['type'] == 'mesh')}"
+                     if sim.world.nmeshes else "")
                   + (f"; set-up per rank: at most {setup[0]} packing-file rows read and {setup[1]} particle "
                      f"rows held before the distribution" if setup else ""))
         print(f"done: t = {sim.time:.6g} s, {steps} steps, {n} particles{ranks}, wall {wall:.2f} s "

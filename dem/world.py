@@ -62,7 +62,9 @@ class World:
         if self.nmeshes:
             st.enable(mesh=True)
             st.mcon[:, :, 0] = math.inf
-            mesh_tables(st, scene.walls, 2.0 * self.rmax + float(scene.simulation["neighbor_skin"]))
+            self.mesh_cell = 2.0 * self.rmax + float(scene.simulation["neighbor_skin"])
+            self.mesh_held = mesh_tables(st, scene.walls, self.mesh_cell)
+            self.mesh_until = math.inf   # (the whole mesh; a rank's part: hold_mesh_near)
         self.wall_speed = max([wall_surface_speed(w) for w in scene.walls], default=0.0)
         st.ip, st.fp = self._params()
         self.thermal = None
@@ -142,6 +144,33 @@ class World:
         skin = self.state.fp[K.FP.skinmax] if bound else self.state.fp[K.FP.skin]
         return 2.0 * self.rmax + max(self.reach, self.ghost_reach) + skin
 
+    def hold_mesh_near(self, blo, bhi):
+        """Hold in the mesh tables only the triangles a particle owned in the box [blo, bhi] (a
+        rank's, dem.parallel) can reach until the end of the run (:func:`mesh_selection`: their
+        swept boxes within the margin below). Called by the decomposition after each cut of the
+        boxes, before the neighbour build that finds the candidates anew (dem.schema mtri: they
+        index these tables and are never sent or saved). The margin: the largest radius with
+        the heat models' reach or a radiating wall's range, the largest skin (the candidates'
+        search) and once more (how far an owned particle moves out of its box before it
+        migrates: half the skin), and the ghost layer's pair reach besides. Returns how many."""
+        if not self.nmeshes:
+            return 0
+        from .thermal.heat import TI, TF
+        st = self.state
+        skin = float(st.fp[K.FP.skinmax])
+        srange = 0.0
+        thi = getattr(st, "thi", None)
+        if thi is not None and thi.size and thi[TI.heat] == 1 and thi[TI.rad] >= 0 and thi[TI.wrad] == 1:
+            srange = float(st.thf[TF.radrange])
+        margin = self.halo(bound=True) + srange * self.rmax + 2.0 * skin
+        t1 = self.time + max(self.end_time - self.time, 1000.0 * self.dt)
+        sel = mesh_selection(self.scene.walls, blo, bhi, margin, self.time, t1)
+        self.mesh_held = mesh_tables(self.state, self.scene.walls, self.mesh_cell, sel)
+        # a translating mesh's triangles were taken for [time, t1]: taken again half-way there
+        moves = any(w["type"] == "mesh" and np.any(np.asarray(w["velocity"], float) != 0.0) for w in self.scene.walls)
+        self.mesh_until = 0.5 * (self.time + t1) if moves else math.inf
+        return self.mesh_held
+
     def set_step(self, step_count):
         """Set the clock to step number ``step_count`` (the time follows: step_count x dt)."""
         self.step_count = int(step_count)
@@ -187,11 +216,75 @@ def wall_surface_speed(w):
     return v
 
 
-def mesh_tables(st, walls, cell):
+def swept_boxes(w, t0, t1):
+    """The box (lo, hi: (n, 3) each) that each triangle of mesh wall ``w`` stays in over the
+    times [t0, t1], for any of its motions: a rotation sweeps the triangle round the axis (the
+    box of the cylinder segment of its farthest vertex from the axis over its axial extent), then
+    the translation V t over [t0, t1] and an oscillation's amplitude either way (twice: A (sin(w t
+    + phi) - sin(phi)) spans up to 2 |A|)."""
+    s = w["surface"]
+    tri = s.verts[s.faces]                       # (n, 3 corners, 3)
+    om = np.asarray(w["angular_velocity"], float)
+    if np.any(om != 0.0):
+        a = om / np.linalg.norm(om)
+        c = np.asarray(w["rotation_center"], float)
+        rel = tri - c
+        ax = rel @ a                             # (n, 3): axial coordinates of the corners
+        rho = np.linalg.norm(rel - ax[..., None] * a, axis=2).max(axis=1)
+        s0, s1 = ax.min(axis=1), ax.max(axis=1)
+        e0, e1 = c + s0[:, None] * a, c + s1[:, None] * a
+        rad = rho[:, None] * np.sqrt(np.clip(1.0 - a * a, 0.0, 1.0))
+        lo, hi = np.minimum(e0, e1) - rad, np.maximum(e0, e1) + rad
+    else:
+        lo, hi = tri.min(axis=1), tri.max(axis=1)
+    v = np.asarray(w["velocity"], float)
+    lo = lo + np.minimum(v * t0, v * t1)
+    hi = hi + np.maximum(v * t0, v * t1)
+    osc = w.get("oscillation")
+    if osc:
+        amp = 2.0 * np.abs(np.asarray(osc["amplitude"], float))
+        lo, hi = lo - amp, hi + amp
+    return lo, hi
+
+
+def mesh_selection(walls, blo, bhi, margin, t0, t1):
+    """Per mesh wall, the triangles (sorted indices) whose swept box over [t0, t1]
+    (:func:`swept_boxes`) comes within ``margin`` of the box [blo, bhi] (a rank's box of the
+    decomposition: infinite on the domain's outer faces): all that a particle owned there can
+    touch, a contact reaching no further than its radius, the heat models' reach and a wall's
+    radiation range, and an owned particle no further outside its box than the skin."""
+    sel = []
+    lo_b = np.asarray(blo, float) - margin
+    hi_b = np.asarray(bhi, float) + margin
+    for w in walls:
+        if w["type"] != "mesh":
+            continue
+        lo, hi = swept_boxes(w, t0, t1)
+        keep = np.all((hi >= lo_b) & (lo <= hi_b), axis=1)
+        sel.append(np.nonzero(keep)[0])
+    return sel
+
+
+def _subset(s, faces_kept):
+    """The vertices, faces (renumbered), edge and vertex valences of the triangles
+    ``faces_kept`` of surface ``s``: the valences are the whole mesh's (an edge at the subset's
+    border keeps its two triangles: the contact of a sphere there is decided as on the whole
+    mesh, the other triangle being kept wherever that sphere can be owned)."""
+    f = s.faces[faces_kept]
+    used = np.unique(f)
+    ren = np.full(len(s.verts), -1, np.int64)
+    ren[used] = np.arange(used.size)
+    return (np.ascontiguousarray(s.verts[used]), np.ascontiguousarray(ren[f]),
+            np.ascontiguousarray(s.edge_val[faces_kept]), np.ascontiguousarray(s.vert_val[used]))
+
+
+def mesh_tables(st, walls, cell, select=None):
     """The Walls bundle's mesh arrays (dem.schema owner "mesh"): every mesh wall's vertices,
     faces, valences and triangle bins (cubes of ``cell``, the particles' cell size) concatenated,
-    its motion and rows (dem.contact.mesh MM, MMI)."""
-    from .contact.mesh import MM, MMI, DENSE_MAX
+    its motion and rows (dem.contact.mesh MM, MMI). ``select``: per mesh wall the triangles to
+    hold (:func:`mesh_selection`: a rank's, in their order in the file), else all of them.
+    Returns the number of triangles held."""
+    from .contact.mesh import MM, MMI, DENSE_MAX, bin_triangles
     first, _ = W.wall_rows(walls)
     meshes = [(k, w) for k, w in enumerate(walls) if w["type"] == "mesh"]
     nm = len(meshes)
@@ -201,7 +294,16 @@ def mesh_tables(st, walls, cell):
     nv = nt = nk = ni = nd = 0
     for m, (k, w) in enumerate(meshes):
         s = w["surface"]
-        lo, c, dims, bk, bs, bi = s.bins(float(cell))
+        if select is None:
+            verts, faces, ev, vv = s.verts, s.faces, s.edge_val, s.vert_val
+            lo, c, dims, bk, bs, bi = s.bins(float(cell))
+        else:
+            verts, faces, ev, vv = _subset(s, select[m])
+            if len(faces):
+                lo, c, dims, bk, bs, bi = bin_triangles(verts, faces, float(cell))
+            else:   # none near this rank: an empty grid of one cell
+                lo, c, dims = np.zeros(3), float(cell), np.ones(3, np.int64)
+                bk, bi, bs = np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(1, np.int64)
         mm[m, MM.vx:MM.vx + 3] = w["velocity"]
         mm[m, MM.ox:MM.ox + 3] = w["angular_velocity"]
         mm[m, MM.cx:MM.cx + 3] = w["rotation_center"]
@@ -227,20 +329,23 @@ def mesh_tables(st, walls, cell):
             nd += ncell
         else:
             mmi[m, MMI.d0] = -1
-        mmi[m, MMI.nt] = len(s.faces)
-        mv.append(s.verts)
-        mfc.append(s.faces + nv)
-        mev.append(s.edge_val)
-        mvv.append(s.vert_val)
+        mmi[m, MMI.nt] = len(faces)
+        mv.append(verts)
+        mfc.append(faces + nv)
+        mev.append(ev)
+        mvv.append(vv)
         keys.append(bk)
         start.append(bs + ni)
         items.append(bi + nt)
-        nv += len(s.verts)
-        nt += len(s.faces)
+        nv += len(verts)
+        nt += len(faces)
         nk += len(bk)
         ni += len(bi)
     cat = lambda a, dt: np.ascontiguousarray(np.concatenate(a).astype(dt))   # noqa: E731
-    st.mv, st.mfc, st.mev, st.mvv = cat(mv, float), cat(mfc, np.int64), cat(mev, np.int64), cat(mvv, np.int64)
+    st.mv = np.ascontiguousarray(np.concatenate(mv).astype(float).reshape(-1, 3))
+    st.mfc = np.ascontiguousarray(np.concatenate(mfc).astype(np.int64).reshape(-1, 3))
+    st.mev = np.ascontiguousarray(np.concatenate(mev).astype(np.int64).reshape(-1, 3))
+    st.mvv = cat(mvv, np.int64)
     st.mkeys, st.mstart, st.mitems = cat(keys, np.int64), cat(start, np.int64), cat(items, np.int64)
     st.mm, st.mmi = mm, mmi
     st.mdense = cat(dense, np.int32)
@@ -251,6 +356,7 @@ def mesh_tables(st, walls, cell):
     st.mstamp = np.zeros(nt + 1, np.int64)
     st.mout = np.empty(nt, np.int64)
     st.mraw = np.empty((nt, 8))
+    return nt
 
 
 def wall_tables(walls):

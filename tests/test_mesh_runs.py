@@ -297,9 +297,13 @@ def test_bad_meshes_are_refused_by_the_command_line(tmp_path, case):
 
 def test_a_bed_on_a_mesh_floor_on_two_ranks_is_the_serial_bed(floor_stl, tmp_path):
     """72 spheres thrown onto the STL floor for 0.03 s on 2 MPI ranks (the domain cut in two by
-    the default decomposition; each rank holding the whole mesh, the contact records migrating
-    with their particles): the same final state as one process, within the tolerances of the plane-walled MPI runs (tests/test_parallel.py:
-    the ranks sum the pair forces in another order)."""
+    the default decomposition; each rank holding only the floor's triangles near its box, at most
+    3/4 of them, dem.world.World.hold_mesh_near; the contact records migrating with their
+    particles): the same final state as one process, within the tolerances of the plane-walled
+    MPI runs (tests/test_parallel.py: the ranks sum the pair forces in another order). The
+    spheres that cross the cut find their triangles on their new rank (the state would differ
+    from the serial one by a sphere falling through the floor otherwise)."""
+    import re
     import shutil
     from dem.final import read as read_final
     if shutil.which("mpirun") is None:
@@ -321,6 +325,11 @@ def test_a_bed_on_a_mesh_floor_on_two_ranks_is_the_serial_bed(floor_stl, tmp_pat
                             "--quiet"], capture_output=True, text=True, env=env, timeout=600)
         assert p.returncode == 0, p.stderr
         outs[n] = read_final(out / "final.npz")
+        if n == 2:
+            m = re.search(r"mesh triangles held per rank (\d+)-(\d+) of (\d+)", p.stdout)
+            assert m, p.stdout
+            lo, hi, total = (int(g) for g in m.groups())
+            assert 0 < lo <= hi <= 0.75 * total, m.group(0)
     a, b = outs[1], outs[2]
     assert np.array_equal(a["id"], b["id"])
     assert a["position"][:, 2].min() < R   # on the floor

@@ -9,6 +9,7 @@ coordinates of 0.1 m); rotated into the scene, the corners carry the rotation's 
 1e-17 m per coordinate), so 1e-15 m again. The normal's error is the position's round-off over
 the distance (1e-17 m / 1e-4 m): 1e-12 allowed."""
 import math
+import os
 
 import numba
 import numpy as np
@@ -283,3 +284,47 @@ def test_the_binned_search_finds_every_triangle_within_reach_and_few_more():
         assert set(np.flatnonzero(dist <= reach).tolist()) <= got
         most = max(most, k)
     assert most < 100
+
+
+def test_a_ranks_triangles_cover_every_place_a_moving_mesh_takes(tmp_path):
+    """dem.world.swept_boxes: the kiln shell (examples/data/kiln.stl) turning about a tilted axis
+    through an off-centre point while it translates and oscillates: the vertices of each triangle,
+    placed at 400 times over the window (dem.contact.mesh.placed_vertices, the motion the contacts
+    use), stay inside that triangle's swept box (to 1e-12 m). The boxes are not the whole
+    vessel's: a tube of 10 rings turning about its own axis, a triangle's box is as long along the
+    axis as the triangle (1e-12 m), and the box x < 0.05 m with a margin of 1 mm holds its first 6
+    rings exactly (the sixth starts at 0.05 m; the seventh 10 mm on)."""
+    from dem.world import swept_boxes, mesh_selection
+    here = os.path.join(os.path.dirname(__file__), "..", "examples", "data", "kiln.stl")
+    s = M.Surface(here, "file", scale=0.001)
+    axis = np.array([1.0, 0.3, -0.2])
+    w = {"type": "mesh", "surface": s, "angular_velocity": 4.0 * axis / np.linalg.norm(axis),
+         "rotation_center": np.array([0.05, 0.004, -0.003]), "velocity": np.array([0.01, -0.02, 0.005]),
+         "oscillation": {"amplitude": [0.0, 0.001, 0.0005], "frequency": 7.0, "phase": 30.0}}
+    t0, t1 = 0.2, 1.7
+    lo, hi = swept_boxes(w, t0, t1)
+    for t in np.linspace(t0, t1, 400):
+        v = M.placed_vertices(w, t)[s.faces]     # (n, 3, 3)
+        assert np.all(v >= lo[:, None, :] - 1e-12) and np.all(v <= hi[:, None, :] + 1e-12), t
+    # a tube of radius 25 mm and length 100 mm along x in 10 rings of 24 quads
+    th = np.linspace(0.0, 2 * np.pi, 25)
+    xs = np.linspace(0.0, 0.1, 11)
+    ring = lambda x, a: [x, 0.025 * np.cos(a), 0.025 * np.sin(a)]   # noqa: E731
+    tris = []
+    for i in range(10):
+        for k in range(24):
+            p00, p01 = ring(xs[i], th[k]), ring(xs[i], th[k + 1])
+            p10, p11 = ring(xs[i + 1], th[k]), ring(xs[i + 1], th[k + 1])
+            tris += [[p00, p10, p11], [p00, p11, p01]]
+    path = tmp_path / "tube.stl"
+    M.write_stl(str(path), np.array(tris))
+    tube = M.Surface(str(path), "file")
+    turn = {"type": "mesh", "surface": tube, "angular_velocity": np.array([3.0, 0.0, 0.0]),
+            "rotation_center": np.array([0.05, 0.0, 0.0]), "velocity": np.zeros(3)}
+    lo, hi = swept_boxes(turn, 0.0, 10.0)
+    tri = tube.verts[tube.faces]
+    assert np.allclose(lo[:, 0], tri[:, :, 0].min(axis=1), atol=1e-12, rtol=0)
+    assert np.allclose(hi[:, 0], tri[:, :, 0].max(axis=1), atol=1e-12, rtol=0)
+    inf = np.inf
+    (half,) = mesh_selection([turn], [-inf, -inf, -inf], [0.05, inf, inf], 0.001, 0.0, 10.0)
+    assert len(half) == 288   # the 5 rings below x = 0.05 m and the one from there; the next, 10 mm on

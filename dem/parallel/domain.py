@@ -193,6 +193,7 @@ class ParallelDomain:
             self._migrate(world, None)
             self._take(st, np.argsort(st.id, kind="stable"))
             self.setup_migrated, self.migrated, self.bytes_migrated = self.migrated, 0, 0
+            self._hold_mesh(world)
             return
         x = st.position
         part = np.arange(self.rank, st.n, self.size)
@@ -203,6 +204,12 @@ class ParallelDomain:
         st.n_owned = own.size
         st.n_ghost = 0
         self.neigh = self.dec.neighbours(self.rank, halo)
+        self._hold_mesh(world)
+
+    def _hold_mesh(self, world):
+        """The mesh triangles near this rank's box, after a cut of the boxes (World.hold_mesh_near)."""
+        if world.nmeshes:
+            world.hold_mesh_near(self.dec.blo[self.rank], self.dec.bhi[self.rank])
 
     # ------------------------------------------------------------------ exchange
     def exchange(self, world, rec, weights=None):
@@ -229,7 +236,9 @@ class ParallelDomain:
             _raise_shared(self.comm.allgather(err))
         # the cuts and the neighbour ranks for the largest skin (an adaptive skin may grow back
         # between two re-cuts), the ghosts for the skin of this build
-        self._rebalance(world, np.ascontiguousarray(costs[:, 0]), weights, world.halo(bound=True))
+        cut = self._rebalance(world, np.ascontiguousarray(costs[:, 0]), weights, world.halo(bound=True))
+        if world.nmeshes and (cut or world.time >= world.mesh_until):
+            self._hold_mesh(world)   # (before the build after this exchange finds the candidates)
         rec = self._migrate(world, rec)
         self._send_ghosts(world, halo)
         self.exchanges += 1
@@ -240,17 +249,18 @@ class ParallelDomain:
         """Re-cut the boxes (collective) when the largest rank cost exceeds the mean by more
         than [parallel] balance_threshold, or when asked (``recut_pending``: a restart read its
         particles by slices, evenly spread but not in the scene's boxes). Every cut is legal (decomposition.py), so the new
-        cuts are always taken."""
+        cuts are always taken. Returns whether the boxes were cut."""
         cmean = float(costs.sum()) / self.size
         self.imbalance = float(costs.max()) / max(cmean, 1e-300)
         if self.imbalance <= self.cfg["balance_threshold"] and not self.recut_pending:
-            return
+            return False
         self.recut_pending = False
         before = [list(n) for n in self.dec.nodes]
         self.dec.build(self.comm, world.state.position, weights, halo)
         if self.dec.nodes != before:
             self.rebalances += 1
         self.neigh = self.dec.neighbours(self.rank, halo)
+        return True
 
     def _migrate(self, world, rec):
         """Send the particles that left this rank's box to their owners, with their contact
@@ -473,13 +483,14 @@ class ParallelDomain:
         """Run totals over the ranks (collective): ghosts, forward-communication bytes and
         messages per step, exchanges, migrations (particles, contact records and the bytes
         of their typed buffers), bytes sent as ghosts at the exchanges, re-balancings,
-        current imbalance."""
+        current imbalance, the fewest and most mesh triangles a rank holds (World.hold_mesh_near)."""
         st = world.state
         loc = np.array([st.n_ghost, self.halo_bytes(world.thermal is not None), len(self.sends),
                         self.migrated, self.records_migrated, self.bytes_migrated, self.bytes_ghosts], float)
         tot = self.allsum(loc)
         own = np.array(self.comm.allgather(st.n_owned), float)
-        return dict(ghosts=int(tot[0]), halo_bytes=float(tot[1]), messages=int(tot[2]),
+        held = np.array(self.comm.allgather(int(getattr(world, "mesh_held", 0)) if world.nmeshes else 0))
+        return dict(mesh_held=(int(held.min()), int(held.max())),ghosts=int(tot[0]), halo_bytes=float(tot[1]), messages=int(tot[2]),
                     migrated=int(tot[3]), records_migrated=int(tot[4]), bytes_migrated=int(tot[5]),
                     bytes_ghosts=int(tot[6]), exchanges=self.exchanges, rebalances=self.rebalances,
                     imbalance=float(own.max() / max(own.mean(), 1e-300)))
