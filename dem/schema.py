@@ -115,6 +115,9 @@ FIELDS = (
     _f("tf", "particle", F8, when="heat", checkpoint="th_tf", doc="gas temperature at the particle (K)"),
     _f("uf", "particle", F8, (3,), when="heat", checkpoint="th_uf", doc="gas velocity at the particle (m/s)"),
     _f("qsrc", "particle", F8, when="group_sources", checkpoint="th_qsrc", doc="heat source by group (W)"),
+    _f("qmech", "particle", F8, (7,), when="heat_output", checkpoint="th_qmech",
+       doc="the heat rate of the last step by mechanism (W; columns dem.thermal.heat.QM: direct, indirect, wall, "
+           "convection, radiation, generation, sources; [output] heat_by_mechanism): they sum to heat_rate"),
     _f("work", "particle", F8, (3,), when="heat", scratch=True, forward="rate",
        doc="heat-step scratch: start temperature, cross-rank rate, explicit flux"),
     # ---------------------------------------------------------------- particle x wall
@@ -231,7 +234,7 @@ Params = _bundle("param", "Switches, scalars, domain and run totals.")
 
 # what enables an array; a feature a scene does not name is off
 FEATURES = ("heat", "fluid", "fluid_torque", "virtual_mass", "epsd", "contact_age", "friction_heat",
-            "group_sources", "indirect", "radiation", "coarse_graining", "mesh", "flow")
+            "group_sources", "indirect", "radiation", "coarse_graining", "mesh", "flow", "heat_output")
 
 
 # features a coupling sets before each interval (its arrays are not checkpointed: the coupling

@@ -161,11 +161,20 @@ class Writers:
 
     # ------------------------------------------------------------------ per-particle output
     def output_arrays(self):
-        """The owned rows of every enabled array declared with an output name (dem.schema)."""
+        """The owned rows of every enabled array declared with an output name (dem.schema); with
+        [output] heat_by_mechanism, the columns of qmech as ``heat_<mechanism>``
+        (dem.thermal.heat.QM): heat_direct, heat_indirect, heat_wall, heat_conv, heat_rad,
+        heat_gen, heat_src (W), those of the mechanisms the scene runs."""
         st = self.state
         n = st.n_owned
-        return {f.output: getattr(st, f.name)[:n] for f in S.FIELDS
-                if f.output and f.owner == "particle" and S.enabled(f, st.features)}
+        out = {f.output: getattr(st, f.name)[:n] for f in S.FIELDS
+               if f.output and f.owner == "particle" and S.enabled(f, st.features)}
+        if st.features.get("heat_output"):
+            from .thermal.heat import QM
+            for k, name in enumerate(QM._fields):
+                if name != "SIZE" and k in self.world.thermal.mechanism_columns():
+                    out[f"heat_{name}"] = np.ascontiguousarray(st.qmech[:n, k])
+        return out
 
     def particle_fields(self):
         """Per-particle fields of the VTK output (float64; the position goes apart)."""

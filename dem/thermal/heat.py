@@ -74,6 +74,20 @@ TOT = slots("TOT", (
     ("src", "sources"),
     ("wall", "through the walls"),
 ), size=8)
+# the heat of each particle by mechanism ([output] heat_by_mechanism; the columns of P.qmech, W):
+# what each mechanism gave it in the last step, as a rate; their sum is its heat_rate, and their
+# sums over the particles are the run totals' increments over that step (direct and indirect:
+# the pairs' net, zero in a closed set of particles; TOT counts |heat exchanged| instead)
+QM = slots("QM", (
+    ("direct", "direct conduction with the other particles"),
+    ("indirect", "indirect conduction (gas gap) with the other particles"),
+    ("wall", "the walls: conduction, gas gap, fixed flux, radiation to a radiating wall"),
+    ("conv", "convection with the gas"),
+    ("rad", "radiation with the other particles and the environment"),
+    ("gen", "generation (friction, impacts)"),
+    ("src", "sources"),
+))
+QM_SIZE = QM.SIZE
 # wall thermal columns (Walls.wth)
 WT = slots("WT", (
     ("cond", "condition: 0 adiabatic, 1 fixed temperature, 2 fixed flux"),
@@ -291,29 +305,37 @@ def wall_radiation_parts(rad, eps_i, R_i, T_i, T_e, acc1_i, aw1_i, wgt_i, W, rec
 
 
 @njit(cache=True, error_model="numpy")
-def explicit_heat(i0, i1, n, x, r, qgen, qsrc, srcbox, dt, Q, tot):
+def explicit_heat(i0, i1, n, x, r, qgen, qsrc, srcbox, dt, Q, tot, qm):
     """Add the explicit heat rates of rows [i0, i1) to Q (W): friction/impact generation qgen,
     per-particle sources qsrc, and the volumetric source boxes of srcbox (rows
     [xlo, ylo, zlo, xhi, yhi, zhi, W/m3]); their energies over dt go to the run totals
-    (TOT.gen, TOT.src). qgen / qsrc are empty (not of n rows) when off. Serves every integrator."""
+    (TOT.gen, TOT.src), and their rates to the columns QM.gen, QM.src of ``qm`` when it has n
+    rows (P.qmech). qgen / qsrc are empty (not of n rows) when off. Serves every integrator."""
     eg = 0.0
     es = 0.0
     has_gen = qgen.shape[0] == n
     has_src = qsrc.shape[0] == n
+    split = qm.shape[0] == n
     nbox = srcbox.shape[0]
     for i in range(i0, i1):
         if has_gen:
             Q[i] += qgen[i]
             eg += qgen[i] * dt
+            if split:
+                qm[i, QM.gen] += qgen[i]
         if has_src:
             Q[i] += qsrc[i]
             es += qsrc[i] * dt
+            if split:
+                qm[i, QM.src] += qsrc[i]
         for k in range(nbox):
             if (srcbox[k, 0] <= x[i, 0] <= srcbox[k, 3] and srcbox[k, 1] <= x[i, 1] <= srcbox[k, 4]
                     and srcbox[k, 2] <= x[i, 2] <= srcbox[k, 5]):
                 qq = srcbox[k, 6] * 4.0 / 3.0 * math.pi * r[i] ** 3
                 Q[i] += qq
                 es += qq * dt
+                if split:
+                    qm[i, QM.src] += qq
     tot[TOT.gen] += eg
     tot[TOT.src] += es
 
@@ -345,6 +367,12 @@ def heat_step(P, C, W, TB, prm, n, nown, dt, t, nblk):
     thi, tot, srcbox = prm.thi, prm.tot, prm.srcbox
     integ = thi[TI.integ]
     has_ind = Hi.shape[0] == n
+    qm = P.qmech
+    if qm.shape[0] == n:   # [output] heat_by_mechanism: this step's rates by mechanism (QM)
+        for i in range(n):
+            for k in range(QM_SIZE):
+                qm[i, k] = 0.0
+    rdt = 1.0 / dt
     if integ == 2:
         return _implicit_step(P, C, W, TB, prm, nown, dt, t, has_ind, nblk)
     if integ == 3:
@@ -376,12 +404,12 @@ def heat_step(P, C, W, TB, prm, n, nown, dt, t, nblk):
     hs = np.zeros(n if expo else 0)    # sum of a particle's reservoir conductances (W/K)
     hts = np.zeros(n if expo else 0)   # and of conductance x reservoir temperature (W)
     if expo and nown < n and not fused:
-        _cross_exchange(nown, dt, T, cinv, nb, nnb, Hd, Hi, has_ind, work, tot)
+        _cross_exchange(nown, dt, T, cinv, nb, nnb, Hd, Hi, has_ind, work, tot, qm, rdt)
     if not fused:
         if integ == 0:
-            _pair_sweep(nown, dt, T, cinv, Q, C, has_ind, integ, fwd, tot)
+            _pair_sweep(nown, dt, T, cinv, Q, C, has_ind, integ, fwd, tot, qm, rdt)
         else:
-            _pair_sweep(nown, 0.5 * dt, T, cinv, Q, C, has_ind, integ, fwd, tot)
+            _pair_sweep(nown, 0.5 * dt, T, cinv, Q, C, has_ind, integ, fwd, tot, qm, rdt)
     # ---- radiation environment (from the temperatures after the first pair half-sweep)
     if rad >= 0 and nblk > 1:
         acc0, acc1 = _radiation_accumulators_blocks(rad, n, nown, prm.xcnt, T, P.radius, P.material, tmat, C, nblk)
@@ -405,7 +433,7 @@ def heat_step(P, C, W, TB, prm, n, nown, dt, t, nblk):
     else:
         _heat_blocks(P, W, TB, prm, nown, dt, t, fused, expo, links, nblk, fwd - 1)  # stage 0
     if not fused and expo:
-        _pair_sweep(nown, 0.5 * dt, T, cinv, Q, C, has_ind, integ, -fwd, tot)
+        _pair_sweep(nown, 0.5 * dt, T, cinv, Q, C, has_ind, integ, -fwd, tot, qm, rdt)
     # ---- explicit terms (generation, sources, fixed fluxes), the update and its guard, row by row
     if nblk == 1:
         return _finish_rows(P, prm, fwd - 1, nown, n, dt, expo, tot)
@@ -433,6 +461,9 @@ def _link_rows(P, W, TB, prm, i0, i1, dt, t, fused, expo, links, rec):
     rad = thi[TI.rad]
     wr = rad >= 0 and thi[TI.wrad] == 1
     acc0, acc1, wgt, aw0, aw1, hs, hts, hconv, hrad, tenv = links
+    qm = P.qmech
+    split = qm.shape[0] == T.shape[0]
+    rdt = 1.0 / dt
     if wr:
         wall_radiation_weights(rad, i0, i1, P, W, t, prm.thf[TF.radrange], wgt, aw0, aw1)
     if not fused:
@@ -459,6 +490,8 @@ def _link_rows(P, W, TB, prm, i0, i1, dt, t, fused, expo, links, rec):
                 Q[i] += qq
                 wtot[w] += qq * dt
                 tot[TOT.wall] += qq * dt
+                if split:
+                    qm[i, QM.wall] += qq
     if conv >= 0:
         _convection_rows(i0, i1, v, r, cgv, uf, por, gas, conv, hconv)
         ec = 0.0
@@ -471,6 +504,8 @@ def _link_rows(P, W, TB, prm, i0, i1, dt, t, fused, expo, links, rec):
                 qq = h * (tf[i] - T[i])
                 Q[i] += qq
                 ec += qq * dt
+                if split:
+                    qm[i, QM.conv] += qq
         tot[TOT.conv] += ec
     if rad >= 0:
         er = 0.0
@@ -497,6 +532,9 @@ def _link_rows(P, W, TB, prm, i0, i1, dt, t, fused, expo, links, rec):
                                               (wtot, wrad), t, dt)
                     tot[TOT.wall] += qw * dt
                 er += (qq - qw) * dt
+                if split:
+                    qm[i, QM.rad] += qq - qw
+                    qm[i, QM.wall] += qw
         tot[TOT.rad] += er
     if expo:
         for i in range(i0, i1):
@@ -520,18 +558,27 @@ def _link_rows(P, W, TB, prm, i0, i1, dt, t, fused, expo, links, rec):
                         ew = f * Hw[i, q] * dtw
                         wtot[w] += ew
                         tot[TOT.wall] += ew
+                        if split:
+                            qm[i, QM.wall] += ew * rdt
                         if has_wg:
                             wgap[w] += f * Hwg[i, q] * dtw
             if conv >= 0:
                 tot[TOT.conv] += f * hconv[i] * (tf[i] - ti)
+                if split:
+                    qm[i, QM.conv] += f * hconv[i] * (tf[i] - ti) * rdt
             if rad >= 0:
                 if wr and aw1[i] > 0.0:
                     qw = wall_radiation_parts(rad, own_emissivity(tmat, mat, cgv, i), r[i], ti, tenv[i], acc1[i],
                                               aw1[i], wgt[i], W, (wtot, wrad), t, f)
                     tot[TOT.wall] += f * qw
                     tot[TOT.rad] += f * (hrad[i] * (tenv[i] - ti) - qw)
+                    if split:
+                        qm[i, QM.wall] += f * qw * rdt
+                        qm[i, QM.rad] += f * (hrad[i] * (tenv[i] - ti) - qw) * rdt
                 else:
                     tot[TOT.rad] += f * hrad[i] * (tenv[i] - ti)
+                    if split:
+                        qm[i, QM.rad] += f * hrad[i] * (tenv[i] - ti) * rdt
 
 
 @njit(cache=True, error_model="numpy", parallel=True)
@@ -586,7 +633,7 @@ def _finish_rows(P, prm, i0, i1, n, dt, expo, tot):
         for i in range(i0, i1):
             work[i, 2] = Q[i]  # explicit wall flux so far
             Q[i] = 0.0
-    explicit_heat(i0, i1, n, x, r, P.qgen, P.qsrc, prm.srcbox, dt, Q, tot)
+    explicit_heat(i0, i1, n, x, r, P.qgen, P.qsrc, prm.srcbox, dt, Q, tot, P.qmech)
     if not expo:
         for i in range(i0, i1):
             T[i] += dt * Q[i] * cinv[i]
@@ -649,6 +696,8 @@ def _implicit_assemble(P, C, W, TB, prm, m, dt_diag, dt, t, has_ind, b, dg):
                 b[i] += qq
                 wtot[w] += qq * dt
                 tot[TOT.wall] += qq * dt
+                if P.qmech.shape[0] == n:
+                    P.qmech[i, QM.wall] += qq
     # convection
     hconv = np.zeros(m if conv >= 0 else 0)
     if conv >= 0:
@@ -692,19 +741,24 @@ def _implicit_assemble(P, C, W, TB, prm, m, dt_diag, dt, t, has_ind, b, dg):
             dg[i] += krad[i]
             b[i] += qrad[i]
     # explicit heat: generation, sources
-    explicit_heat(0, m, n, x, r, qgen, qsrc, srcbox, dt, b, tot)
+    explicit_heat(0, m, n, x, r, qgen, qsrc, srcbox, dt, b, tot, P.qmech)
     return hconv, qrad, krad, wgt, aw1, qw, om
 
 
 @njit(cache=True, error_model="numpy")
-def _implicit_totals(P, C, W, prm, m, Ts, d, t, f, has_ind, links, nblk):
+def _implicit_totals(P, C, W, prm, m, Ts, d, t, f, has_ind, links, nblk, rdt):
     """Add to the run totals the heat of every linear link at the temperatures Ts (rows
     [0, m)) times the weight f (s): pairs |H (T_j - T_i)|, fixed-temperature walls at time t,
     convection, and the linearised radiation qrad - krad d (d = Ts - T^n), a radiating wall's
     part qw - omega krad d (``links`` = (hconv, qrad, krad, wgt, aw1, qw, om) of
     _implicit_assemble). The pairs' sum on ``nblk`` blocks of rows when nblk > 1
-    (dem.thermal.implicit.pair_heat_blocks)."""
+    (dem.thermal.implicit.pair_heat_blocks). With P.qmech (of every row) each link's rate
+    times f ``rdt`` (rdt = 1 / the step: the stages' weights f sum to the step) goes to its
+    particles' columns (QM)."""
     hconv, qrad, krad, wgt, aw1, qw, om = links
+    qm = P.qmech
+    split = qm.shape[0] == P.temperature.shape[0]
+    fr = f * rdt
     nb, nnb, Hd, Hi = C.nb, C.nnb, C.Hd, C.Hi
     wnb, wnn, Hw, tf = P.wnb, P.wnn, P.Hw, P.tf
     wth, wtab, wtot, wgap, wrad = W.wth, W.wtab, W.wtot, W.wgap, W.wrad
@@ -721,6 +775,19 @@ def _implicit_totals(P, C, W, prm, m, Ts, d, t, f, has_ind, links, nblk):
         ed, ei = pair_heat_rows(m - m, m, m, (nb, nnb, Hd, Hi), has_ind, Ts, f)  # (row 0 at run time)
     tot[TOT.direct] += ed
     tot[TOT.indirect] += ei
+    if split:
+        for i in range(m):
+            for s in range(nnb[i]):
+                j = nb[i, s]
+                if j >= m:
+                    continue
+                dT = Ts[j] - Ts[i]
+                qd = Hd[i, s] * dT * fr
+                qi = Hi[i, s] * dT * fr if has_ind else 0.0
+                qm[i, QM.direct] += qd
+                qm[j, QM.direct] -= qd
+                qm[i, QM.indirect] += qi
+                qm[j, QM.indirect] -= qi
     for i in range(m):
         for q in range(wnn[i]):
             h = Hw[i, q]
@@ -730,12 +797,16 @@ def _implicit_totals(P, C, W, prm, m, Ts, d, t, f, has_ind, links, nblk):
                 ew = h * dtw * f
                 wtot[w] += ew
                 tot[TOT.wall] += ew
+                if split:
+                    qm[i, QM.wall] += h * dtw * fr
                 if has_wg:
                     wgap[w] += Hwg[i, q] * dtw * f
     if conv >= 0:
         ec = 0.0
         for i in range(m):
             ec += hconv[i] * (tf[i] - Ts[i]) * f
+            if split:
+                qm[i, QM.conv] += hconv[i] * (tf[i] - Ts[i]) * fr
         tot[TOT.conv] += ec
     if rad >= 0:
         # the linearised rate qrad - krad d at Ts; a wall's part qw - omega krad d
@@ -750,7 +821,11 @@ def _implicit_totals(P, C, W, prm, m, Ts, d, t, f, has_ind, links, nblk):
                         wrad[w] += ew
                         tot[TOT.wall] += ew
                         e -= ew
+                        if split:
+                            qm[i, QM.wall] += ew * rdt
             er += e
+            if split:
+                qm[i, QM.rad] += e * rdt
         tot[TOT.rad] += er
 
 
@@ -794,7 +869,7 @@ def _implicit_step(P, C, W, TB, prm, m, dt, t, has_ind, nblk):
         T[i] += d[i]
         Q[i] = d[i] / (cinv[i] * dt)
     # totals at T^{n+1}
-    _implicit_totals(P, C, W, prm, m, T, d, t, dt, has_ind, links, nblk)
+    _implicit_totals(P, C, W, prm, m, T, d, t, dt, has_ind, links, nblk, 1.0 / dt)
     return _temperature_guard(T, m)
 
 
@@ -896,21 +971,23 @@ def _trbdf2_step(P, C, W, TB, prm, m, dt, t, has_ind, nblk):
         T[i] += d2[i]
         Q[i] = d2[i] / (cinv[i] * dt)
     # totals: the links at T^n (walls at t_n), T^g (t_n + gamma dt) and T^{n+1} (t_n+1)
-    _implicit_totals(P, C, W, prm, m, Tn, zero, t0, a, has_ind, links, nblk)
-    _implicit_totals(P, C, W, prm, m, Tg, d1, tg, a, has_ind, links, nblk)
-    _implicit_totals(P, C, W, prm, m, T, d2, t, w, has_ind, links, nblk)
+    _implicit_totals(P, C, W, prm, m, Tn, zero, t0, a, has_ind, links, nblk, 1.0 / dt)
+    _implicit_totals(P, C, W, prm, m, Tg, d1, tg, a, has_ind, links, nblk, 1.0 / dt)
+    _implicit_totals(P, C, W, prm, m, T, d2, t, w, has_ind, links, nblk, 1.0 / dt)
     return _temperature_guard(T, m)
 
 
 @njit(cache=True, error_model="numpy")
-def _pair_sweep(n, dt, T, cinv, Q, C, has_ind, integ, direction, tot):
+def _pair_sweep(n, dt, T, cinv, Q, C, has_ind, integ, direction, tot, qm, rdt):
     """Pair conduction over dt through the conductances of the pairs ``C`` (dem.schema Pairs:
     Hd, and Hi when has_ind): Euler (into Q) or exact two-body exponential updates of T
     in particle order (direction 1) or reverse order (-1), over the rows [0, n) of owned
     particles. Pairs with a ghost (j >= n): Euler counts half their heat in the totals (the
     other rank counts the other half); the exponential update leaves them to the
-    reservoir relaxation (_ghost_links)."""
+    reservoir relaxation (_ghost_links). ``qm`` (P.qmech, when of the pairs' rows): each
+    particle's share by mechanism, as a rate (energy x ``rdt`` = 1 / the step)."""
     nb, nnb, Hd, Hi = C.nb, C.nnb, C.Hd, C.Hi
+    split = qm.shape[0] == T.shape[0]
     ed = 0.0
     ei = 0.0
     for k in range(n):
@@ -928,6 +1005,11 @@ def _pair_sweep(n, dt, T, cinv, Q, C, has_ind, integ, direction, tot):
                 q = h * (T[j] - T[i])
                 Q[i] += q
                 Q[j] -= q
+                if split:
+                    qm[i, QM.direct] += q * hd / h
+                    qm[i, QM.indirect] += q * hi / h
+                    qm[j, QM.direct] -= q * hd / h
+                    qm[j, QM.indirect] -= q * hi / h
                 e = abs(q) * dt
                 if j >= n:
                     e *= 0.5
@@ -938,6 +1020,11 @@ def _pair_sweep(n, dt, T, cinv, Q, C, has_ind, integ, direction, tot):
                 e = (T[j] - T[i]) * (-math.expm1(-h * a * dt)) / a
                 T[i] += e * cinv[i]
                 T[j] -= e * cinv[j]
+                if split:
+                    qm[i, QM.direct] += e * rdt * hd / h
+                    qm[i, QM.indirect] += e * rdt * hi / h
+                    qm[j, QM.direct] -= e * rdt * hd / h
+                    qm[j, QM.indirect] -= e * rdt * hi / h
                 e = abs(e)
             ed += e * hd / h
             ei += e * hi / h
@@ -958,7 +1045,7 @@ def cross_rates(nown, cinv, nb, nnb, Hd, Hi, work):
 
 
 @njit(cache=True, error_model="numpy")
-def _cross_exchange(nown, dt, T, cinv, nb, nnb, Hd, Hi, has_ind, work, tot):
+def _cross_exchange(nown, dt, T, cinv, nb, nnb, Hd, Hi, has_ind, work, tot, qm, rdt):
     """Exponential update of the pairs with a ghost (see heat_step), from the start-of-step
     temperatures; half of each exchange goes into the totals (the other rank counts the rest)."""
     dT = np.zeros(nown)
@@ -978,6 +1065,9 @@ def _cross_exchange(nown, dt, T, cinv, nb, nnb, Hd, Hi, has_ind, work, tot):
             phi = -math.expm1(-lam * dt) / lam if lam > 0.0 else dt
             e = h * (T[j] - T[i]) * phi
             dT[i] += e * cinv[i]
+            if qm.shape[0] == T.shape[0]:
+                qm[i, QM.direct] += e * rdt * hd / h
+                qm[i, QM.indirect] += e * rdt * hi / h
             ed += 0.5 * abs(e) * hd / h
             ei += 0.5 * abs(e) * hi / h
     for i in range(nown):

@@ -76,7 +76,10 @@ class ThermalModel:
         # the kernel re-measures the local porosity at each neighbour rebuild; the Voronoi
         # porosity is computed in Python at start-up and at each spatial reordering
         thi[TI.localpor] = 1 if (self.local_porosity and not self.voronoi) else 0
-        thi[TI.fused] = 1 if (sc.simulation["mechanics"] and th["integrator"] == "euler") else 0
+        # [output] heat_by_mechanism: the heat step sums every mechanism (the force loop stores
+        # the conductances; its fused sum has no column per mechanism)
+        split = bool(getattr(sc, "output", {}).get("heat_by_mechanism"))
+        thi[TI.fused] = 1 if (sc.simulation["mechanics"] and th["integrator"] == "euler" and not split) else 0
         from .wall_heat import radiating_walls
         thi[TI.wrad] = 1 if any(radiating_walls(sc)) else 0
         thi[TI.cg_own] = 1 if th["parcel_heat"] == "own" else 0
@@ -136,7 +139,7 @@ class ThermalModel:
                 boxes.append(list(s["min"]) + list(s["max"]) + [s["power_density"]])
         st.enable(heat=True, contact_age=self.needs_age, friction_heat=bool(thi[TI.fric] >= 0),
                   group_sources=bool(np.any(qsrc != 0)), indirect=bool(thi[TI.indirect] >= 0),
-                  radiation=bool(thi[TI.rad] >= 0))
+                  radiation=bool(thi[TI.rad] >= 0), heat_output=split)
         st.wth, st.wtab = wth, wtab
         zero_wall_totals(st, nw)
         st.thi, st.thf, st.tmat, st.gas, st.ereal, st.keff = thi, thf, self.tmat, self.gas, self.ereal, self.keff
@@ -195,6 +198,28 @@ class ThermalModel:
         return out
 
     # -------------------------------------------------------------- reports
+    def mechanism_columns(self):
+        """The columns of P.qmech (dem.thermal.heat.QM) of the mechanisms this scene runs: the
+        [output] heat_by_mechanism fields it writes (the others stay zero)."""
+        from .heat import QM
+        thi, st = self.thi, self.state
+        cols = []
+        if thi[TI.direct] >= 0:
+            cols.append(QM.direct)
+        if thi[TI.indirect] >= 0:
+            cols.append(QM.indirect)
+        if st.wth.shape[0] and np.any(st.wth[:, WT.cond] != 0.0):
+            cols.append(QM.wall)
+        if thi[TI.conv] >= 0:
+            cols.append(QM.conv)
+        if thi[TI.rad] >= 0:
+            cols.append(QM.rad)
+        if thi[TI.fric] >= 0:
+            cols.append(QM.gen)
+        if st.qsrc.shape[0] or st.srcbox.shape[0]:
+            cols.append(QM.src)
+        return cols
+
     def critical_step(self):
         """Thermal critical step rho c R / k of the particles (smallest), ref 002."""
         st = self.state
