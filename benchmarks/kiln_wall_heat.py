@@ -22,7 +22,9 @@ What is run (each as its own process `python3 -m dem run <scene> --out <dir> --t
 * a static slab of each material, for the bed's effective conductivity k_bed: about 190 beads
   settled under gravity on a floor in a box periodic in x and y (21 mm), then frozen
   (`mechanics = false`) between the floor at 310 K and a plane at 290 K laid on the bed's top
-  (through the ten highest beads), run to steady state with the implicit integrator. k_bed =
+  (through the tops of the ten highest beads; a bead whose centre is above half a radius under it
+  is left out), run to steady state with the implicit integrator (60 steps of 1e5 s; the floor's
+  and the top's heat rates are printed: equal at steady state). k_bed =
   q / |dT/dz|, q the floor's heat rate over the box's area (wall_heat.csv, checked against the
   top plane's), dT/dz the least-squares slope of the beads' temperatures against height over
   the middle 50 % of the slab (away from both walls' contact resistances).
@@ -65,6 +67,14 @@ after a step DT at its surface (integrated here: (1/t_c) int_0^t_c t^-1/2 dt = 2
 input is measured independently of the heat rate compared: the material constants, theta, N_w,
 <H> and rho_bed from the drum's positions, k_bed from the slab. Nothing is fitted.
 
+Beside it, from the same inputs: `continuum_exact`, the exact time mean over t_c of the
+semi-infinite continuum behind the contact conductance h_ws (which the series form approximates:
+4 % below it at copper, pi rad/s), and `layered_model`, a column of lumped layers each of the
+first layer's measured heat capacity per area (C1 = beads in contact x m c / A_cov), the first
+heated through h_ws, each conducting to the next through k_bed over their spacing: this
+benchmark's own form (its continuum limit is `continuum_exact`, checked to 0.3 % at layers
+0.03 mm apart), for the regime where the heat does not go one bead deep.
+
 Regime numbers printed per case: Fo_w = <H> t_c / (m c), how far a bead in contact relaxes
 towards the wall temperature during one pass (Fo_w << 1: the first layer stays at the bed's
 temperature, h_wb = h_ws, pure contact resistance), and the penetration depth sqrt(alpha_bed t_c)
@@ -74,6 +84,12 @@ conductivity, limits what a pass can take).
 
 Energy balance: the bed's gain (thermal_energy(end) - thermal_energy(0)) against the shell's heat
 E_wall_shell at the end, printed as a relative difference.
+
+Found (2026-12-07, docs/benchmarks.md, "Kiln shell: wall-to-bed heat against the penetration
+model"): glass in steel is pure contact resistance (Fo_w 0.003, h_wb = h_ws to 0.3 %, the series
+model 4.5 % below: its penetration term is what lumped beads do not have); copper in copper
+(Fo_w 0.3 to 1) is 22 to 39 % above the series model and 7 to 12 % above the layered column, and
+its h_wb falls with the speed, as its wall contacts do, instead of rising as h_pen would.
 """
 import argparse
 import math
