@@ -2,8 +2,9 @@
 penetration model of Schlünder & Mollekopf (1984) as used for rotary drums (benchmarks/
 kiln_wall_heat.py, whose scenes and measurements these are, at half the length and time).
 
-A periodic 12 mm section of the shell (about 30 s on one core), 195 beads of 3 mm, turning at pi rad/s, the shell heated
-from 300 to 500 K once the bed rolls (t = 0.6 s); measured over 0.8 to 1.5 s. Two materials:
+A periodic 12 mm section of the shell (about 30 s on one core), 195 beads of 3 mm, turning at
+pi rad/s, the shell heated from 300 to 500 K once the bed rolls (t = 0.6 s); measured over 0.8 to
+1.5 s (history.csv and a VTK frame every 0.01 s). Two materials:
 
 * glass in steel (the example's): a bead in contact relaxes towards the wall by Fo_w = <H> t_c /
   (m c) ~ 0.003 of the difference in a pass, so the first layer stays at the bed's temperature
