@@ -404,7 +404,7 @@ def heat_step(P, C, W, TB, prm, n, nown, dt, t, nblk):
     hs = np.zeros(n if expo else 0)    # sum of a particle's reservoir conductances (W/K)
     hts = np.zeros(n if expo else 0)   # and of conductance x reservoir temperature (W)
     if expo and nown < n and not fused:
-        _cross_exchange(nown, dt, T, cinv, nb, nnb, Hd, Hi, has_ind, work, tot, qm, rdt)
+        _cross_exchange(nown, dt, T, cinv, nb, nnb, Hd, Hi, has_ind, work, tot, qm)
     if not fused:
         if integ == 0:
             _pair_sweep(nown, dt, T, cinv, Q, C, has_ind, integ, fwd, tot, qm, rdt)
@@ -746,15 +746,16 @@ def _implicit_assemble(P, C, W, TB, prm, m, dt_diag, dt, t, has_ind, b, dg):
 
 
 @njit(cache=True, error_model="numpy")
-def _implicit_totals(P, C, W, prm, m, Ts, d, t, f, has_ind, links, nblk, rdt):
+def _implicit_totals(P, C, W, prm, m, Ts, d, t, fw, has_ind, links, nblk):
     """Add to the run totals the heat of every linear link at the temperatures Ts (rows
-    [0, m)) times the weight f (s): pairs |H (T_j - T_i)|, fixed-temperature walls at time t,
+    [0, m)) times the weight f (s; ``fw`` = (f, 1 / the step)): pairs |H (T_j - T_i)|, fixed-temperature walls at time t,
     convection, and the linearised radiation qrad - krad d (d = Ts - T^n), a radiating wall's
     part qw - omega krad d (``links`` = (hconv, qrad, krad, wgt, aw1, qw, om) of
     _implicit_assemble). The pairs' sum on ``nblk`` blocks of rows when nblk > 1
     (dem.thermal.implicit.pair_heat_blocks). With P.qmech (of every row) each link's rate
-    times f ``rdt`` (rdt = 1 / the step: the stages' weights f sum to the step) goes to its
-    particles' columns (QM)."""
+    times f / the step (the stages' weights f sum to the step) goes to its particles' columns
+    (QM)."""
+    f, rdt = fw
     hconv, qrad, krad, wgt, aw1, qw, om = links
     qm = P.qmech
     split = qm.shape[0] == P.temperature.shape[0]
@@ -869,7 +870,7 @@ def _implicit_step(P, C, W, TB, prm, m, dt, t, has_ind, nblk):
         T[i] += d[i]
         Q[i] = d[i] / (cinv[i] * dt)
     # totals at T^{n+1}
-    _implicit_totals(P, C, W, prm, m, T, d, t, dt, has_ind, links, nblk, 1.0 / dt)
+    _implicit_totals(P, C, W, prm, m, T, d, t, (dt, 1.0 / dt), has_ind, links, nblk)
     return _temperature_guard(T, m)
 
 
@@ -971,9 +972,9 @@ def _trbdf2_step(P, C, W, TB, prm, m, dt, t, has_ind, nblk):
         T[i] += d2[i]
         Q[i] = d2[i] / (cinv[i] * dt)
     # totals: the links at T^n (walls at t_n), T^g (t_n + gamma dt) and T^{n+1} (t_n+1)
-    _implicit_totals(P, C, W, prm, m, Tn, zero, t0, a, has_ind, links, nblk, 1.0 / dt)
-    _implicit_totals(P, C, W, prm, m, Tg, d1, tg, a, has_ind, links, nblk, 1.0 / dt)
-    _implicit_totals(P, C, W, prm, m, T, d2, t, w, has_ind, links, nblk, 1.0 / dt)
+    _implicit_totals(P, C, W, prm, m, Tn, zero, t0, (a, 1.0 / dt), has_ind, links, nblk)
+    _implicit_totals(P, C, W, prm, m, Tg, d1, tg, (a, 1.0 / dt), has_ind, links, nblk)
+    _implicit_totals(P, C, W, prm, m, T, d2, t, (w, 1.0 / dt), has_ind, links, nblk)
     return _temperature_guard(T, m)
 
 
@@ -1045,9 +1046,11 @@ def cross_rates(nown, cinv, nb, nnb, Hd, Hi, work):
 
 
 @njit(cache=True, error_model="numpy")
-def _cross_exchange(nown, dt, T, cinv, nb, nnb, Hd, Hi, has_ind, work, tot, qm, rdt):
+def _cross_exchange(nown, dt, T, cinv, nb, nnb, Hd, Hi, has_ind, work, tot, qm):
     """Exponential update of the pairs with a ghost (see heat_step), from the start-of-step
-    temperatures; half of each exchange goes into the totals (the other rank counts the rest)."""
+    temperatures; half of each exchange goes into the totals (the other rank counts the rest),
+    and the whole of it, as a rate, to the particle's columns of ``qm`` (P.qmech) when kept."""
+    rdt = 1.0 / dt
     dT = np.zeros(nown)
     ed = 0.0
     ei = 0.0
