@@ -290,6 +290,8 @@ class VTKWriter(Operation):
 
     def start(self, run):
         self.vtk = run.sim.vtk_series(self.out_dir)   # every rank: each writes its own piece under MPI
+        # contacts.pvd: the contact network ([output] contacts), a piece per rank under MPI
+        self.contacts = run.sim.vtk_series(self.out_dir, "contacts") if run.sim.scene.output.get("contacts") else None
         self.walls = None
         meshes = [w for w in run.sim.scene.walls if w["type"] == "mesh"]
         if meshes:   # walls.pvd: the mesh walls where they are at each output (the root alone)
@@ -300,6 +302,8 @@ class VTKWriter(Operation):
 
     def act(self, run, event):
         run.sim.write_vtk(self.vtk)
+        if self.contacts is not None:
+            run.sim.write_contacts(self.contacts)
         if self.walls is not None:
             sim = run.sim
             sim.root_write(lambda: _write_mesh_walls(self.walls, sim))

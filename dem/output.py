@@ -175,10 +175,21 @@ class VTKSeries:
         atomic_write(os.path.join(self.dir, fname), lambda tmp: meshio.write(tmp, mesh, file_format="vtu"))
         self._index(time, fname)
 
-    def write_frame(self, time, index, pieces, fields):
+    def write_lines(self, time, index, points, lines, cell_fields):
+        """A frame of line segments (the contact network) from one process."""
+        fname = f"{self.name}_{index:06d}.vtu"
+        write_lines_vtu(os.path.join(self.dir, fname), points, lines, cell_fields)
+        self._index(time, fname)
+
+    def write_lines_piece(self, index, points, lines, cell_fields):
+        """This rank's piece of a frame of line segments (an MPI run)."""
+        write_lines_vtu(self.piece_path(index, self.rank), points, lines, cell_fields)
+
+    def write_frame(self, time, index, pieces, fields, cells=False):
         """The root: the .pvtu of frame ``index`` naming the pieces of the ranks ``pieces``
         (those that own particles), with the arrays of ``fields`` (name -> an array of the
-        piece's dtype and components), and its entry in the .pvd."""
+        piece's dtype and components: point data, or cell data with ``cells``), and its entry in
+        the .pvd."""
         fname = f"{self.name}_{index:06d}.pvtu"
         arrays = "".join(f'      <PDataArray type="Float64" Name="{k}" NumberOfComponents="{_components(a)}"/>\n'
                          for k, a in fields.items())
@@ -186,7 +197,8 @@ class VTKSeries:
         text = ('<?xml version="1.0"?>\n'
                 '<VTKFile type="PUnstructuredGrid" version="0.1" byte_order="LittleEndian">\n'
                 '  <PUnstructuredGrid GhostLevel="0">\n'
-                f'    <PPointData>\n{arrays}    </PPointData>\n'
+                + (f'    <PCellData>\n{arrays}    </PCellData>\n' if cells else
+                   f'    <PPointData>\n{arrays}    </PPointData>\n') +
                 '    <PPoints>\n      <PDataArray type="Float64" NumberOfComponents="3"/>\n    </PPoints>\n'
                 '    <PCells>\n      <PDataArray type="Int64" Name="connectivity"/>\n'
                 '      <PDataArray type="Int64" Name="offsets"/>\n'
@@ -226,6 +238,14 @@ def write_vtu(path, points, fields):
     n = points.shape[0]
     mesh = meshio.Mesh(points, [("vertex", np.arange(n).reshape(-1, 1))],
                        point_data={k: np.ascontiguousarray(v) for k, v in fields.items()})
+    atomic_write(path, lambda tmp: meshio.write(tmp, mesh, file_format="vtu"))
+
+
+def write_lines_vtu(path, points, lines, cell_fields):
+    """Line segments (pairs of point indices) with per-segment ``cell_fields``, one .vtu (atomic)."""
+    import meshio
+    mesh = meshio.Mesh(points, [("line", np.asarray(lines, np.int64).reshape(-1, 2))],
+                       cell_data={k: [np.ascontiguousarray(v)] for k, v in cell_fields.items()})
     atomic_write(path, lambda tmp: meshio.write(tmp, mesh, file_format="vtu"))
 
 

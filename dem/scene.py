@@ -142,7 +142,7 @@ WALL_KEYS = {"type", "material", "point", "normal", "extent", "u_axis", "axis", 
 MESH_ONLY = {"file", "scale", "rotate", "translate", "oscillation"}
 CONTACT_KEYS = {"model", "rolling", "damping", "tangential", "normal_stiffness", "tangential_stiffness_ratio",
                 "characteristic_velocity", "rolling_damping"}
-OUTPUT_KEYS = {"vtk", "heat_by_mechanism"}
+OUTPUT_KEYS = {"vtk", "heat_by_mechanism", "contacts"}
 PARALLEL_KEYS = {"decomposition", "slab_axis", "balance_threshold", "pair_weight", "insertion_block"}
 TOP_KEYS = {"simulation", "domain", "materials", "particles", "walls", "contact", "output",
             "thermal", "gas", "parallel", "inlets", "outlets"}
@@ -579,7 +579,8 @@ def parse(data, file="<dict>", base_dir=".", end_time=None, comm="auto"):
     next_id = int(ids.max(initial=0)) + 1 if part is None else int(part.max(int(ids.max(initial=0)))) + 1
     o = v.table(data.get("output", {}), "output", OUTPUT_KEYS)
     output = dict(vtk=v.boolean(o, "vtk", "output", default=True),
-                  heat_by_mechanism=v.boolean(o, "heat_by_mechanism", "output", default=False))
+                  heat_by_mechanism=v.boolean(o, "heat_by_mechanism", "output", default=False),
+                  contacts=v.boolean(o, "contacts", "output", default=False))
     if output["heat_by_mechanism"] and data.get("thermal") is None:
         v.err("output.heat_by_mechanism", "needs a [thermal] section (the heat of each particle by mechanism)")
     pa = v.table(data.get("parallel", {}), "parallel", PARALLEL_KEYS)

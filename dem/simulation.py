@@ -191,9 +191,13 @@ class Simulation:
         MPI (dem.final)."""
         self.writers.write_final(path)
 
-    def vtk_series(self, out_dir):
-        """This rank's VTK series of ``out_dir`` (pieces per rank under MPI)."""
-        return self.writers.vtk_series(out_dir)
+    def vtk_series(self, out_dir, name="particles"):
+        """This rank's VTK series ``name`` of ``out_dir`` (pieces per rank under MPI)."""
+        return self.writers.vtk_series(out_dir, name)
+
+    def write_contacts(self, series):
+        """One frame of the contact network ([output] contacts; collective)."""
+        self.writers.write_contacts(series)
 
     def write_vtk(self, vtk, **extra):
         """One VTK output of every rank's particles (collective; ``vtk``: :meth:`vtk_series`)."""

@@ -169,12 +169,82 @@ class Writers:
         n = st.n_owned
         out = {f.output: getattr(st, f.name)[:n] for f in S.FIELDS
                if f.output and f.owner == "particle" and S.enabled(f, st.features)}
+        if self.world.scene.output.get("contacts"):
+            out.update(self.contact_fields())
         if st.features.get("heat_output"):
             from .thermal.heat import QM
             for k, name in enumerate(QM._fields):
                 if name != "SIZE" and k in self.world.thermal.mechanism_columns():
                     out[f"heat_{name}"] = np.ascontiguousarray(st.qmech[:n, k])
         return out
+
+    def contact_fields(self):
+        """[output] contacts: per owned particle ``contact_force`` (N, the sum of its contact
+        forces of the last evaluation, pairs and walls: the total force less gravity and the
+        fluid's explicit force) and ``coordination`` (its touching particles and walls now)."""
+        from .stats import touching_pairs, wall_touches
+        st = self.state
+        w = self.world
+        n = st.n_owned
+        body = st.mass[:n, None] * np.asarray(w.scene.simulation["gravity"], float)[None, :]
+        cf = st.force[:n] - body
+        if st.external_force.shape[0] >= n and n:
+            cf = cf - st.external_force[:n]
+        _, _, _, _, cnt = touching_pairs(st)
+        nw, _ = wall_touches(st.position, st.radius, st.wnb, st.wnn, st.wf, st.wi, st.mcon, n, w.time)
+        return {"contact_force": np.ascontiguousarray(cf), "coordination": (cnt[:n] + nw).astype(np.float64)}
+
+    def contact_network(self):
+        """[output] contacts: this rank's touching pairs as lines between the two centres (the
+        second by the minimum image), each pair once over the ranks (a pair with a ghost on the
+        rank of the smaller id; a line from the smaller id, a, to the larger, b), with cell data
+        ``normal_force`` (N, the elastic normal force of
+        the run's law at the overlap: Hertz 4/3 E* sqrt(R*) delta^3/2, linear k_n delta),
+        ``overlap`` (m), ``id_a``, ``id_b`` and, with heat, ``heat_flow`` (W, from a to b through
+        the pair's conductance of the last evaluation at the temperatures now: direct and gas
+        gap). Returns (points (2k, 3), lines (k, 2), cell fields)."""
+        from .stats import touching_pairs
+        from . import step as K
+        st = self.state
+        ii, jj, dd, ss, _ = touching_pairs(st)
+        ids = st.id
+        keep = (jj < st.n_owned) | (ids[ii] < ids[jj])
+        ii, jj, dd, ss = ii[keep], jj[keep], dd[keep], ss[keep]
+        h = None
+        if self.world.thermal is not None:   # (the slot's conductance, before a and b are ordered)
+            h = st.Hd[ii, ss] + (st.Hi[ii, ss] if st.Hi.shape[0] == st.Hd.shape[0] else 0.0)
+        swap = ids[ii] > ids[jj]   # each line from the smaller id to the larger: the same on any ranks
+        ii, jj = np.where(swap, jj, ii), np.where(swap, ii, jj)
+        x = st.position
+        dv = x[jj] - x[ii]
+        L = st.hi - st.lo
+        for k in range(3):
+            if st.periodic[k]:
+                dv[:, k] -= L[k] * np.floor(dv[:, k] / L[k] + 0.5)
+        pts = np.empty((2 * ii.size, 3))
+        pts[0::2] = x[ii]
+        pts[1::2] = x[ii] + dv
+        lines = np.arange(2 * ii.size, dtype=np.int64).reshape(-1, 2)
+        ri, rj = st.radius[ii], st.radius[jj]
+        delta = ri + rj - dd
+        rstar = ri * rj / (ri + rj)
+        mi, mj = st.material[ii], st.material[jj]
+        estar = st.tab[K.TAB.estar, mi, mj]
+        if st.ip[K.IP.contact] == 0:
+            fn = 4.0 / 3.0 * estar * np.sqrt(rstar) * delta ** 1.5
+        else:
+            kn = float(st.fp[K.FP.linkn])
+            if kn <= 0.0:   # the Hertz-equivalent stiffness at the characteristic velocity (dem.step._pair_law)
+                mstar = 1.0 / (st.inv_mass[ii] + st.inv_mass[jj])
+                sr = np.sqrt(rstar)
+                vc = float(st.fp[K.FP.vchar])
+                kn = 16.0 / 15.0 * sr * estar * (15.0 * mstar * vc * vc / (16.0 * sr * estar)) ** 0.2
+            fn = kn * delta
+        cells = {"normal_force": fn, "overlap": delta, "id_a": ids[ii].astype(np.float64),
+                 "id_b": ids[jj].astype(np.float64)}
+        if h is not None:
+            cells["heat_flow"] = h * (st.temperature[ii] - st.temperature[jj])
+        return pts, lines, {k: np.ascontiguousarray(v) for k, v in cells.items()}
 
     def particle_fields(self):
         """Per-particle fields of the VTK output (float64; the position goes apart)."""
@@ -239,14 +309,14 @@ class Writers:
             if written:
                 F.remove_stale_pieces(folder, set(names))
 
-    def vtk_series(self, out_dir):
+    def vtk_series(self, out_dir, name="particles"):
         """The VTK series of this rank (dem.output.VTKSeries: every rank writes its own piece
         under MPI; the root the frame and the .pvd). Collective under MPI: the root creates the
         vtk/ folder (recorded in the output folder's manifest) before any rank writes in it."""
         from .output import VTKSeries, make_folder
         if self.par is None:
-            return VTKSeries(out_dir)
-        vtk = VTKSeries(out_dir, rank=self.par.rank, ranks=self.par.size)
+            return VTKSeries(out_dir, name=name)
+        vtk = VTKSeries(out_dir, name=name, rank=self.par.rank, ranks=self.par.size)
         if self.is_root:
             self.root_write(lambda: make_folder(vtk.dir))
         self.par.comm.Barrier()
@@ -272,6 +342,27 @@ class Writers:
         if self.is_root:
             pieces = [r for r, has in enumerate(wrote) if has]
             self.root_write(lambda: vtk.write_frame(w.time, w.step_count, pieces, f))
+
+
+    def write_contacts(self, series):
+        """One frame of contacts.pvd (collective; ``series``: this rank's
+        :meth:`vtk_series` named "contacts"): the contact network of :meth:`contact_network`,
+        one .vtu in a serial run, under MPI a piece per rank that has a pair and the root's
+        .pvtu naming them (cell data)."""
+        w = self.world
+        if self.par is not None and w.thermal is not None:
+            # the ghosts' temperatures of now (a step forwards them before its own heat exchange)
+            self.par.forward(w, motion=False, temperature=True)
+        pts, lines, cells = self.contact_network()
+        if self.par is None:
+            self.root_write(lambda: series.write_lines(w.time, w.step_count, pts, lines, cells))
+            return
+        has = lines.shape[0] > 0
+        self.each_rank_write(lambda: series.write_lines_piece(w.step_count, pts, lines, cells) if has else None)
+        wrote = self.par.comm.gather(has, root=0)
+        if self.is_root:
+            pieces = [r for r, h in enumerate(wrote) if h]
+            self.root_write(lambda: series.write_frame(w.time, w.step_count, pieces, cells, cells=True))
 
 
 def by_id(parts):

@@ -79,7 +79,8 @@ class ThermalModel:
         # [output] heat_by_mechanism: the heat step sums every mechanism (the force loop stores
         # the conductances; its fused sum has no column per mechanism)
         split = bool(getattr(sc, "output", {}).get("heat_by_mechanism"))
-        thi[TI.fused] = 1 if (sc.simulation["mechanics"] and th["integrator"] == "euler" and not split) else 0
+        per_pair = split or bool(getattr(sc, "output", {}).get("contacts"))   # (the network's heat flows too)
+        thi[TI.fused] = 1 if (sc.simulation["mechanics"] and th["integrator"] == "euler" and not per_pair) else 0
         from .wall_heat import radiating_walls
         thi[TI.wrad] = 1 if any(radiating_walls(sc)) else 0
         thi[TI.cg_own] = 1 if th["parcel_heat"] == "own" else 0
