@@ -66,10 +66,8 @@ def touching_pairs(st):
 @njit(cache=True, error_model="numpy")
 def wall_touches(x, r, wnb, wnn, wf, wi, mcon, nown, t):
     """How many wall contacts each owned particle has (a plane's or cylinder's distance, a mesh
-    row's contact record, below its radius), and their distances (rows x wall candidates; inf
-    where none)."""
+    row's contact record, below its radius)."""
     out = np.zeros(nown, np.int64)
-    dist = np.full((nown, max(wnb.shape[1], 1)), np.inf)
     for i in range(nown):
         for q in range(wnn[i]):
             w = wnb[i, q]
@@ -79,5 +77,4 @@ def wall_touches(x, r, wnb, wnn, wf, wi, mcon, nown, t):
                 d, a, b, c = wall_distance(wf, wi, w, x[i, 0], x[i, 1], x[i, 2], t)
             if d < r[i] and d > -r[i]:
                 out[i] += 1
-                dist[i, q] = d
-    return out, dist
+    return out

@@ -155,13 +155,9 @@ class World:
         migrates: half the skin), and the ghost layer's pair reach besides. Returns how many."""
         if not self.nmeshes:
             return 0
-        from .thermal.heat import TI, TF
         st = self.state
         skin = float(st.fp[K.FP.skinmax])
-        srange = 0.0
-        thi = getattr(st, "thi", None)
-        if thi is not None and thi.size and thi[TI.heat] == 1 and thi[TI.rad] >= 0 and thi[TI.wrad] == 1:
-            srange = float(st.thf[TF.radrange])
+        srange = float(K.mesh_radiation_range.py_func(st.bundles()[4]))   # (the kernels' own rule)
         margin = self.halo(bound=True) + srange * self.rmax + 2.0 * skin
         t1 = self.time + max(self.end_time - self.time, 1000.0 * self.dt)
         sel = mesh_selection(self.scene.walls, blo, bhi, margin, self.time, t1)

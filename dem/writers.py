@@ -191,7 +191,7 @@ class Writers:
         if st.external_force.shape[0] >= n and n:
             cf = cf - st.external_force[:n]
         _, _, _, _, cnt = touching_pairs(st)
-        nw, _ = wall_touches(st.position, st.radius, st.wnb, st.wnn, st.wf, st.wi, st.mcon, n, w.time)
+        nw = wall_touches(st.position, st.radius, st.wnb, st.wnn, st.wf, st.wi, st.mcon, n, w.time)
         return {"contact_force": np.ascontiguousarray(cf), "coordination": (cnt[:n] + nw).astype(np.float64)}
 
     def contact_network(self):

@@ -489,8 +489,8 @@ class ParallelDomain:
                         self.migrated, self.records_migrated, self.bytes_migrated, self.bytes_ghosts], float)
         tot = self.allsum(loc)
         own = np.array(self.comm.allgather(st.n_owned), float)
-        held = np.array(self.comm.allgather(int(getattr(world, "mesh_held", 0)) if world.nmeshes else 0))
-        return dict(mesh_held=(int(held.min()), int(held.max())),ghosts=int(tot[0]), halo_bytes=float(tot[1]), messages=int(tot[2]),
+        held = np.array(self.comm.allgather(world.mesh_held if world.nmeshes else 0))
+        return dict(mesh_held=(int(held.min()), int(held.max())), ghosts=int(tot[0]), halo_bytes=float(tot[1]), messages=int(tot[2]),
                     migrated=int(tot[3]), records_migrated=int(tot[4]), bytes_migrated=int(tot[5]),
                     bytes_ghosts=int(tot[6]), exchanges=self.exchanges, rebalances=self.rebalances,
                     imbalance=float(own.max() / max(own.mean(), 1e-300)))
