@@ -1,5 +1,5 @@
 """Transient and steady-state errors of the frozen-bed integrators on the line of ten, the
-figures behind ``integrator = "auto"`` (dem/thermal/step_error.py: choose, EXPONENTIAL_LINE_ERROR).
+figures behind ``integrator = "auto"`` (dem/thermal/step_error.py: choose).
 
     python benchmarks/frozen_line_errors.py [INTEGRATORS] [RATIOS]
     python benchmarks/frozen_line_errors.py exponential,trbdf2,implicit 0.01,0.1,1,10,100,1000

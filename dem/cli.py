@@ -90,11 +90,7 @@ def cmd_run(args):
         sim.set_threads(args.threads)   # ('auto': this process's share of its node's cores)
         if args.restart is not None:
             sim.prepare_restart(args.restart)  # a bad checkpoint or a refused scene edit: exit 2 now
-        rep = sim.check()
-        if rep.get("auto_steady", 0.0) > 0.0 and sim.is_root:
-            # auto could not pick an integrator exact at steady state (MPI): said at the start of the run
-            print(f"note: thermal integrator {rep['integrator']} (auto: {rep['integrator_reason']}); steady "
-                  f"state {rep['expected_steady_error']}", file=sys.stderr, flush=True)
+        sim.check()
         if sim.par is not None:
             sim.par.comm.Barrier()         # every rank has checked the folder before rank 0 claims it
         outdir.claim_collective(out, sim.par.comm if sim.par is not None else None, sim.is_root, **rule)
@@ -133,6 +129,10 @@ def cmd_run(args):
                   f"re-balancings, load imbalance {stats['imbalance']:.3f}; exchanges sent "
                   f"{stats['bytes_migrated'] / 1024:.1f} KiB of migrating particles ({stats['records_migrated']} "
                   f"contact records) and {stats['bytes_ghosts'] / 1024:.1f} KiB of ghosts"
+                  + (f"; implicit heat: {stats['cg_solves']} solves, "
+                     f"{stats['cg_iterations'] / stats['cg_solves']:.1f} iterations a solve, "
+                     f"{stats['cg_bytes'] / stats['cg_iterations'] / 1024:.2f} KiB of ghost values an iteration"
+                     if stats["cg_iterations"] else "")
                   + (f"; mesh triangles held per rank {stats['mesh_held'][0]}-{stats['mesh_held'][1]} of "
                      f"{sum(w['surface'].n_triangles for w in sim.scene.walls if w['type'] == 'mesh')}"
                      if sim.world.nmeshes else "")

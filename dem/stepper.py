@@ -449,11 +449,14 @@ class ParallelStepper(Stepper):
         one step at a time with the ghost messages between them (one Allreduce per step
         carries the rebuild decision and the previous step's stability status)."""
         from .thermal.heat import cross_rates, TI
+        from .thermal import implicit_mpi
         par = self.par
         st = self.state
         w = self.world
         heat = w.thermal is not None
-        expo_cross = heat and w.thermal.thi[TI.integ] != 0
+        integ = w.thermal.thi[TI.integ] if heat else 0
+        expo_cross = integ == 1
+        implicit = integ in (2, 3)   # backward Euler, TR-BDF2: conjugate gradients over the ranks
         self._ready()
         mech = w.mechanics
         done = 0
@@ -468,16 +471,19 @@ class ParallelStepper(Stepper):
                     self._exchange_rebuild(w.step_count + 1, due=True)
                 else:
                     par.forward(w, motion=True, temperature=heat)
-                # without the exponential update's cross-rank rates the heat phase needs no message
-                # first: one call for interact, kick and heat
-                fused = heat and not expo_cross
+                # Euler needs no message before its heat phase: one call for interact, kick and heat
+                fused = heat and integ == 0
                 ph = K.PH_FORCES | K.PH_KICK | (K.PH_HEAT if fused else 0)
                 _, status, who, other, value, nc, _, _ = self.phases(ph, s0=w.step_count)
                 self.pair_count = nc
                 self._note(status, who, other, value)
             elif heat:
                 par.forward(w, motion=False, temperature=True)
-            if heat and not fused:
+            if heat and implicit:
+                bad = implicit_mpi.heat_step(par, st, (w.step_count + 1) * st.fp[K.FP.dt])
+                if bad >= 0:
+                    self._note(K.BAD_TEMPERATURE, bad, -1, float(st.temperature[bad]))
+            elif heat and not fused:
                 if expo_cross:
                     cross_rates(st.n_owned, st.inv_heat_capacity, st.nb, st.nnb, st.Hd, st.Hi, st.work)
                     par.forward(w, motion=False, rate=True)

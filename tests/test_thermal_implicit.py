@@ -6,7 +6,6 @@ solution within the scheme's derived O(dt) bound, energy conservation, and the c
 """
 import math
 import os
-import shutil
 import subprocess
 import sys
 
@@ -398,38 +397,6 @@ def test_cli_bad_integrator_name(tmp_path):
     for name in ("auto", "euler", "exponential", "implicit", "trbdf2"):
         assert name in msg
     assert not (tmp_path / "out").exists()
-
-
-@pytest.mark.skipif(shutil.which("mpirun") is None, reason="needs Open MPI (mpirun)")
-def test_mpi_refuses_implicit_and_auto_falls_back(tmp_path):
-    """Under MPI the implicit solvers (implicit, trbdf2) are refused before anything is written
-    (file, key, allowed values); auto runs (the exponential update on a frozen packing) and
-    states at the start that its steady state is not exact, with the expected error."""
-    env = dict(ENV, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1",
-               OMPI_MCA_rmaps_base_oversubscribe="1", OMPI_MCA_mpi_yield_when_idle="1")
-    scene = tmp_path / "line.toml"
-    _write_scene(scene, "implicit", dt=1.0, end=4.0)
-    cmd = ["mpirun", "-np", "2", sys.executable, "-m", "dem", "run", str(scene), "--out", str(tmp_path / "out"),
-           "--quiet"]
-    p = subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=tmp_path, timeout=600)
-    assert p.returncode != 0
-    assert "Traceback" not in p.stderr
-    assert "line.toml" in p.stderr and "thermal.integrator" in p.stderr and "2 MPI ranks" in p.stderr
-    assert "auto, euler or exponential" in p.stderr
-    assert not (tmp_path / "out").exists()
-    _write_scene(scene, "auto", dt=1.0, end=4.0)
-    p = subprocess.run(cmd[:-4] + [str(scene), "--out", str(tmp_path / "auto"), "--quiet"], capture_output=True,
-                       text=True, env=env, cwd=tmp_path, timeout=600)
-    assert p.returncode == 0, p.stderr
-    assert read_final(tmp_path / "auto" / "final.npz")["temperature"].max() < 400.0
-    # auto is the exponential update there, not exact at steady state: the run says so at its start
-    assert "note: thermal integrator exponential (auto: 2 MPI ranks" in p.stderr
-    assert "steady state NOT exact" in p.stderr
-    _write_scene(scene, "trbdf2", dt=1.0, end=4.0)
-    p = subprocess.run(cmd[:-4] + [str(scene), "--out", str(tmp_path / "tr"), "--quiet"], capture_output=True,
-                       text=True, env=env, cwd=tmp_path, timeout=600)
-    assert p.returncode != 0 and "Traceback" not in p.stderr
-    assert "\"trbdf2\" runs on one process only" in p.stderr and "thermal.integrator" in p.stderr
 
 
 @pytest.mark.parametrize("integrator", ["implicit", "trbdf2"])

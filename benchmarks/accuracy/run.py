@@ -48,7 +48,7 @@ def name_auto(rows, lim):
     from dem.thermal.step_error import choose
     for r in rows:
         if r["integrator"] == "auto":
-            r["setting"] += f" ({choose(float(r['dt']), lim, math.inf, 1)['integrator']})"
+            r["setting"] += f" ({choose(float(r['dt']), lim, math.inf)['integrator']})"
 
 
 def best_under(rows, tol=TOL):

@@ -133,6 +133,9 @@ class ParallelDomain:
         self.sort_pending = False
         self.recut_pending = False   # cut the boxes at the next exchange whatever the load (a restart)
         self.imbalance = 1.0
+        self.cg_solves = 0      # the implicit heat steps' solves (dem.thermal.implicit_mpi), their
+        self.cg_iterations = 0  # conjugate-gradient iterations and the bytes of ghost values this
+        self.cg_bytes = 0       # rank sent for them
         self._bufs = {}
 
     # ------------------------------------------------------------------ collectives
@@ -419,7 +422,6 @@ class ParallelDomain:
     # ------------------------------------------------------------------ forward
     def forward(self, world, motion=True, temperature=False, porosity=False, rate=False):
         """Copy the owners' current values into the ghost rows."""
-        from mpi4py import MPI
         st = world.state
         key = (motion, temperature, porosity, rate)
         b = st.bundles()  # the same object until an array of the state is replaced
@@ -437,6 +439,19 @@ class ParallelDomain:
                         a = a[:, 1]
                     cols.append((a, a.shape[1] if a.ndim == 2 else 1, f.name == "position"))
             cache[1][key] = cols
+        return self._forward_cols(key, cols)
+
+    def forward_vector(self, v):
+        """Copy the owners' entries of one float64 value per row (``v``: owned rows, then the
+        ghost rows) into its ghost rows: one message per neighbour rank, of 8 bytes a ghost
+        (the conjugate gradients of an implicit heat step under MPI, dem.thermal.implicit_mpi).
+        Returns the bytes this rank sent."""
+        return self._forward_cols("vector", [(v, 1, False)])
+
+    def _forward_cols(self, key, cols):
+        """Send the sending rows of each array of ``cols`` ((array, columns, shifted by the
+        periodic image)) to the neighbour ranks and write what arrives into the ghost rows."""
+        from mpi4py import MPI
         nf = sum(c[1] for c in cols)
         if nf == 0 or not self.neigh:
             return 0
@@ -483,16 +498,20 @@ class ParallelDomain:
         """Run totals over the ranks (collective): ghosts, forward-communication bytes and
         messages per step, exchanges, migrations (particles, contact records and the bytes
         of their typed buffers), bytes sent as ghosts at the exchanges, re-balancings,
-        current imbalance, the fewest and most mesh triangles a rank holds (World.hold_mesh_near)."""
+        current imbalance, the fewest and most mesh triangles a rank holds (World.hold_mesh_near),
+        the implicit heat solves (the same count on every rank), their iterations and the bytes
+        of ghost values sent for them."""
         st = world.state
         loc = np.array([st.n_ghost, self.halo_bytes(world.thermal is not None), len(self.sends),
-                        self.migrated, self.records_migrated, self.bytes_migrated, self.bytes_ghosts], float)
+                        self.migrated, self.records_migrated, self.bytes_migrated, self.bytes_ghosts,
+                        self.cg_bytes], float)
         tot = self.allsum(loc)
         own = np.array(self.comm.allgather(st.n_owned), float)
         held = np.array(self.comm.allgather(world.mesh_held if world.nmeshes else 0))
         return dict(mesh_held=(int(held.min()), int(held.max())), ghosts=int(tot[0]), halo_bytes=float(tot[1]), messages=int(tot[2]),
                     migrated=int(tot[3]), records_migrated=int(tot[4]), bytes_migrated=int(tot[5]),
                     bytes_ghosts=int(tot[6]), exchanges=self.exchanges, rebalances=self.rebalances,
+                    cg_solves=self.cg_solves, cg_iterations=self.cg_iterations, cg_bytes=int(tot[7]),
                     imbalance=float(own.max() / max(own.mean(), 1e-300)))
 
 

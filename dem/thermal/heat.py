@@ -667,19 +667,20 @@ def _implicit_assemble(P, C, W, TB, prm, m, dt_diag, dt, t, has_ind, b, dg):
     cgv = heat_cg(P.cg, thi)
     for i in range(m):
         dg[i] = 1.0 / (cinv[i] * dt_diag)
-    # pairs
+    # pairs (a pair with a ghost, j >= m: to row i only, its owner's rank adds the other share)
     for i in range(m):
         ti = T[i]
         for s in range(nnb[i]):
             j = nb[i, s]
-            if j >= m:
+            if j >= n:
                 continue
             h = Hd[i, s] + (Hi[i, s] if has_ind else 0.0)
             if h <= 0.0:
                 continue
             q = h * (T[j] - ti)
             b[i] += q
-            b[j] -= q
+            if j < m:
+                b[j] -= q
     # walls: fixed temperature (implicit, at time t), fixed flux (explicit)
     for i in range(m):
         for q in range(wnn[i]):
@@ -777,18 +778,20 @@ def _implicit_totals(P, C, W, prm, m, Ts, d, t, fw, has_ind, links, nblk):
     tot[TOT.direct] += ed
     tot[TOT.indirect] += ei
     if split:
+        ng = Ts.shape[0]
         for i in range(m):
             for s in range(nnb[i]):
                 j = nb[i, s]
-                if j >= m:
+                if j >= ng:
                     continue
                 dT = Ts[j] - Ts[i]
                 qd = Hd[i, s] * dT * fr
                 qi = Hi[i, s] * dT * fr if has_ind else 0.0
                 qm[i, QM.direct] += qd
-                qm[j, QM.direct] -= qd
                 qm[i, QM.indirect] += qi
-                qm[j, QM.indirect] -= qi
+                if j < m:  # (a ghost's share is its owner's)
+                    qm[j, QM.direct] -= qd
+                    qm[j, QM.indirect] -= qi
     for i in range(m):
         for q in range(wnn[i]):
             h = Hw[i, q]

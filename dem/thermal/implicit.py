@@ -17,7 +17,10 @@ with the Jacobi preconditioner M = diag(A) (Saad 2003, section 10.2).
 
 A is never formed: its product with a vector is one pass over the half neighbour list
 (each pair once, scattered to both rows) plus the diagonal, so the memory is that of a
-few vectors. The functions below are pure (they write only into the arrays they are
+few vectors. Under MPI (dem.thermal.implicit_mpi) the rows [0, n) are a rank's owned particles
+and the rows [n, ng) its ghosts: a pair of an owned particle and a ghost is listed on both
+ranks, and each adds its share to its own row only (the ghost's entry of the vector comes from
+its owner), so the product over the ranks is that of the whole matrix. The functions below are pure (they write only into the arrays they are
 given) and compiled once (no literal-argument specialisations).
 """
 import math
@@ -39,19 +42,20 @@ CG_RTOL = 1e-10
 def laplacian_apply(n, nb, nnb, Hd, Hi, has_ind, dg, x, y):
     """y = (diag(dg) + L) x over the rows [0, n): L the graph Laplacian of the pair
     conductances H_ij = Hd[i, s] + Hi[i, s] (j = nb[i, s], each pair listed once, in the
-    half list): (L x)_i = sum_j H_ij (x_i - x_j). Pairs with j >= n are ignored (ghosts)."""
+    half list): (L x)_i = sum_j H_ij (x_i - x_j). A pair with a ghost, n <= j < len(x), adds
+    to row i only (x_j the ghost's value); pairs with j >= len(x) are ignored."""
     zero = n - n  # row 0, slot 0 and the mode as run-time values: a literal argument compiles _apply_rows again
-    _apply_rows(zero, n, n, (nb, nnb, Hd, Hi), has_ind, dg, x, y, (np.empty(0, np.int64), np.empty(0)), zero,
-                zero > 0)
+    _apply_rows(zero, n, n, x.shape[0], (nb, nnb, Hd, Hi), has_ind, dg, x, y,
+                (np.empty(0, np.int64), np.empty(0)), zero, zero > 0)
 
 
 @njit(cache=True, error_model="numpy")
-def laplacian_diagonal(n, nb, nnb, Hd, Hi, has_ind, dg, out):
+def laplacian_diagonal(n, ng, nb, nnb, Hd, Hi, has_ind, dg, out):
     """out = dg + diag(L): dg_i plus the sum of particle i's pair conductances (the Jacobi
-    preconditioner of diag(dg) + L)."""
+    preconditioner of diag(dg) + L), the pairs with the ghosts [n, ng) included."""
     zero = n - n  # (run-time values, as in laplacian_apply)
-    _apply_rows(zero, n, n, (nb, nnb, Hd, Hi), has_ind, dg, dg, out, (np.empty(0, np.int64), np.empty(0)), zero,
-                zero == 0)
+    _apply_rows(zero, n, n, ng, (nb, nnb, Hd, Hi), has_ind, dg, dg, out, (np.empty(0, np.int64), np.empty(0)),
+                zero, zero == 0)
 
 
 @njit(cache=True, error_model="numpy")
@@ -68,7 +72,7 @@ def jacobi_pcg(n, nb, nnb, Hd, Hi, has_ind, dg, b, x, rtol, maxit):
     if bb == 0.0:
         return 0, 0.0
     dinv = np.empty(n)
-    laplacian_diagonal(n, nb, nnb, Hd, Hi, has_ind, dg, dinv)
+    laplacian_diagonal(n, n, nb, nnb, Hd, Hi, has_ind, dg, dinv)
     for i in range(n):
         dinv[i] = 1.0 / dinv[i]
     r = b.copy()
@@ -108,12 +112,13 @@ def jacobi_pcg(n, nb, nnb, Hd, Hi, has_ind, dg, b, x, rtol, maxit):
 
 
 @njit(cache=True, error_model="numpy")
-def _apply_rows(i0, i1, n, pairs, has_ind, dg, x, y, buf, k, diag):
+def _apply_rows(i0, i1, n, ng, pairs, has_ind, dg, x, y, buf, k, diag):
     """Rows [i0, i1) of :func:`laplacian_apply` (``diag`` False: y_i = dg_i x_i plus the row's
     pairs, each pair's q = H_ij (x_i - x_j) added to row i and subtracted from row j) or of
     :func:`laplacian_diagonal` (``diag`` True: y_i = dg_i, each pair's H_ij added to both rows;
-    x unused). A pair whose j lies in another block writes j's share at buf[k], k + 1, ...,
-    added later in block order. Returns the next free k."""
+    x unused). A pair with a ghost (n <= j < ng) adds to row i only. A pair whose j lies in
+    another block writes j's share at buf[k], k + 1, ..., added later in block order. Returns
+    the next free k."""
     nb, nnb, Hd, Hi = pairs
     xj, xq = buf
     sgn = 1.0 if diag else -1.0
@@ -125,7 +130,7 @@ def _apply_rows(i0, i1, n, pairs, has_ind, dg, x, y, buf, k, diag):
         acc = 0.0
         for s in range(nnb[i]):
             j = np.uint32(nb[i, s])
-            if j >= n:
+            if j >= ng:
                 continue
             h = Hd[i, s] + (Hi[i, s] if has_ind else 0.0)
             if h <= 0.0:
@@ -135,6 +140,8 @@ def _apply_rows(i0, i1, n, pairs, has_ind, dg, x, y, buf, k, diag):
                 y[i] += q
             else:
                 acc += q
+            if j >= n:  # a ghost: its owner adds its share
+                continue
             if i0 <= j < i1:
                 y[j] += sgn * q
             else:
@@ -154,7 +161,7 @@ def _apply_blocks(n, pairs, has_ind, dg, x, y, bounds, cnt, buf, diag):
     nblk = bounds.shape[0] - 1
     end = np.empty(nblk, np.int64)
     for c in prange(nblk):
-        end[c] = _apply_rows(bounds[c], bounds[c + 1], n, pairs, has_ind, dg, x, y, buf, cnt[c], diag)
+        end[c] = _apply_rows(bounds[c], bounds[c + 1], n, n, pairs, has_ind, dg, x, y, buf, cnt[c], diag)
     if not add_buffered(y, buf[0], buf[1], cnt, end):  # a list changed without after_build or dem.state
         raise RuntimeError("internal error: more pairs across blocks of rows than counted "
                            "(dem.thermal.implicit._apply_blocks)")
@@ -236,22 +243,24 @@ def jacobi_pcg_blocks(n, pairs, has_ind, dg, b, x, rtol, maxit, nblk):
 @njit(cache=True, error_model="numpy")
 def pair_heat_rows(i0, i1, n, pairs, has_ind, T, f):
     """The heat over f seconds of the pairs of the rows [i0, i1) at the temperatures T,
-    sum |H_ij (T_j - T_i)| f split into its direct and indirect (Hd and Hi) parts; pairs with
-    j >= n are ignored (ghosts). Returns (direct, indirect) in J."""
+    sum |H_ij (T_j - T_i)| f split into its direct and indirect (Hd and Hi) parts; a pair with
+    a ghost (n <= j < len(T): listed on its owner's rank too) counts one half, so that the sum
+    over the ranks counts each pair once. Returns (direct, indirect) in J."""
     nb, nnb, Hd, Hi = pairs
+    ng = T.shape[0]
     ed = 0.0
     ei = 0.0
     for i in range(i0, i1):
         for s in range(nnb[i]):
             j = nb[i, s]
-            if j >= n:
+            if j >= ng:
                 continue
             hd = Hd[i, s]
             hi = Hi[i, s] if has_ind else 0.0
             h = hd + hi
             if h <= 0.0:
                 continue
-            e = abs(h * (T[j] - T[i])) * f
+            e = abs(h * (T[j] - T[i])) * (f if j < n else 0.5 * f)
             ed += e * hd / h
             ei += e * hi / h
     return ed, ei
@@ -268,3 +277,12 @@ def pair_heat_blocks(n, pairs, has_ind, T, f, nblk):
         part[c, 0] = ed
         part[c, 1] = ei
     return block_sum(part, 0), block_sum(part, 1)
+
+
+@njit(cache=True, error_model="numpy")
+def dot(a, b):
+    """sum_i a_i b_i in row order (the same sum on every call: a restart continues bit for bit)."""
+    s = 0.0
+    for i in range(a.shape[0]):
+        s += a[i] * b[i]
+    return s

@@ -273,8 +273,7 @@ class ThermalModel:
         rl = self.radiation_limit()[0] if self.thi[TI.rad] >= 0 else math.inf
         if par is not None:
             lim, rl = par.allmin(lim), par.allmin(rl)
-        ranks = par.size if par is not None else 1
-        self.auto = choose(dt, lim, rl, ranks)
+        self.auto = choose(dt, lim, rl)
         name = self.auto["integrator"]
         self.cfg["integrator"] = name
         self.cfg["integrator_id"] = INTEGRATORS[name]

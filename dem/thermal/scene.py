@@ -38,8 +38,6 @@ THERMAL_KEYS = {"initial_temperature", "direct", "contact_radius", "correction",
                 "integrator", "time_step", "sources", "impact_heat_ct", "impact_heat_cn",
                 "friction_heat_chi", "initial_regions", "quadrature_tolerance", "parcel_heat"}
 INTEGRATORS = {"euler": 0, "exponential": 1, "implicit": 2, "trbdf2": 3}
-# the integrators whose conjugate gradients need global sums inside the compiled step (one process only)
-SERIAL_ONLY = ("implicit", "trbdf2")
 WALL_CONDITIONS = {"adiabatic": 0, "fixed_temperature": 1, "fixed_heat_flux": 2}
 
 
@@ -105,20 +103,12 @@ def parse_thermal(v, sc, data):
     th["chi"] = v.num(t, "friction_heat_chi", "thermal", default=1.0, lo=0, hi=1)
     integ = v.string(t, "integrator", "thermal", default="auto", choices=["auto"] + list(INTEGRATORS))
     mech = sc.simulation["mechanics"]
-    from ..parallel import launched_size
-    ranks = launched_size()
-    if integ in SERIAL_ONLY and ranks > 1:
-        # the conjugate gradients need two global sums per iteration, which the compiled
-        # step cannot make across ranks
-        v.err("thermal.integrator", f"\"{integ}\" runs on one process only (this run has {ranks} MPI "
-                                    f"ranks: its solver needs global sums inside the compiled step); "
-                                    f"under MPI use auto, euler or exponential")
     th["integrator_auto"] = integ == "auto"
     if integ == "auto":
-        # with mechanics: Euler, fused into the force loop. Frozen: under MPI the exponential
-        # update; on one process TR-BDF2 until the conductances are known, when
-        # dem.thermal.kernel.ThermalModel.choose_integrator picks by the step (step_error.choose)
-        integ = "euler" if mech else ("exponential" if ranks > 1 else "trbdf2")
+        # with mechanics: Euler, fused into the force loop. Frozen: TR-BDF2 until the conductances
+        # are known, when dem.thermal.kernel.ThermalModel.choose_integrator picks by the step
+        # (step_error.choose), on any number of ranks (dem.thermal.implicit_mpi under MPI)
+        integ = "euler" if mech else "trbdf2"
     th["integrator"] = integ
     th["integrator_id"] = INTEGRATORS[integ]
     if "time_step" in t and mech:

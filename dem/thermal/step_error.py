@@ -62,47 +62,19 @@ def mode_error(name, zmax):
     return float(err.max())
 
 
-# The exponential update on a frozen chain (benchmarks/frozen_line_errors.py on
-# tests/test_thermal_implicit.py's line of ten: k_p = 1 W/(m K), walls at 400 and 300 K, from a
-# linear 350 -> 300 K start): (dt / network limit, the steady-state error, the largest transient
-# error |T - T_exact| over the run, both as fractions of the walls' temperature difference).
-# Strang splitting leaves O((H dt / C)^2) in the fixed point (about 0.0045 (dt / limit)^2 below the
-# limit); beyond 10 limits the update is the wall-to-wall exchange of one sweep and stops growing.
-EXPONENTIAL_LINE_ERROR = ((0.01, 4.68e-7, 8.91e-7), (0.03, 4.21e-6, 8.02e-6), (0.1, 4.68e-5, 8.90e-5),
-                          (0.3, 4.20e-4, 7.99e-4), (1.0, 4.53e-3, 8.58e-3), (3.0, 3.21e-2, 5.90e-2),
-                          (10.0, 9.30e-2, 0.175), (30.0, 9.88e-2, 0.283), (100.0, 9.88e-2, 0.355),
-                          (1000.0, 9.88e-2, 0.360))
-
-
-def exponential_line_error(ratio):
-    """(steady-state, transient) error of the exponential update at dt = ratio x the network
-    limit, as fractions of the driving temperature difference, interpolated in log-log on the
-    measured line of ten (EXPONENTIAL_LINE_ERROR; (dt / limit)^2 below its first point, flat
-    beyond its last)."""
-    pts = EXPONENTIAL_LINE_ERROR
-    if ratio <= pts[0][0]:
-        f = (ratio / pts[0][0]) ** 2
-        return pts[0][1] * f, pts[0][2] * f
-    for a, b in zip(pts, pts[1:]):
-        if ratio <= b[0]:
-            w = math.log(ratio / a[0]) / math.log(b[0] / a[0])
-            return tuple(math.exp(math.log(a[k]) + w * (math.log(b[k]) - math.log(a[k]))) for k in (1, 2))
-    return pts[-1][1], pts[-1][2]
-
-
 # auto runs TR-BDF2 up to this many network limits, backward Euler beyond (choose)
 TRBDF2_MAX_RATIO = 80.0
 
 
-def choose(dt, network_limit, radiation_limit, ranks):
+def choose(dt, network_limit, radiation_limit):
     """``integrator = "auto"`` on a frozen packing: the integrator and why, with its expected
     errors at this step, as a dict (integrator, integrator_reason, expected_transient_error,
     expected_steady_error: text for `dem check`; auto_ratio, auto_zmax, auto_transient,
     auto_steady: numbers).
 
-    On one process the candidates are TR-BDF2 and backward Euler, both exact at steady state at
-    any step (fixed point Q(T) = 0); the exponential update is not (EXPONENTIAL_LINE_ERROR: 0.45 %
-    of the wall-to-wall difference at the network limit, 9.9 % from 30 limits on). TR-BDF2 runs
+    The candidates are TR-BDF2 and backward Euler, both exact at steady state at
+    any step (fixed point Q(T) = 0); the exponential update is not (benchmarks/frozen_line_errors.py:
+    0.45 % of the wall-to-wall difference at the network limit, 9.9 % from 30 limits on). TR-BDF2 runs
     up to TRBDF2_MAX_RATIO = 80 network limits, backward Euler beyond, by the measured errors
     (docs/benchmarks/accuracy.md, "Line of ten", "Frozen packed bed heated from its floor"): on the
     Beaulieu-size bed TR-BDF2 is 230 to 24,000 x more accurate than backward Euler and 1,700 to
@@ -120,8 +92,8 @@ def choose(dt, network_limit, radiation_limit, ranks):
     network is at most max_i (2 sum_j H_ij + K_i) / C_i): a bound, as a fraction of a mode's
     initial amplitude, that stiff modes of little amplitude reach.
 
-    Under MPI (ranks > 1) the solvers are refused (global sums inside the compiled step): the
-    exponential update runs, and its errors are stated from the measured line of ten."""
+    The choice is the same on any number of MPI ranks: there the solvers run with global sums
+    (dem.thermal.implicit_mpi), to the same tolerance."""
     zmax = dt * (2.0 / network_limit + (1.0 / radiation_limit if radiation_limit > 0 else 0.0))
     ratio = dt / network_limit
     out = dict(auto_zmax=zmax, auto_ratio=ratio)
@@ -130,20 +102,6 @@ def choose(dt, network_limit, radiation_limit, ranks):
         at = f"dt = {ratio:.3g} x the network limit{rad}"
     else:   # no pair or fixed-temperature wall conductance (e.g. convection only)
         at = f"no conduction network{rad}"
-    if ranks > 1:
-        ss, tr = exponential_line_error(ratio)
-        out.update(integrator="exponential", auto_steady=ss, auto_transient=tr,
-                   integrator_reason=f"{ranks} MPI ranks: the implicit solvers run on one process only; {at}",
-                   expected_transient_error=f"about {100 * tr:.2g} % of the driving temperature difference "
-                                            f"(measured on the line of ten at this dt / limit)",
-                   expected_steady_error=f"NOT exact: about {100 * ss:.2g} % of the driving temperature "
-                                         f"difference (Strang splitting, O((H dt/C)^2); measured on the line of "
-                                         f"ten; run on one process, or lower thermal.time_step, for an exact "
-                                         f"steady state)")
-        if ss == 0.0:   # no network: each particle relaxes exactly towards its reservoirs
-            out["expected_steady_error"] = "exact (no conduction network: exact relaxation to the reservoirs)"
-            out["expected_transient_error"] = "exact for reservoirs held over the step (no conduction network)"
-        return out
     if ratio <= TRBDF2_MAX_RATIO:
         name, why = "trbdf2", f"second order, L-stable, up to {TRBDF2_MAX_RATIO:g} network limits"
     else:
