@@ -1,8 +1,8 @@
 """The fluidization curve: the pressure drop of a settled bed as the gas is raised in steps through
 minimum fluidization and lowered back (the classic experiment).
 
-    python benchmarks/fluidization_curve.py [--up 0.25,0.5,...] [--down 1.6,...] [--step 0.2]
-                                            [--average 0.5] [--n 680] [--cells 3e-3]
+    python benchmarks/fluidization_curve.py [--up 0.25,0.5,...] [--down 1.6,...] [--step 0.4]
+                                            [--average 0.4] [--n 680] [--cells 3e-3]
                                             [--method voronoi] [--figure docs/fluidization_curve.png]
 
 The bed and the gas of benchmarks/ergun_column.py (its functions, imported): n glass beads of
@@ -37,7 +37,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import re
 import sys
 import time
 from pathlib import Path
@@ -55,6 +54,7 @@ import ergun_column as EC  # noqa: E402
 DT_CFD = 1e-3          # the CFD (= coupling) step of ergun_column.write
 WEN_YU_SCATTER = 0.34  # Wen & Yu (1966): standard deviation of their correlation over their data
 PLATEAU = 0.02         # the plateau against the buoyant weight per area (issue 51)
+SETTLED = 0.005        # a step whose drop still drifts by this much of the weight has not settled
 UP = "0.25,0.5,0.75,0.9,1.1,1.3,1.6,2.0"
 DOWN = "1.6,1.3,1.1,0.9,0.75,0.5,0.25"
 
@@ -117,7 +117,8 @@ def step_rows(out, d, n, dz, speeds, step, average):
         first, _ = EC.bed_drop(d, dz, t0 + 1e-9, 0.5 * (t0 + t1))
         second, _ = EC.bed_drop(d, dz, 0.5 * (t0 + t1) + 1e-9, t1)
         with np.load(out / "checkpoints" / f"checkpoint_{(k + 1) * k_step:08d}.npz") as z:
-            x = z["state_position"] - [0.0, 0.0, dz]    # the plate at z = 0, as ergun_column measures
+            order = np.argsort(z["state_id"])           # the beads in the order of their ids
+            x = z["state_position"][order] - [0.0, 0.0, dz]   # the plate at z = 0, as ergun_column measures
             v = float(np.sqrt((z["state_velocity"] ** 2).sum(axis=1)).max())
         m = EC.measure(x, n)
         rows.append(dict(u=u, dp=dp, rms=rms, drift=(second - first) / w, ergun=EC.ergun_series(u, m["eps_slabs"]),
@@ -143,7 +144,7 @@ def intersection(u, dp, ergun):
     return dict(umf=solve(lambda v: c * ergun(v) - p), c=c, plateau=p, n_fixed=j)
 
 
-def curve(work, n=680, up=UP, down=DOWN, step=0.2, average=0.5, dz=3e-3, method="voronoi"):
+def curve(work, n=680, up=UP, down=DOWN, step=0.4, average=0.4, dz=3e-3, method="voronoi"):
     """Run the curve (one `coupling run`); returns dict of the steps (rows, with the branch of
     each), the two branches' U_mf, the references, the beds before and after, the run's speed."""
     from dem import outdir
@@ -235,8 +236,11 @@ def report(res, log=print):
         fx = fixed_points(res, branch)
         if fx:
             e = np.array([r["dp"] / r["ergun"] - 1 for r in fx])
+            moving = [f"{r['frac']:g}" for r in fx if abs(r["drift"]) >= SETTLED]
             log(f"fixed bed, way {branch} ({len(fx)} steps): dp against Ergun over the measured profile "
-                f"{100 * e.min():+.2f} to {100 * e.max():+.2f} %")
+                f"{100 * e.min():+.2f} to {100 * e.max():+.2f} %"
+                + (f"; not settled (drift {100 * SETTLED:g} % of the weight or more): {', '.join(moving)} U_mf"
+                   if moving else ""))
     uwy = res["u_wen_yu"]
     log(f"U_mf: Wen & Yu (1966) {uwy * 1e3:.3f} mm/s (scatter +-{100 * WEN_YU_SCATTER:g} %); the bed's own Ergun "
         f"estimate: before {res['u_ergun_before'] * 1e3:.3f} mm/s"
@@ -327,8 +331,8 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--up", default=UP, help="speeds raised, fractions of the bed's own Ergun U_mf")
     ap.add_argument("--down", default=DOWN, help="then lowered (each below the last of --up); '' for none")
-    ap.add_argument("--step", type=float, default=0.2, help="physical time of each speed (s), a multiple of 1 ms")
-    ap.add_argument("--average", type=float, default=0.5, help="the part of each step the drop is averaged over")
+    ap.add_argument("--step", type=float, default=0.4, help="physical time of each speed (s), a multiple of 1 ms")
+    ap.add_argument("--average", type=float, default=0.4, help="the part of each step the drop is averaged over")
     ap.add_argument("--n", type=int, default=680, help="beads")
     ap.add_argument("--cells", type=float, default=3e-3, help="cell layer height (m)")
     ap.add_argument("--method", default="voronoi", choices=["cell", "voronoi", "kernel"],
