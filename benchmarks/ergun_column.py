@@ -109,10 +109,10 @@ def write(dest, x, dz, u, method, mechanics, end, dt_cfd=1e-3, columns=1):
                       drag_averaging_length=AVERAGING if method == "kernel" else None)
 
 
-def bed_drop(d, dz, t_from):
-    """Mean of coupling.csv's dp (p(bottom cells) - p(top cells)) after t_from, less the gas
-    hydrostatics between the two cell centres; and its rms departure (relative)."""
-    sel = d["time"] >= t_from - 1e-12
+def bed_drop(d, dz, t_from, t_to=math.inf):
+    """Mean of coupling.csv's dp (p(bottom cells) - p(top cells)) from t_from (to t_to), less the
+    gas hydrostatics between the two cell centres; and its rms departure (relative)."""
+    sel = (d["time"] >= t_from - 1e-12) & (d["time"] <= t_to + 1e-12)
     dp = d["dp"][sel] - cd.RHO_G * 9.81 * (H_COL - dz)
     mean = float(dp.mean())
     return mean, float(np.sqrt(((dp - mean) ** 2).mean()) / abs(mean))
@@ -168,8 +168,13 @@ def fluidized(work, x, n, dz, frac, method, m, end=0.3, columns=1):
     u = frac * cd.minimum_fluidization(m["eps_core"])
     _, d = run_column(work, f"fluid_{method}_{dz * 1e3:g}mm_{frac:g}", x, dz, u, method, True, end, columns)
     dp, rms = bed_drop(d, dz, 0.5 * end)
-    w = n * math.pi / 6 * cd.D_P ** 3 * (cd.RHO_P - cd.RHO_G) * 9.81 / (cd.L * cd.L)
-    return dp, rms, w
+    return dp, rms, buoyant_weight(n)
+
+
+def buoyant_weight(n):
+    """The buoyant weight per area of n beads in the column, N V_p (rho_p - rho_g) g / A (Pa):
+    the pressure drop of a bed the gas carries whole."""
+    return n * math.pi / 6 * cd.D_P ** 3 * (cd.RHO_P - cd.RHO_G) * 9.81 / (cd.L * cd.L)
 
 
 def main(argv=None):

@@ -681,9 +681,11 @@ def _check_uniform_values(case) -> None:
                 if isinstance(spec, dict):
                     entries += [(f"boundaryField.{patch}.{k}", v) for k, v in spec.items()]
         for key, val in entries:
-            if not isinstance(val, str) or not val.startswith("uniform"):
+            # the word ``uniform`` and its value; not a type such as ``uniformFixedValue``
+            m = re.match(r"uniform(?![A-Za-z0-9_])(.*)$", val, re.S) if isinstance(val, str) else None
+            if m is None:
                 continue
-            raw = val[len("uniform"):].strip()
+            raw = m.group(1).strip()
             try:
                 vals = [float(x) for x in raw.strip("()").split()]
             except ValueError:

@@ -381,6 +381,31 @@ def test_coupling_check_refuses(tmp_path, name, edit, phrases):
     assert sorted(os.listdir(tmp_path)) == ["case"]
 
 
+STEPPED_INLET = """    inlet
+    {
+        type uniformFixedValue;
+        uniformValue table ((0 (0 0 0.5)) (0.05 (0 0 0.5)) (0.051 (0 0 0.7)));
+        value uniform (0 0 0.5);
+    }"""
+
+
+def test_coupling_check_takes_an_inlet_whose_type_starts_with_uniform(tmp_path):
+    """OpenFOAM's own time-varying inlet (``uniformFixedValue`` with a table: the stepped inlet of
+    benchmarks/fluidization_curve.py) passes the check of the ``uniform`` values: its type is not
+    a value (it was read as 'uniform FixedValue', "not a number", and the case refused); a
+    ``uniform`` value beside it is still checked."""
+    case = tmp_path / "case"
+    shutil.copytree(CASE, case)
+    _edit("0/U", "    inlet\n    {\n        type fixedValue;\n        value uniform (0 0 0.5);\n    }",
+          STEPPED_INLET)(case)
+    r = cli("coupling.run", "check", case, cwd=tmp_path)
+    assert r.returncode == 0, (r.stdout, r.stderr)
+    assert "Traceback" not in r.stderr
+    _edit("0/U", "value uniform (0 0 0.5);\n    }", "value uniform (0 0 nan);\n    }")(case)
+    assert_refused(cli("coupling.run", "check", case, cwd=tmp_path), "0/U: boundaryField.inlet.value: "
+                                                                     "'uniform (0 0 nan)' is not a finite number")
+
+
 @pytest.mark.parametrize("args, phrase", [
     (["--end-time", "inf"], "argument --end-time: must be a finite number of seconds >= 0, got 'inf'"),
     (["--out", "notes.txt"], "notes.txt is a file, not a folder"),
