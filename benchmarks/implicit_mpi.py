@@ -1,6 +1,6 @@
 """The implicit heat step of a frozen bed on 1 and 2 MPI ranks: cost per step and agreement.
 
-    python benchmarks/implicit_mpi.py [--nx 16] [--nz 40] [--steps 20] [--ratio 10] [--repeat 2]
+    python benchmarks/implicit_mpi.py [--nx 16] [--nz 40] [--steps 100] [--ratio 10] [--repeat 2]
 
 A frozen lattice of nx x nx x nz touching glass spheres of 1 mm (20 um overlaps; 10,240 with
 the defaults) on a floor at 400 K, from 300 K, with thermal.integrator = "trbdf2" at dt = --ratio
@@ -79,7 +79,7 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--nx", type=int, default=16)
     ap.add_argument("--nz", type=int, default=40)
-    ap.add_argument("--steps", type=int, default=20)
+    ap.add_argument("--steps", type=int, default=100)
     ap.add_argument("--ratio", type=float, default=10.0)
     ap.add_argument("--repeat", type=int, default=2)
     a = ap.parse_args(argv)

@@ -59,7 +59,8 @@ SLOW_MODULES = (
     "test_setup_mpi", "test_parallel_io", "test_coupled", "test_wall_heat", "test_drag_void_fraction",
     "test_threads", "test_compile", "test_coupled_drag", "test_reliability_coupled_restart",
     "test_reliability_outdir", "test_reliability_checkpoint", "test_settling", "test_coarse_graining",
-    "test_coupling_checks", "test_openfoam_solver", "test_coupled_pieces", "test_impacts",
+    "test_coupling_checks", "test_openfoam_solver", "test_coupled_pieces", "test_impacts", "test_implicit_mpi",
+    "test_fluidization_curve",
 )
 
 

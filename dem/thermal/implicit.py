@@ -286,3 +286,37 @@ def dot(a, b):
     for i in range(a.shape[0]):
         s += a[i] * b[i]
     return s
+
+
+@njit(cache=True, error_model="numpy")
+def cg_product(n, nb, nnb, Hd, Hi, has_ind, dg, p, q):
+    """One rank's part of a conjugate-gradient iteration under MPI (dem.thermal.implicit_mpi):
+    q = (diag(dg) + L) p over the owned rows [0, n) (the ghosts' entries of p current), and the
+    rank's share of p.q."""
+    laplacian_apply(n, nb, nnb, Hd, Hi, has_ind, dg, p, q)
+    s = 0.0
+    for i in range(n):
+        s += p[i] * q[i]
+    return s
+
+
+@njit(cache=True, error_model="numpy")
+def cg_update(n, alpha, x, p, r, q, z, dinv):
+    """x += alpha p, r -= alpha q, z = dinv r over the rows [0, n): the rank's shares of r.r and
+    r.z (dem.thermal.implicit_mpi)."""
+    rr = 0.0
+    rz = 0.0
+    for i in range(n):
+        x[i] += alpha * p[i]
+        r[i] -= alpha * q[i]
+        z[i] = dinv[i] * r[i]
+        rr += r[i] * r[i]
+        rz += r[i] * z[i]
+    return rr, rz
+
+
+@njit(cache=True, error_model="numpy")
+def cg_direction(n, beta, p, z):
+    """p = z + beta p over the rows [0, n)."""
+    for i in range(n):
+        p[i] = z[i] + beta * p[i]

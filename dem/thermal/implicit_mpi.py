@@ -16,7 +16,7 @@ import numpy as np
 
 from ..step import FP
 from .heat import _implicit_assemble, _implicit_totals, _wall_source_shift, TI, WT, TRBDF2_GAMMA
-from .implicit import CG_RTOL, dot, laplacian_apply, laplacian_diagonal
+from .implicit import CG_RTOL, cg_direction, cg_product, cg_update, dot, laplacian_diagonal
 
 
 def pcg(par, m, n, C, has_ind, dg, b, x):
@@ -48,18 +48,12 @@ def pcg(par, m, n, C, has_ind, dg, b, x):
     maxit = 10 * int(mglob) + 100
     while it < maxit and rr > stop:
         sent += par.forward_vector(p)
-        laplacian_apply(m, nb, nnb, Hd, Hi, has_ind, dg, p, q)
-        (pq,) = par.sums(dot(p[:m], q))
+        (pq,) = par.sums(cg_product(m, nb, nnb, Hd, Hi, has_ind, dg, p, q))
         if not (pq > 0.0):  # p = 0 in floating point (on every rank: the sum is global)
             break
-        alpha = rz / pq
-        x[:m] += alpha * p[:m]
-        r -= alpha * q
-        z = dinv * r
-        rr, rz_new = par.sums(dot(r, r), dot(r, z))
-        beta = rz_new / rz
+        rr, rz_new = par.sums(*cg_update(m, rz / pq, x, p, r, q, z, dinv))
+        cg_direction(m, rz_new / rz, p, z)
         rz = rz_new
-        p[:m] = z + beta * p[:m]
         it += 1
     sent += par.forward_vector(x)
     par.cg_solves += 1
