@@ -300,7 +300,7 @@ class Outputs:
                 self._plans = iface.cells.plans
             row = sim.history_row()
             if sim.scene.output["vtk"]:   # every rank its own piece (a failure raised on all)
-                sim.write_vtk(self.vtk, fluid_force=_fluid_force_now(sim, iface))
+                sim.write_vtk(self.vtk, **_fluid_fields_now(sim, iface))
             diag = Diagnostics.sums_of(sim, iface, fluid, frame, self.ends)   # collective
         totals = sim.wall_heat_totals()   # collective over the DEM ranks
         from dem.thermal.wall_heat import WallAngleFile, cylinder_flux_by_angle
@@ -321,28 +321,44 @@ class Outputs:
             sim.writers.each_rank_write(write)
 
 
-def _fluid_force_now(sim, iface):
-    """The fluid force on each owned particle at the last frame (iface.last), in the current
-    row order: under MPI particles may have moved between ranks during the interval; a
-    particle that arrived has no frame force here and shows the force the DEM applies to it
-    now, F_exp - beta_imp v (dem.schema: external_force, drag_beta)."""
+def _fluid_fields_now(sim, iface):
+    """The VTK fields of the fluid force on each owned particle at the last frame (iface.last),
+    in the current row order: ``fluid_force`` and its terms ``fluid_drag`` (beta (u_f - u_p)),
+    ``fluid_pressure`` (-V_p grad p, model A; the buoyancy -rho_f V_p g, model B) and, when on,
+    ``fluid_lift`` and ``fluid_virtual_mass`` (C_vm rho_f V_p Du_f/Dt), which add up to it.
+    Under MPI particles may have moved between ranks during the interval: a particle that
+    arrived has no frame force here and shows as its ``fluid_force`` the force the DEM applies
+    to it now, F_exp - beta_imp v (dem.schema: external_force, drag_beta), and NaN as its terms
+    (their frame values stayed on the rank it left)."""
     st = sim.state
     n = st.n_owned
-    force, ids = iface.last.get("force"), iface.last.get("ids")
+    last = iface.last
+    force, ids = last.get("force"), last.get("ids")
+    parts = last.get("parts") or {}
     if force is None:
-        return np.zeros((n, 3))
+        return dict(fluid_force=np.zeros((n, 3)))
     if ids is None or (ids.shape[0] == n and np.array_equal(ids, st.id[:n])):
-        return np.ascontiguousarray(force) if force.shape[0] == n else np.zeros((n, 3))
+        if force.shape[0] != n:
+            return dict(fluid_force=np.zeros((n, 3)))
+        out = dict(fluid_force=np.ascontiguousarray(force))
+        out.update((f"fluid_{k}", np.ascontiguousarray(v)) for k, v in parts.items())
+        return out
     cur = st.id[:n]
-    out = np.empty((n, 3))
+    k = np.zeros(n, np.int64)
     found = np.zeros(n, bool)
     if ids.size:
         order = np.argsort(ids)
         k = np.minimum(np.searchsorted(ids[order], cur), ids.size - 1)
         found = ids[order][k] == cur
-        out[found] = force[order[k[found]]]
+        k = order[k]
     miss = ~found
-    out[miss] = st.external_force[:n][miss] - st.drag_beta[:n][miss, None] * st.velocity[:n][miss]
+    out = {}
+    for name, v in dict(force=force, **parts).items():
+        a = np.full((n, 3), np.nan)
+        a[found] = v[k[found]]
+        out[f"fluid_{name}"] = a
+    out["fluid_force"][miss] = (st.external_force[:n][miss]
+                                - st.drag_beta[:n][miss, None] * st.velocity[:n][miss])
     return out
 
 

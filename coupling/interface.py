@@ -377,17 +377,23 @@ class CouplingInterface:
             # particle (its own velocity at the first frame)
             up = vel if self.us_sent is None else _gather_vector(pw.cells, pw.weights, self.us_sent, vel)
             at = AtParticles(rad, vel, uf, cells)
-            force, beta, bimp, fexp = _particle_forces(self.drag_id, self.model_type == "B", self.drag_mode, at,
-                                                       st.cg[:n], gradp, eps_p, eps_loc, up, self.gas.rho,
-                                                       self.gas.mu, self.gravity)
+            force, beta, bimp, fexp, fdrag, fpres = _particle_forces(
+                self.drag_id, self.model_type == "B", self.drag_mode, at, st.cg[:n], gradp, eps_p, eps_loc, up,
+                self.gas.rho, self.gas.mu, self.gravity)
             tframe = None
+            parts = dict(drag=fdrag, pressure=fpres)   # the fluid force by term (the output's fields)
             if extra:
-                fadd, texp, krot, madd, tframe = _extra_terms(
+                flift, fvm, texp, krot, madd, tframe = _extra_terms(
                     self.torque_id, self.lift_id, self.virtual_mass, at, st.angular_velocity[:n],
                     G, acc, self.gas.rho, self.gas.mu, C_VM)
                 # lift and the Du_f/Dt part of the virtual mass: explicit, held over the interval
+                fadd = flift + fvm
                 fexp += fadd
                 force += fadd
+                if self.lift_id:
+                    parts["lift"] = flift
+                if self.virtual_mass:
+                    parts["virtual_mass"] = fvm
             fl = dict(torque=texp if self.torque_id else None, torque_drag=krot if self.torque_id else None,
                       added_mass=madd if self.virtual_mass else None) if extra else {}
             # semi-implicit drag: the DEM takes the fluid force's response to the particle velocity,
@@ -412,7 +418,7 @@ class CouplingInterface:
             self.ksl_sent = ksl
             self.us_sent = us
         self.last = dict(beta=beta, force=force, hA=hA, eps_p=eps_p, eps_loc=eps_loc, uf=uf, eps_raw=eps_raw,
-                         Tg=tg, torque=tframe, ids=st.id[:n].copy())
+                         Tg=tg, torque=tframe, ids=st.id[:n].copy(), parts=parts)
         self._frame = dict(eps=eps, Ksl=ksl, Us=us, Simp=simp, Sexp=sexp)
         return self._frame
 
@@ -553,7 +559,8 @@ def _particle_forces(model_id, model_b, mode, at, cg, gradp, eps_p, eps_loc, up,
     cg^3 real particles: beta = cg^3 beta(d / cg), the law at the real diameter (its Re and drag
     coefficient), and V_p its own volume (cg^3 real volumes; docs/models.md, "Coarse graining").
 
-    Returns (force, beta, beta_imp, F_exp) for the drag integration of the DEM
+    Returns (force, beta, beta_imp, F_exp, F_drag, F_p): F_drag = beta (u_f - u_p) and F_p the
+    pressure-gradient (A) or buoyancy (B) part, force = F_drag + F_p (the output's fields), and for the drag integration of the DEM
     (dem.step.half_kick_implicit: v_new = (v + h (F_other + F_exp) / m) / (1 + h beta_imp / m)),
     by ``mode`` (DRAG_*):
 
@@ -575,6 +582,8 @@ def _particle_forces(model_id, model_b, mode, at, cg, gradp, eps_p, eps_loc, up,
     fexp = np.zeros((n, 3))
     beta = np.zeros(n)
     bimp = np.zeros(n)
+    fdrag = np.zeros((n, 3))
+    fpres = np.zeros((n, 3))
     has_cg = cg.shape[0] > 0
     local = eps_loc.shape[0] > 0
     for p in range(n):
@@ -613,20 +622,21 @@ def _particle_forces(model_id, model_b, mode, at, cg, gradp, eps_p, eps_loc, up,
             bi = 0.0
         bimp[p] = bi
         vp = math.pi / 6.0 * d * d * d
-        force[p, 0] = b * r0
-        force[p, 1] = b * r1
-        force[p, 2] = b * r2
+        fdrag[p, 0] = b * r0
+        fdrag[p, 1] = b * r1
+        fdrag[p, 2] = b * r2
         for i in range(3):
             if model_b:
                 rest = -rho * vp * g[i]
             else:
                 rest = -vp * gradp[p, i]
-            force[p, i] += rest
+            fpres[p, i] = rest
+            force[p, i] = fdrag[p, i] + rest
             if mode == DRAG_IMPLICIT_BED:
                 fexp[p, i] = force[p, i] + b * vel[p, i] + (bi - b) * up[p, i]
             else:
                 fexp[p, i] = force[p, i] + bi * vel[p, i]
-    return force, beta, bimp, fexp
+    return force, beta, bimp, fexp, fdrag, fpres
 
 
 @njit(cache=True, error_model="numpy")
@@ -653,7 +663,7 @@ def _extra_terms(torque_id, lift_id, vm, at, angvel, G, acc, rho, mu, cvm):
     from the gas velocity uf at the particle and the gradient G of its cell (vorticity
     om = curl u_f, Omega_f = om / 2). Returns
 
-    * fadd: lift + C_vm rho_f V_p Du_f/Dt (added to the explicit force);
+    * flift, fvm: the lift and C_vm rho_f V_p Du_f/Dt (their sum is added to the explicit force);
     * texp, krot: the explicit part k_rot Omega_f of the torque and k_rot, for the DEM's
       implicit angular kick (torque k_rot (Omega_f - omega));
     * madd: the added mass C_vm rho_f V_p (the DEM's kick takes -madd dv/dt implicitly);
@@ -661,7 +671,8 @@ def _extra_terms(torque_id, lift_id, vm, at, angvel, G, acc, rho, mu, cvm):
     ``at``: the particles' AtParticles."""
     rad, vel, uf, cells = at.rad, at.vel, at.uf, at.cells
     n = rad.shape[0]
-    fadd = np.zeros((n, 3))
+    flift = np.zeros((n, 3))
+    fvm = np.zeros((n, 3))
     texp = np.zeros((n, 3))
     krot = np.zeros(n)
     madd = np.zeros(n)
@@ -695,15 +706,15 @@ def _extra_terms(torque_id, lift_id, vm, at, angvel, G, acc, rho, mu, cvm):
             f0, f1, f2 = magnus_oesterle_bui_dinh_1998(d, rho, mu, ur0, ur1, ur2, w0, w1, w2)
         else:
             f0, f1, f2 = 0.0, 0.0, 0.0
-        fadd[p, 0] = f0
-        fadd[p, 1] = f1
-        fadd[p, 2] = f2
+        flift[p, 0] = f0
+        flift[p, 1] = f1
+        flift[p, 2] = f2
         if vm:
             ma = cvm * rho * math.pi / 6.0 * d * d * d
             madd[p] = ma
             for i in range(3):
-                fadd[p, i] += ma * acc[c, i]
-    return fadd, texp, krot, madd, tframe
+                fvm[p, i] = ma * acc[c, i]
+    return flift, fvm, texp, krot, madd, tframe
 
 
 @njit(cache=True, error_model="numpy")

@@ -127,14 +127,18 @@ def test_drag_is_the_real_particles_times_W(law):
     gradp = np.tile([0.0, 0.0, -1.2e4], (3, 1))
     eps = np.array([0.5, 0.5, 0.5])
     cells = np.zeros(3, np.int64)
-    force, beta, bimp, fexp = _particle_forces(mid, False, DRAG_EXPLICIT, AtParticles(rad, vel, uf, cells), cg,
-                                               gradp, eps, np.zeros(0), vel, 1.2, 1.8e-5, np.array([0.0, 0.0, -9.81]))
+    force, beta, bimp, fexp, fdrag, fpres = _particle_forces(
+        mid, False, DRAG_EXPLICIT, AtParticles(rad, vel, uf, cells), cg, gradp, eps, np.zeros(0), vel, 1.2, 1.8e-5,
+        np.array([0.0, 0.0, -9.81]))
     b1 = drag_coefficient(mid, 2 * R, 0.5, 1.2, 1.8e-5, 0.8)
     assert beta == pytest.approx(cg ** 3 * b1, rel=1e-13)
     vp = 4 / 3 * math.pi * rad ** 3
     assert force[:, 2] == pytest.approx(beta * 0.8 + vp * 1.2e4, rel=1e-13)
+    # the output's split: the drag beta (u_f - u_p) and the pressure-gradient force -V_p grad p
+    assert fdrag[:, 2] == pytest.approx(beta * 0.8, rel=1e-15) and fpres[:, 2] == pytest.approx(vp * 1.2e4, rel=1e-15)
+    assert np.array_equal(force, fdrag + fpres)
     # without coarse graining (an empty cg), the law at the given diameter
-    _, b0, _, _ = _particle_forces(mid, False, DRAG_EXPLICIT, AtParticles(rad[:1], vel[:1], uf[:1], cells[:1]),
+    _, b0, _, _, _, _ = _particle_forces(mid, False, DRAG_EXPLICIT, AtParticles(rad[:1], vel[:1], uf[:1], cells[:1]),
                                    np.zeros(0), gradp[:1], eps[:1], np.zeros(0), vel[:1], 1.2, 1.8e-5, np.array([0.0, 0.0, -9.81]))
     assert b0[0] == b1
 

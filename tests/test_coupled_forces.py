@@ -151,7 +151,7 @@ def test_interface_vorticity_and_material_derivative():
     vel = np.zeros((n, 3))
     om_p = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, -2.0, 5.0]])
     at = AtParticles(rad, vel, U[cells], cells)
-    fadd, texp, krot, madd, tfr = _extra_terms(1, 0, True, at, om_p, G, acc, RHO, MU, C_VM)
+    flift, fvm, texp, krot, madd, tfr = _extra_terms(1, 0, True, at, om_p, G, acc, RHO, MU, C_VM)
     d = 2e-4
     k = math.pi * MU * d ** 3
     assert np.allclose(krot, k, rtol=1e-14)
@@ -159,7 +159,8 @@ def test_interface_vorticity_and_material_derivative():
     assert np.allclose(tfr, k * (0.5 * curl[None] - om_p), rtol=1e-12)
     mf = C_VM * RHO * math.pi / 6 * d ** 3
     assert np.allclose(madd, mf, rtol=1e-14)
-    assert np.allclose(fadd, mf * acc[cells], rtol=1e-12)
+    assert np.allclose(fvm, mf * acc[cells], rtol=1e-12)
+    assert not flift.any()   # (lift off)
 
 
 # --------------------------------------------------------------------------- virtual mass (DEM kick)
