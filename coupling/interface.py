@@ -413,13 +413,14 @@ class CouplingInterface:
             ksl = self._relax(self.ksl_sent, ksl_raw, dt_cfd)
             self.ksl_sent = ksl
             self.us_sent = us
+            if self.averaging:   # the particles on the cells for the time averages (collective)
+                from .averaging import particle_columns
+                cols = particle_columns(pw, rad, vel, Tp if self.heat else None, self.V, self.cells)
         self.last = dict(beta=beta, force=force, hA=hA, eps_p=eps_p, eps_loc=eps_loc, uf=uf, eps_raw=eps_raw,
                          Tg=tg, torque=tframe, ids=st.id[:n].copy())
         self._frame = dict(eps=eps, Ksl=ksl, Us=us, Simp=simp, Sexp=sexp)
         if self.averaging:
-            from .averaging import particle_columns
-            self._frame["particle_columns"] = particle_columns(pw, rad, vel, Tp if self.heat else None, self.V,
-                                                               self.cells)
+            self._frame["particle_columns"] = cols
         return self._frame
 
     def advance_dem(self, k: int) -> None:
