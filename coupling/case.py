@@ -32,6 +32,14 @@ Layout::
     lift = "none"                 # none | saffman_mei | magnus: lift force
     virtual_mass = false          # virtual (added) mass force, C_vm = 0.5
 
+``[averaging]`` (optional; coupling.averaging): time-averaged particle fields on the gas mesh,
+written by OpenFOAM's fieldAverage into the time folders::
+
+    [averaging]
+    start = 0.1                   # s (default 0)
+    window = 0.05                 # s, optional (fieldAverage window, approximate)
+    fields = ["void_fraction", "particle_velocity", "particle_temperature", "heat_source"]
+
 One end time per case: ``endTime`` of system/controlDict. ``end_time`` of coupling.toml and
 ``[simulation] end_time`` of dem.toml may be omitted (they take controlDict's) and are refused
 by ``load_case`` when they differ from it (``coupling run --end-time`` overrides for one run).
@@ -106,6 +114,7 @@ class CouplingConfig:
     virtual_mass: bool = False
     exchange_host: str = "127.0.0.1"   # where the DEM ranks listen for the gas processors (m2m); "auto": the node's address
     walls: list = field(default_factory=list)   # [[walls]] ties of DEM walls to gas patches (coupling.energy)
+    averaging: object = None   # [averaging]: time-averaged fields on the gas mesh (coupling.averaging.AveragingConfig)
 
 
 _KEYS = {
@@ -174,10 +183,10 @@ def load_config(path: Path) -> CouplingConfig:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:
         raise CaseConfigError(path, f"not valid TOML: {e}") from None
-    extra = sorted(set(data) - {"coupling", "walls"})
+    extra = sorted(set(data) - {"coupling", "walls", "averaging"})
     if extra:
-        raise CaseConfigError(path, f"unknown table(s) {extra}; allowed: [coupling] and [[walls]] (a DEM wall "
-                                    f"tied to a gas patch)")
+        raise CaseConfigError(path, f"unknown table(s) {extra}; allowed: [coupling], [[walls]] (a DEM wall "
+                                    f"tied to a gas patch) and [averaging] (time-averaged fields on the gas mesh)")
     c = data.get("coupling")
     if not isinstance(c, dict):
         raise CaseConfigError(path, "missing [coupling] table")
@@ -218,6 +227,9 @@ def load_config(path: Path) -> CouplingConfig:
     if "walls" in data:
         from .energy import parse_ties
         cfg.walls = parse_ties(path, data["walls"])
+    if "averaging" in data:
+        from .averaging import parse_averaging
+        cfg.averaging = parse_averaging(path, data["averaging"])
     return cfg
 
 
@@ -336,6 +348,10 @@ def load_case(case_dir, *, build_sim: bool = True) -> CoupledCase:
                                             f"measures the particle, not the packing around it; use at least "
                                             f"{2.0 * sim.world.rmax:.4g} m (the default is 3 diameters)",
                                   "coupling.drag_averaging_length")
+    if cfg.averaging is not None:
+        from .averaging import check_averaging
+        heat = cfg.heat and (sim is None or (sim.thermal is not None and sim.thermal.cfg["convection"] != "none"))
+        cfg.averaging = check_averaging(cfg_file, cfg.averaging, end=end, dt=ctl["deltaT"], heat=heat)
     case = CoupledCase(case_dir, cfg, dem_file, cfg_file, gas, mt, ctl, sim)
     from .energy import check_tie_names
     check_tie_names(case)

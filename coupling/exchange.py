@@ -22,8 +22,10 @@ Frame = 56 byte little-endian header + payload::
     float64  scalars[n_scalars]  (CFD -> DEM: the gas's energy ledger of the step, see
                                   coupling/energy.py; DEM -> CFD: none)
 
-The DEM sends (kind 1) ``eps, Ksl, Us(3), Simp, Sexp`` (+ one column per tied fixed-flux wall,
-``wall_columns``: the particles' heat through its faces of each cell, W) and receives (kind 2)
+The DEM sends (kind 1) ``eps, Ksl, Us(3), Simp, Sexp`` (+ with ``[averaging]`` the five
+``particle_columns`` of coupling.averaging, + three columns per tied wall, ``wall_columns``: the
+particles' heat through its faces of each cell, W; decoded, all the extra columns come back as
+``wall_columns``) and receives (kind 2)
 ``U(3), T, gradp(3), p``. Only numpy and the standard library are used.
 
 Typical DEM loop::
@@ -108,7 +110,10 @@ def encode_frame(kind: int, step: int, fields: Mapping[str, np.ndarray], *,
                          f"{[n for n, _ in layout]}")
     cols = []
     n = n_cells
-    extra = fields.get("wall_columns") if kind == KIND_TO_CFD else None   # tied fixed-flux walls
+    extra = None
+    if kind == KIND_TO_CFD:   # the particle columns of [averaging], then the tied walls'
+        more = [fields[k] for k in ("particle_columns", "wall_columns") if fields.get(k) is not None]
+        extra = np.concatenate([np.asarray(a, np.float64) for a in more], axis=1) if more else None
     for name, ncomp in layout:
         a = np.asarray(fields[name], dtype=np.float64)
         want = (a.shape[0] if n is None and a.ndim else n,) + ((ncomp,) if ncomp > 1 else ())
@@ -119,7 +124,7 @@ def encode_frame(kind: int, step: int, fields: Mapping[str, np.ndarray], *,
     if extra is not None:
         a = np.asarray(extra, dtype=np.float64)
         if a.ndim != 2 or a.shape[0] != n:
-            raise ValueError(f"wall_columns must have shape ({n}, walls), got {a.shape}")
+            raise ValueError(f"particle_columns / wall_columns must have shape ({n}, k), got {a.shape}")
         cols.extend(a[:, k] for k in range(a.shape[1]))
     payload = np.empty((len(cols), n), dtype="<f8")
     for k, c in enumerate(cols):

@@ -291,7 +291,7 @@ class LinkOptions:
 def write_coupling_dict(case, transport: str = "file", *, timeout: float = 60, port: int | None = None,
                         send_velocity: str = "cell", tied: dict | None = None,
                         options: LinkOptions = LinkOptions(),
-                        m2m_directory: str | os.PathLike | None = None) -> Path:
+                        m2m_directory: str | os.PathLike | None = None, particle_fields: bool = False) -> Path:
     """Write ``system/couplingDict`` (transport file | socket | m2m | none).
 
     ``port``: the socket transport's TCP port (or ``options.path``). ``send_velocity``: "cell" (momentum velocity, default) or "flux" (reconstructed from
@@ -300,7 +300,9 @@ def write_coupling_dict(case, transport: str = "file", *, timeout: float = 60, p
     contact and gas-gap heat per cell), and a fixed-flux one gives the gas the rest of q_w.
     ``m2m_directory`` (or ``options.m2m_directory``): the m2m transport's plan folder, written
     by the DEM ranks (docs/coupling_protocol.md, "Many-to-many transport (m2m)"); that
-    dictionary has an ``m2m { directory ...; }`` block instead of the file and socket ones."""
+    dictionary has an ``m2m { directory ...; }`` block instead of the file and socket ones.
+    ``particle_fields``: each frame holds the five particle columns of the time averages after
+    the exchange ones (coupling.averaging; the solver's ``particleFields``)."""
     o = options
     connect_timeout, directory, poll_interval, keep_files = o.connect_timeout, o.directory, o.poll_interval, o.keep_files
     path, host, role = o.path, o.host, o.role
@@ -328,6 +330,7 @@ def write_coupling_dict(case, transport: str = "file", *, timeout: float = 60, p
            f"tiedFixedFlux   ({' '.join(str(int(bool(x))) for x in tied['fixed_flux'])});\n"
            f"tiedHeatFlux    ({' '.join(repr(float(q)) for q in tied['fluxes'])});\n"
            if tied and tied.get("patches") else "")
+        + ("particleFields  true;\n" if particle_fields else "")
         + "\n"
     )
     if transport == "m2m":

@@ -110,6 +110,7 @@ class CouplingInterface:
     torque: str = "none"              # | rotational_drag (coupling.forces)
     lift: str = "none"                # | saffman_mei | magnus
     virtual_mass: bool = False
+    averaging: bool = False           # [averaging]: the frame's particle columns (coupling.averaging)
     timer: PhaseTimer = field(default_factory=PhaseTimer)
     mesh_source: object = None        # callable giving the whole mesh again (coupling.cells.CellShare)
 
@@ -125,7 +126,8 @@ class CouplingInterface:
                    smoothing_time=cfg.smoothing_time,
                    gravity=np.asarray(case.sim.scene.simulation["gravity"], float),
                    n_satellites=cfg.n_satellites, heat=cfg.heat, drag_integration=cfg.drag_integration,
-                   torque=cfg.torque, lift=cfg.lift, virtual_mass=cfg.virtual_mass)
+                   torque=cfg.torque, lift=cfg.lift, virtual_mass=cfg.virtual_mass,
+                   averaging=cfg.averaging is not None)
 
     def __post_init__(self):
         self.drag_id = drag_model_id(self.drag)
@@ -417,9 +419,14 @@ class CouplingInterface:
             ksl = self._relax(self.ksl_sent, ksl_raw, dt_cfd)
             self.ksl_sent = ksl
             self.us_sent = us
+            if self.averaging:   # the particles on the cells for the time averages (collective)
+                from .averaging import particle_columns
+                cols = particle_columns(pw, rad, vel, Tp if self.heat else None, self.V, self.cells)
         self.last = dict(beta=beta, force=force, hA=hA, eps_p=eps_p, eps_loc=eps_loc, uf=uf, eps_raw=eps_raw,
                          Tg=tg, torque=tframe, ids=st.id[:n].copy(), parts=parts)
         self._frame = dict(eps=eps, Ksl=ksl, Us=us, Simp=simp, Sexp=sexp)
+        if self.averaging:
+            self._frame["particle_columns"] = cols
         return self._frame
 
     def advance_dem(self, k: int) -> None:

@@ -74,6 +74,9 @@ def prepare_gas(out: Path, cfg, n_cells: int, split, eps0, end: float, *, restar
     ctl = out / "system" / "controlDict"
     # 17 significant digits: a written time is a restart point that continues to round-off
     fc.set_entries(ctl, {"endTime": repr(end), "startFrom": "latestTime", "writePrecision": 17})
+    # [averaging]: OpenFOAM's fieldAverage in controlDict (coupling.averaging); again on a restart
+    from .averaging import write_function_objects
+    write_function_objects(ctl, cfg.averaging)
     if not restart and not decomposed:
         fc.write_eps(out, eps0)
     ex = open_exchange(out, cfg, n_cells, split.couplingdict_entries(), m2m=m2m)

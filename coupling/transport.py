@@ -125,6 +125,7 @@ def open_exchange(out: Path, cfg, n_cells: int, tied, *, m2m: bool = False):
     system/couplingDict saying how to reach it (``tied``: the tied walls' entries). With
     ``m2m`` only the couplingDict and an empty plan folder (the ranks' exchanges: open_m2m)."""
     from dem import outdir
+    particle_fields = getattr(cfg, "averaging", None) is not None   # [averaging]: 5 more frame columns
     outdir.claim(out / "coupling")   # the exchange folder (file transport; the solver's pid file)
     if m2m:
         folder = out / "coupling" / "m2m"
@@ -132,14 +133,15 @@ def open_exchange(out: Path, cfg, n_cells: int, tied, *, m2m: bool = False):
             shutil.rmtree(folder)
         folder.mkdir(parents=True)
         fc.write_coupling_dict(out, "m2m", timeout=cfg.timeout, send_velocity=cfg.send_velocity, tied=tied,
-                               options=fc.LinkOptions(m2m_directory=str(folder)))
+                               options=fc.LinkOptions(m2m_directory=str(folder)), particle_fields=particle_fields)
         return None
     if cfg.transport == "socket":
         ex = SocketExchange(port=0, timeout=cfg.timeout, n_cells=n_cells)
         fc.write_coupling_dict(out, "socket", port=ex.port, timeout=cfg.timeout,
-                               send_velocity=cfg.send_velocity, tied=tied)
+                               send_velocity=cfg.send_velocity, tied=tied, particle_fields=particle_fields)
     else:
-        fc.write_coupling_dict(out, "file", timeout=cfg.timeout, send_velocity=cfg.send_velocity, tied=tied)
+        fc.write_coupling_dict(out, "file", timeout=cfg.timeout, send_velocity=cfg.send_velocity, tied=tied,
+                               particle_fields=particle_fields)
         ex = FileExchange(out / "coupling", timeout=cfg.timeout, n_cells=n_cells)
     return ex
 

@@ -43,6 +43,7 @@ Description
 #include "tiedWalls.H"
 #include "couplingIO.H"
 #include "energyBalance.H"
+#include "particleMeans.H"
 
 #include <csignal>
 
@@ -200,8 +201,8 @@ int main(int argc, char *argv[])
         if (coupling.active())
         {
             List<scalarField> in;
-            peerFlags = coupling.receive(step, in, 7 + tied.nColumns());
-            if (!tied.read(in))
+            peerFlags = coupling.receive(step, in, tiedFirstColumn + tied.nColumns());
+            if (!tied.read(in, tiedFirstColumn))
             {
                 FatalErrorInFunction
                     << "non-finite particle heat of a tied wall"
@@ -253,6 +254,38 @@ int main(int argc, char *argv[])
                     << " [peer: DEM, coupling step " << step << ']'
                     << exit(FatalError);
             }
+            if (particleFields)
+            {
+                scalarField& a = alphap().primitiveFieldRef();
+                vectorField& aU = alphapUp().primitiveFieldRef();
+                scalarField& aT = alphapTp().primitiveFieldRef();
+                label nBadP = 0;
+                forAll(a, i)
+                {
+                    a[i] = in[7][i];
+                    aU[i] = vector(in[8][i], in[9][i], in[10][i]);
+                    aT[i] = in[11][i];
+                    if
+                    (
+                        !std::isfinite(a[i]) || a[i] < 0 || !std::isfinite(aT[i])
+                     || !std::isfinite(aU[i].x()) || !std::isfinite(aU[i].y())
+                     || !std::isfinite(aU[i].z())
+                    )
+                    {
+                        ++nBadP;
+                    }
+                }
+                reduce(nBadP, sumOp<label>());
+                if (nBadP)
+                {
+                    FatalErrorInFunction
+                        << nBadP << " cells with non-finite particle fields (alphap >= 0)"
+                        << " [peer: DEM, coupling step " << step << ']' << exit(FatalError);
+                }
+                alphap().correctBoundaryConditions();
+                alphapUp().correctBoundaryConditions();
+                alphapTp().correctBoundaryConditions();
+            }
             eps.correctBoundaryConditions();
             Ksl.correctBoundaryConditions();
             Us.correctBoundaryConditions();
@@ -294,6 +327,13 @@ int main(int argc, char *argv[])
 
         #include "TEqn.H"
 
+        if (particleFields)
+        {
+            // the particles' heat into the gas of this step, as TEqn took it (T implicit)
+            Qp() = Sexp - Simp*T;
+            Qp().correctBoundaryConditions();
+        }
+
         // --------------------------------------------------------- send
         // a stop signal on any processor ends the run after this step
         label stopSig = label(stopSignal);
@@ -327,6 +367,15 @@ int main(int argc, char *argv[])
         }
 
         runTime.printExecutionTime(Info);
+
+        if ((peerFlags & demCoupling::flagFinal) || stopSig)
+        {
+            // the run ends here, not in runTime.loop(): the function objects of this last
+            // step run as Time::run runs them at the end (the time averages and their
+            // state, functionObjectProperties, into the time folder just written)
+            runTime.functionObjects().execute();
+            runTime.functionObjects().end();
+        }
 
         if (peerFlags & demCoupling::flagFinal)
         {
