@@ -335,11 +335,13 @@ def _fluid_fields_now(sim, iface):
     last = iface.last
     force, ids = last.get("force"), last.get("ids")
     parts = last.get("parts") or {}
-    if force is None:
-        return dict(fluid_force=np.zeros((n, 3)))
-    if ids is None or (ids.shape[0] == n and np.array_equal(ids, st.id[:n])):
-        if force.shape[0] != n:
-            return dict(fluid_force=np.zeros((n, 3)))
+    # the same fields on every rank (the VTK pieces of a frame share one field list)
+    names = ["drag", "pressure"] + (["lift"] if iface.lift_id else []) + (["virtual_mass"] if iface.virtual_mass
+                                                                         else [])
+    same = ids is None or (ids.shape[0] == n and np.array_equal(ids, st.id[:n]))
+    if force is None or set(parts) != set(names) or (same and force.shape[0] != n):
+        return dict(fluid_force=np.zeros((n, 3)), **{f"fluid_{k}": np.zeros((n, 3)) for k in names})
+    if same:
         out = dict(fluid_force=np.ascontiguousarray(force))
         out.update((f"fluid_{k}", np.ascontiguousarray(v)) for k, v in parts.items())
         return out
