@@ -96,9 +96,7 @@ class Checkpointer:
         st = self.state
         par = self.par
         folder = ckpt.pieces_folder(path)
-        if self.writers.is_root:
-            self.writers.root_write(lambda: make_folder(folder))
-        par.comm.Barrier()   # the folder exists (and is recorded) before any rank writes in it
+        self.writers.root_first(lambda: make_folder(folder))   # before any rank writes in it
         n = st.n_owned
         piece = {f.checkpoint: getattr(st, f.name)[:n] for f in self._checkpointed("particle")}
         piece.update(self._records())

@@ -50,6 +50,21 @@ class Writers:
             if self._failure is None:
                 self._failure = exc
 
+    def root_first(self, write):
+        """A write done by the root that the other ranks wait for (collective under MPI: the
+        folder they then write in). A failure raises the same OutputError, naming the root, on
+        every rank at once, inside run() or not: a rank never waits for a root that gave up."""
+        if self.par is None:
+            write()
+            return
+        err = None
+        if self.is_root:
+            try:
+                write()
+            except OutputError as exc:
+                err = str(exc)
+        self._raise_any(err)   # an Allreduce: no rank goes on before the root has written
+
     def each_rank_write(self, write):
         """A write done by every rank, each its own file (collective under MPI): a failure on any
         rank raises the same OutputError, naming that rank, on every rank at once."""
@@ -286,8 +301,7 @@ class Writers:
         from .output import make_folder
         par = self.par
         comm = par.comm
-        if self.is_root:
-            self.root_write(lambda: make_folder(folder))
+        self.root_first(lambda: make_folder(folder))
         # a fresh token per final output (a piece never replaces one that a manifest names), sent
         # by the root once the folder exists: no rank writes in it before
         token = np.array([int.from_bytes(os.urandom(4), "little") if self.is_root else 0], np.int64)
@@ -317,9 +331,7 @@ class Writers:
         if self.par is None:
             return VTKSeries(out_dir, name=name)
         vtk = VTKSeries(out_dir, name=name, rank=self.par.rank, ranks=self.par.size)
-        if self.is_root:
-            self.root_write(lambda: make_folder(vtk.dir))
-        self.par.comm.Barrier()
+        self.root_first(lambda: make_folder(vtk.dir))
         return vtk
 
     def write_vtk(self, vtk, **extra):

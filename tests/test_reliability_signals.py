@@ -17,6 +17,7 @@
 import contextlib
 import glob
 import hashlib
+import json
 import os
 import random
 import re
@@ -370,6 +371,62 @@ def test_coupled_run_on_a_full_disk(tmp_path, solver):
                 load_all(f)
         # the gas solver was stopped: no process left running on this case
         assert not processes_mentioning(str(out))
+
+
+# A 2-rank run to 1 ms, then the disk filled, then each folder-making collective write called
+# outside run() (where the coupled run's failure path calls the checkpoint: the gas solver
+# died of the same full disk): every rank must get the OutputError, none wait for the root.
+_FOLDER_WRITES_ON_A_FULL_DISK = r"""
+import json, os, sys
+from dem.output import OutputError
+from dem.simulation import Simulation
+
+scene, out, report = sys.argv[1:4]
+sim = Simulation.from_file(scene)
+sim.run(end_time=1e-3, out_dir=out)
+comm = sim.par.comm
+if comm.Get_rank() == 0:
+    with open(os.path.join(os.path.dirname(out), "filler.bin"), "wb") as fh:
+        try:
+            while True:
+                fh.write(bytes(65536))
+                fh.flush()
+        except OSError:
+            pass
+comm.Barrier()
+got = {}
+for what, call in [("checkpoint", lambda: sim.write_checkpoint(os.path.join(out, "more.npz"))),
+                   ("vtk", lambda: sim.writers.vtk_series(out, name="more")),
+                   ("final", lambda: sim.writers.write_final(os.path.join(out, "more_final.npz")))]:
+    try:
+        call()
+        got[what] = None
+    except OutputError as exc:
+        got[what] = str(exc)
+json.dump(got, open(os.path.join(report, f"rank{comm.Get_rank()}.json"), "w"))
+"""
+
+
+@pytest.mark.skipif(shutil.which("mpirun") is None, reason="needs Open MPI (mpirun)")
+def test_folder_writes_on_a_full_disk_stop_every_rank(tmp_path):
+    """A checkpoint, a VTK series and a final output written under MPI outside run() on a full
+    disk: the root cannot make their pieces' folder and every rank raises its OutputError, naming
+    the folder and the root (before the fix the other ranks waited at a barrier for ever)."""
+    scene = tmp_path / "novtk.toml"   # no vtk/ made by the run: the VTK series makes it on the full disk
+    scene.write_text(open(SCENE).read().replace("vtk = true", "vtk = false"))
+    with tiny_disk(tmp_path, "3m") as disk:
+        out = disk / "out"
+        p = subprocess.run(["mpirun", "-np", "2", sys.executable, "-c", _FOLDER_WRITES_ON_A_FULL_DISK,
+                            str(scene), str(out), str(tmp_path)], capture_output=True, text=True,
+                           env=env(**MPI_ENV), timeout=300)
+        assert p.returncode == 0, p.stderr[-3000:]
+        ranks = [json.load(open(tmp_path / f"rank{r}.json")) for r in range(2)]
+        assert ranks[0] == ranks[1]
+        for what, folder in [("checkpoint", "more.pieces"), ("vtk", "vtk"), ("final", "more_final.pieces")]:
+            msg = ranks[0][what]
+            assert msg is not None, what
+            assert re.match(rf"cannot write {re.escape(str(out / folder))}: the disk is full\. .*\[rank 0 of 2\]$",
+                            msg), msg
 
 
 @pytest.mark.skipif(shutil.which("mpirun") is None, reason="needs Open MPI (mpirun)")

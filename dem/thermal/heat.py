@@ -891,6 +891,31 @@ def _solve(m, C, has_ind, dg, rhs, out, nblk):
 TRBDF2_GAMMA = 2.0 - math.sqrt(2.0)
 
 
+@njit(cache=True)
+def trbdf2_coefficients(dt, t):
+    """The coefficients of a TR-BDF2 step of length dt ending at t (_trbdf2_step's docstring;
+    shared with the step under MPI, dem.thermal.implicit_mpi): the trapezoid's dt1 = gamma dt / 2
+    (its matrix C / dt1 + A), w = (1 - gamma) / (2 - gamma) dt (BDF2's C / w + A), the energy
+    weight a = dt / (2 (2 - gamma)) of the links at T^n and T^g (2 a + w = dt), BDF2's factor
+    c2 = 1 / (w gamma (2 - gamma)) of C d1, the step's start t0 = t - dt and stage time
+    tg = t0 + gamma dt."""
+    g = TRBDF2_GAMMA
+    w = (1.0 - g) / (2.0 - g) * dt
+    t0 = t - dt
+    return 0.5 * g * dt, w, 0.5 * dt / (2.0 - g), 1.0 / (w * g * (2.0 - g)), t0, t0 + g * dt
+
+
+@njit(cache=True)
+def has_wall_tables(W):
+    """True when a fixed-temperature wall follows a temperature table (the walls' sources then
+    change between a step's stage times: _wall_source_shift)."""
+    wth = W.wth
+    for k in range(wth.shape[0]):
+        if wth[k, WT.cond] == 1.0 and wth[k, WT.ntab] > 0:
+            return True
+    return False
+
+
 @njit(cache=True, error_model="numpy")
 def _wall_source_shift(P, W, m, t, t0, out):
     """out[i] += sum_w H_w (T_w(t) - T_w(t0)) over particle i's fixed-temperature walls (rows
@@ -935,20 +960,11 @@ def _trbdf2_step(P, C, W, TB, prm, m, dt, t, has_ind, nblk):
     the totals count each link with these weights at T^n, T^g and T^{n+1}. Returns the first
     particle with a non-finite or non-positive temperature, or -1."""
     T, cinv, Q = P.temperature, P.inv_heat_capacity, P.heat_rate
-    g = TRBDF2_GAMMA
-    dt1 = 0.5 * g * dt
-    w = (1.0 - g) / (2.0 - g) * dt
-    a = 0.5 * dt / (2.0 - g)
-    t0 = t - dt
-    tg = t0 + g * dt
+    dt1, w, a, c2, t0, tg = trbdf2_coefficients(dt, t)
     b = np.zeros(m)   # Q(T^n) with the walls at t_n+1
     dg = np.empty(m)  # C/dt1 + K
     links = _implicit_assemble(P, C, W, TB, prm, m, dt1, dt, t, has_ind, b, dg)
-    wth = W.wth
-    tables = False
-    for k in range(wth.shape[0]):
-        if wth[k, WT.cond] == 1.0 and wth[k, WT.ntab] > 0:
-            tables = True
+    tables = has_wall_tables(W)
     # trapezoid to t_n + gamma dt
     rhs = np.empty(m)
     for i in range(m):
@@ -959,7 +975,6 @@ def _trbdf2_step(P, C, W, TB, prm, m, dt, t, has_ind, nblk):
     d1 = np.empty(m)
     _solve(m, C, has_ind, dg, rhs, d1, nblk)
     # BDF2 to t_n + dt
-    c2 = 1.0 / (w * g * (2.0 - g))
     for i in range(m):
         ci = 1.0 / cinv[i]
         dg[i] += ci / w - ci / dt1

@@ -15,7 +15,7 @@ the compiled functions of the serial step, on the owned rows with the ghosts' te
 import numpy as np
 
 from ..step import FP
-from .heat import _implicit_assemble, _implicit_totals, _wall_source_shift, TI, WT, TRBDF2_GAMMA
+from .heat import _implicit_assemble, _implicit_totals, _wall_source_shift, has_wall_tables, trbdf2_coefficients, TI
 from .implicit import CG_RTOL, cg_direction, cg_product, cg_update, dot, laplacian_diagonal
 
 
@@ -91,22 +91,14 @@ def heat_step(par, st, t):
         _implicit_totals(P, C, W, prm, m, T[:n], d[:m], t, (dt, 1.0 / dt), has_ind, links, 1)
         return _bad(T, m)
     # TR-BDF2 (heat._trbdf2_step)
-    g = TRBDF2_GAMMA
-    dt1 = 0.5 * g * dt
-    w = (1.0 - g) / (2.0 - g) * dt
-    a = 0.5 * dt / (2.0 - g)
-    t0 = t - dt
-    tg = t0 + g * dt
+    dt1, w, a, c2, t0, tg = trbdf2_coefficients(dt, t)
     links = _implicit_assemble(P, C, W, TB, prm, m, dt1, dt, t, has_ind, b, dg)
-    wth = W.wth
-    tables = bool(np.any((wth[:, WT.cond] == 1.0) & (wth[:, WT.ntab] > 0))) if wth.shape[0] else False
     rhs = 2.0 * b
-    if tables:
+    if has_wall_tables(W):
         _wall_source_shift(P, W, m, t0, t, rhs)
         _wall_source_shift(P, W, m, tg, t, rhs)
     d1 = np.empty(n)
     pcg(par, m, n, C, has_ind, dg, rhs, d1)
-    c2 = 1.0 / (w * g * (2.0 - g))
     ci = 1.0 / cinv[:m]
     dg += ci / w - ci / dt1
     rhs = b + ci * d1[:m] * c2
