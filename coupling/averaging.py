@@ -42,6 +42,13 @@ FIELDS = {
     "particle_temperature": ("alphap", "alphapTp"),
     "heat_source": ("Qp",),
 }
+# [averaging] fields -> the means the solver writes in the time folders
+WRITTEN = {
+    "void_fraction": ("epsMean", "alphapMean"),
+    "particle_velocity": ("UpMean",),
+    "particle_temperature": ("TpMean",),
+    "heat_source": ("QpMean",),
+}
 HEAT_FIELDS = ("particle_temperature", "heat_source")   # need coupling.heat and a [thermal] section
 N_COLUMNS = 5          # frame columns: alphap, alphap Up (3), alphap Tp
 FO_AVERAGE = "thermodemAverages"
@@ -54,6 +61,15 @@ class AveragingConfig:
     window: float | None = None
     fields: tuple[str, ...] = tuple(FIELDS)
     fields_given: bool = False
+
+    def report(self) -> str:
+        """What `coupling check` says of the averaging: from when, over what window, and the
+        fields written in the time folders."""
+        span = (f"a moving window of about {self.window:g} s" if self.window is not None
+                else "everything from then on")
+        names = [n for f in self.fields for n in WRITTEN[f]]
+        return (f"averaging from t = {self.start:g} s over {span}: {', '.join(self.fields)} "
+                f"(written as {', '.join(names)} in the time folders)")
 
     def averaged(self) -> list[str]:
         """The solver fields fieldAverage averages, each once, in a fixed order."""

@@ -799,6 +799,8 @@ def format_report(case: CoupledCase, rep: dict) -> str:
     if cfg.torque != "none" or cfg.lift != "none" or cfg.virtual_mass:
         lines.append(f"  fluid torque {cfg.torque}, lift {cfg.lift}, virtual mass "
                      f"{'on (C_vm 0.5)' if cfg.virtual_mass else 'off'} (docs/models.md)")
+    if cfg.averaging is not None:
+        lines.append(f"  {cfg.averaging.report()}")
     for k, v in rep["values"].items():
         lines.append(f"  {k:28s} {v:.4g}" if isinstance(v, float) else f"  {k:28s} {v}")
     for w in rep["warnings"]:

@@ -17,7 +17,7 @@ def _load(path):
 def cmd_check(args):
     sim = _load(args.scene)
     rep = sim.check()
-    p = print
+    p = print if sim.is_root else (lambda *a, **k: None)   # under mpirun: rank 0 reports for all
     p(f"scene: {args.scene}")
     p(f"particles: {rep['particles']}  walls: {rep['walls']}  materials: {rep['materials']}")
     p(f"radius: {rep['radius_min']:.4g} .. {rep['radius_max']:.4g} m   mass: {rep['mass_min']:.4g} .. "

@@ -280,3 +280,20 @@ def test_function_objects_replaced_not_repeated(tmp_path):
     assert text.count("type fieldAverage;") == 1 and "timeStart 0.2;" in text and "window 0.05;" in text
     write_function_objects(ctl, None)
     assert "fieldAverage" not in ctl.read_text() and "[averaging]" not in ctl.read_text()
+
+
+def test_coupling_check_says_what_is_averaged(tmp_path):
+    """`coupling check` names the averaging's start, its window and the fields it writes, as
+    the time folders will hold them; without [averaging] it says nothing of it."""
+    case = make_case(tmp_path / "case", "[averaging]\nstart = 0.002\nwindow = 0.004\n")
+    p = subprocess.run([sys.executable, "-m", "coupling.run", "check", str(case)], capture_output=True,
+                       text=True, env=_env(), timeout=300, cwd=str(ROOT))
+    assert p.returncode == 0, p.stdout[-2000:] + p.stderr[-2000:]
+    line = [s for s in p.stdout.splitlines() if "averaging from" in s]
+    assert line == ["  averaging from t = 0.002 s over a moving window of about 0.004 s: void_fraction, "
+                    "particle_velocity, particle_temperature, heat_source (written as epsMean, alphapMean, "
+                    "UpMean, TpMean, QpMean in the time folders)"], p.stdout
+    plain = make_case(tmp_path / "plain", "")
+    p = subprocess.run([sys.executable, "-m", "coupling.run", "check", str(plain)], capture_output=True,
+                       text=True, env=_env(), timeout=300, cwd=str(ROOT))
+    assert p.returncode == 0 and "averaging from" not in p.stdout, p.stdout[-2000:]

@@ -365,3 +365,16 @@ def test_rebuild_sends_typed_buffers_only(tmp_path):
     assert st["bytes_migrated"] == sum(d["totals"]["bytes_migrated"] for d in ranks)
     assert st["bytes_ghosts"] == sum(d["totals"]["bytes_ghosts"] for d in ranks)
     assert st["records_migrated"] == sum(d["totals"]["records"] for d in ranks)
+
+
+def test_dem_check_under_mpirun_reports_once(tmp_path):
+    """`mpirun -np 2 dem check` prints its report once (rank 0 reports for every rank), the same
+    lines as one process."""
+    scene = os.path.join(SCENES, "par_settle.toml")
+    serial = subprocess.run([sys.executable, "-m", "dem", "check", scene], capture_output=True, text=True,
+                            timeout=300)
+    assert serial.returncode == 0, serial.stderr
+    p = mpirun(2, "check", scene)
+    assert p.stdout.count("scene: ") == 1, p.stdout
+    lines = lambda out: [s for s in out.splitlines() if s.startswith(("scene:", "particles:", "radius:", "time step:"))]
+    assert lines(p.stdout) == lines(serial.stdout) and len(lines(serial.stdout)) == 4, (p.stdout, serial.stdout)
