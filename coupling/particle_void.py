@@ -16,7 +16,8 @@ Methods
     function over 128 fixed directions (:func:`voronoi_1908_cell`):
     ``V = 1/3 sum_m rho_m^3 dOmega``, ``rho_m`` the distance from the centre to the nearest
     radical plane of a neighbour, a wall or a non-periodic face of the domain along direction
-    m (0.4 % rms from the exact cell volume). The cell is the particle's cage: the planes of
+    m (about 1 % rms from the exact cell volume in a random packing, -0.3 % on average:
+    docs/notebook.md). The cell is the particle's cage: the planes of
     its first shell, neighbours to ``r_i + r_j + 1.2 r_max`` (the first minimum of a dense
     packing's pair distribution, 1.5-1.6 d), so every ray shorter than ``lim_i``
     (:func:`exact_reach`, 1.6 r for one size) is exact. A ray the cage leaves open (the open
@@ -64,7 +65,7 @@ Bounds = namedtuple("Bounds", "lo hi periodic wf wi t")
 # the radii r_j and the rows j
 Neighbours = namedtuple("Neighbours", "start vec rj jr")
 VORONOI_REACH = 1.2        # the planes of the first shell: neighbours to 1.2 r_max beyond contact (rays to 1.6 r)
-N_DIRECTIONS = 128         # 0.4 % rms error of the cell volume against the exact tessellation
+N_DIRECTIONS = 128         # about 1 % rms error of a cell volume against the exact tessellation (docs/notebook.md)
 KERNEL_LENGTH_D = 3.0      # default support of the kernel method, in largest diameters
 
 
@@ -132,7 +133,8 @@ def neighbour_vectors(x, r, n, nown, dom, grid, a):
     the cell grid's (stable) order."""
     lo, hi, periodic = dom.lo, dom.hi, dom.periodic
     gwrap = grid.periodic
-    ncell, cc, cmin, ext, order, table, dense = cell_grid(x, r, n, grid.lo, grid.hi, gwrap, a, 0.0)
+    grid_cells = cell_grid(x, r, n, grid.lo, grid.hi, gwrap, a, 0.0)
+    order = grid_cells[4]
     length = hi - lo
     rmax = 0.0
     for i in range(n):
@@ -149,30 +151,33 @@ def neighbour_vectors(x, r, n, nown, dom, grid, a):
         xs[q, 2] = x[order[q], 2]
         rs[q] = r[order[q]]
     if short[0] or short[1] or short[2]:
-        return _neighbour_images(x, r, nown, cc, ncell, gwrap, cmin, ext, order, table, dense, xs, rs,
-                                 length, periodic, short, a)
+        return _neighbour_images(x, r, nown, grid_cells, gwrap, (xs, rs), (length, periodic), short, a)
     cap = 24 * nown + 16   # a dense packing has about 15 a row; more: the rows again, to the count
     while True:
         start = np.zeros(nown + 1, np.int64)
         vec = np.empty((cap, 3))
         rj = np.empty(cap)
         jr = np.empty(cap, np.int64)
-        m = _neighbour_rows(x, r, nown, cc, ncell, gwrap, cmin, ext, order, table, dense, xs, rs,
-                            length, periodic, a, start, vec, rj, jr)
+        m = _neighbour_rows(x, r, nown, grid_cells, gwrap, (xs, rs), (length, periodic), a, (start, vec, rj, jr))
         if m <= cap:
             return Neighbours(start, vec[:m], rj[:m], jr[:m])
         cap = m
 
 
 @njit(cache=True, error_model="numpy")
-def _neighbour_rows(x, r, nown, cc, ncell, gwrap, cmin, ext, order, table, dense, xs, rs, length, periodic, a,
-                    start, vec, rj, jr):
+def _neighbour_rows(x, r, nown, grid, gwrap, cell_rows, box, a, out):
     """neighbour_vectors without periodic images beyond the nearest, into (start, vec, rj, jr):
     the entries that fit are stored, every one counted; returns the count (more than the
     arrays hold: call again with arrays of that size). The z cells of a column are scanned as
     runs of consecutive keys, and neither a call taking an array nor an array that may be
     replaced sits in the scan (either counts the array's references up and down at each use:
-    5 us a particle instead of 0.7; dem.neighbors._rows_block)."""
+    5 us a particle instead of 0.7; dem.neighbors._rows_block). ``grid``: :func:`dem.neighbors.cell_grid`'s
+    result; ``cell_rows``: (xs, rs), the positions and radii in its order; ``box``: (length,
+    periodic) of the minimum image; ``out``: (start, vec, rj, jr)."""
+    ncell, cc, cmin, ext, order, table, dense = grid
+    xs, rs = cell_rows
+    length, periodic = box
+    start, vec, rj, jr = out
     l0, l1, l2 = length[0], length[1], length[2]
     p0, p1, p2 = periodic[0], periodic[1], periodic[2]
     cap = rj.shape[0]
@@ -233,10 +238,13 @@ def _neighbour_rows(x, r, nown, cc, ncell, gwrap, cmin, ext, order, table, dense
 
 
 @njit(cache=True, error_model="numpy")
-def _neighbour_images(x, r, nown, cc, ncell, gwrap, cmin, ext, order, table, dense, xs, rs, length, periodic,
-                      short, a):
+def _neighbour_images(x, r, nown, grid, gwrap, cell_rows, box, short, a):
     """neighbour_vectors on a domain with a periodic axis shorter than two search reaches: the
-    further images along the short axes too (and the particle's own images)."""
+    further images along the short axes too (and the particle's own images); the arguments
+    as :func:`_neighbour_rows`'."""
+    ncell, cc, cmin, ext, order, table, dense = grid
+    xs, rs = cell_rows
+    length, periodic = box
     start = np.zeros(nown + 1, np.int64)
     cap = 32 * nown + 16
     vec = np.empty((cap, 3))

@@ -184,7 +184,9 @@ def test_heat_through_an_stl_floor_is_the_planes(floor_stl, tmp_path):
     both runs have the same positions): direct conduction through the contacts, indirect
     conduction across the gas gap at the local porosity (the floor's cap cut off each measuring
     sphere): the heat per path in wall_heat.csv and the particle temperatures equal the plane's
-    to 1e-9 (relative; the conductances differ by round-off)."""
+    to 1e-9 (relative; the conductances differ by round-off). A floor four times the domain's
+    (the mesh reaches beyond the box) gives the same heat, and its area in wall_heat.csv is the
+    part inside the box, the plane's section, so the flux is the plane's too."""
     th = {"direct": "batchelor_obrien", "indirect": "cheng_1999_voronoi_a", "porosity": "local",
           "time_step": 0.05, "initial_temperature": 300.0}
     gas = dict(conductivity=0.026, density=1.2, viscosity=1.8e-5, heat_capacity=1005.0, temperature=300.0)
@@ -192,8 +194,11 @@ def test_heat_through_an_stl_floor_is_the_planes(floor_stl, tmp_path):
     g = np.array([[x, y] for x in np.linspace(-0.0085, 0.0085, 8) for y in np.linspace(-0.008, 0.008, 5)])
     z = np.where(np.arange(len(g)) % 2, R - 1e-5, R + 1e-4)   # in contact, or 0.1 mm above
     pos = np.c_[g + np.random.default_rng(5).uniform(-2e-4, 2e-4, g.shape), z]
+    big = tmp_path / "big_floor.stl"
+    write_stl(str(big), plane_mesh(n=24, size=0.04, jitter=0.3) - [0.02, 0.02, 0.0], binary=False)
     out = []
-    for k, wall in enumerate((PLANE, {"type": "mesh", "name": "floor", "file": floor_stl, "material": "m"})):
+    for k, wall in enumerate((PLANE, {"type": "mesh", "name": "floor", "file": floor_stl, "material": "m"},
+                              {"type": "mesh", "name": "floor", "file": str(big), "material": "m"})):
         sc = scene([dict(wall, thermal=hot)], pos, 5.0, velocity=(0.0, 0.0, 0.0), thermal=th)
         sc["simulation"]["mechanics"] = False
         sc["gas"] = gas
@@ -202,14 +207,19 @@ def test_heat_through_an_stl_floor_is_the_planes(floor_stl, tmp_path):
         sim.run(out_dir=str(tmp_path / f"o{k}"), progress=False)
         rows = np.genfromtxt(tmp_path / f"o{k}" / "wall_heat.csv", delimiter=",", names=True, dtype=None,
                              encoding="utf-8")
-        out.append((sim.state.temperature.copy(), {str(r["mechanism"]): float(r["energy_J"]) for r in rows
-                                                   if float(r["time"]) == rows["time"].max()}))
-    (Ta, ea), (Tb, eb) = out
+        last = [r for r in rows if float(r["time"]) == rows["time"].max()]
+        out.append((sim.state.temperature.copy(), {str(r["mechanism"]): float(r["energy_J"]) for r in last},
+                    {str(r["mechanism"]): (float(r["area_m2"]), float(r["heat_flux_W_m2"])) for r in last}))
+    (Ta, ea, fa), (Tb, eb, fb), (Tc, ec, fc) = out
     assert ea["total"] > 0 and ea["contact"] > 0 and ea["gas_gap"] > 0
     assert Ta.max() > 301.0   # heated
-    for m in ("contact", "gas_gap", "total"):
-        assert eb[m] == pytest.approx(ea[m], rel=1e-9)
-    assert np.abs(Ta - Tb).max() <= 1e-9 * (Ta.max() - 300.0)
+    assert fa["total"][0] == pytest.approx(0.02 * 0.02, rel=1e-12)   # the box's floor
+    for e, f, T in ((eb, fb, Tb), (ec, fc, Tc)):
+        for m in ("contact", "gas_gap", "total"):
+            assert e[m] == pytest.approx(ea[m], rel=1e-9)
+            assert f[m][0] == pytest.approx(fa[m][0], rel=1e-12)
+            assert f[m][1] == pytest.approx(fa[m][1], rel=1e-9)
+        assert np.abs(Ta - T).max() <= 1e-9 * (Ta.max() - 300.0)
 
 
 def test_a_restart_across_mesh_contacts_is_bit_identical(floor_stl, tmp_path):

@@ -170,6 +170,18 @@ def test_wall_areas():
     assert wall_area(dict(cyl, length=1.0), lo, hi) == pytest.approx(2 * math.pi * 0.5)
     plane = {"type": "plane", "point": [0, 0, 0], "normal": [0, 0, 1], "extent": [0.2, 0.3]}
     assert wall_area(plane, lo, hi) == pytest.approx(0.24)
+    # a mesh reaching beyond the box: the part inside (a 6 x 6 square of 0.7 triangles, not
+    # aligned with the box's faces; flat at z = 0.5, then tilted to z = y + 0.5)
+    from dem.thermal.wall_heat import mesh_area_in_box
+    g = np.arange(-3.0, 3.01, 0.75) + 0.1
+    v = np.array([[x, y, 0.5] for y in g for x in g])
+    k = len(g)
+    f = np.array([q for i in range(k - 1) for j in range(k - 1)
+                  for q in ([i * k + j, i * k + j + 1, (i + 1) * k + j], [i * k + j + 1, (i + 1) * k + j + 1, (i + 1) * k + j])])
+    assert mesh_area_in_box(v, f, lo, hi) == pytest.approx(4.0, rel=1e-12)
+    v[:, 2] = v[:, 1] + 0.5
+    assert mesh_area_in_box(v, f, lo, hi) == pytest.approx(4.0 * math.sqrt(2.0), rel=1e-12)
+    assert mesh_area_in_box(v + [10.0, 0.0, 0.0], f, lo, hi) == 0.0
 
 
 def test_stopped_and_continued_run_writes_the_same_records(tmp_path):

@@ -82,13 +82,49 @@ def line_length_in_box(point, axis, lo, hi):
     return max(0.0, t1 - t0)
 
 
+def _clip(poly, k, bound, sign):
+    """The convex polygon ``poly`` (a list of points) clipped to sign (x_k - bound) >= 0
+    (Sutherland & Hodgman 1974)."""
+    out = []
+    for i in range(len(poly)):
+        a, b = poly[i], poly[(i + 1) % len(poly)]
+        sa, sb = sign * (a[k] - bound), sign * (b[k] - bound)
+        if sa >= 0.0:
+            out.append(a)
+        if (sa >= 0.0) != (sb >= 0.0):
+            out.append(a + (b - a) * (sa / (sa - sb)))
+    return out
+
+
+def mesh_area_in_box(verts, faces, lo, hi):
+    """Area of the triangles ``verts[faces]`` inside the box [lo, hi]: the triangles wholly
+    inside summed at once, those crossing a face clipped by the box's six half-spaces (a
+    mesh longer than a periodic domain, a vessel cut by the domain box)."""
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    tri = np.asarray(verts, float)[np.asarray(faces)]
+    inside = np.all((tri >= lo) & (tri <= hi), axis=(1, 2))
+    beyond = np.any(np.all(tri < lo, axis=1) | np.all(tri > hi, axis=1), axis=1)
+    t = tri[inside]
+    total = float(0.5 * np.linalg.norm(np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), axis=1).sum())
+    for t in tri[~inside & ~beyond]:
+        poly = list(t)
+        for k in range(3):
+            for bound, sign in ((lo[k], 1.0), (hi[k], -1.0)):
+                if len(poly) >= 3:
+                    poly = _clip(poly, k, bound, sign)
+        if len(poly) >= 3:
+            p = np.array(poly)
+            total += 0.5 * float(np.linalg.norm(np.cross(p[1:-1] - p[0], p[2:] - p[0]).sum(axis=0)))
+    return total
+
+
 def wall_area(w, lo, hi):
     """Area (m^2) of scene wall ``w`` (dem.scene) that particles in the domain box [lo, hi]
-    can touch: a mesh's surface area, a bounded plane's rectangle (one face, 4 e_u e_v), an unbounded plane's section
+    can touch: a mesh's triangles inside the box (at their place at t = 0), a bounded plane's rectangle (one face, 4 e_u e_v), an unbounded plane's section
     of the box, a cylinder's lateral surface 2 pi R L over its length (an unbounded one: over
     the part of its axis inside the box)."""
-    if w["type"] == "mesh":   # the whole surface (a vessel's mesh is the vessel)
-        return float(w["surface"].area)
+    if w["type"] == "mesh":
+        return mesh_area_in_box(w["surface"].verts, w["surface"].faces, lo, hi)
     if w["type"] == "plane":
         ext = w.get("extent")
         if ext is not None:
